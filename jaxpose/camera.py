@@ -1,0 +1,184 @@
+"""Calibrated pinhole cameras: the `Cameras` pytree, projection, undistortion, and the lifter input.
+
+Conventions (DESIGN.md section 2): `x_cam = R @ x_world + t`, t in mm, K the 3x3 intrinsics,
+optional distortion `dist = (k1, k2, p1, p2, k3)`.  Every field carries the same leading axes
+(usually `[B, C]`: sample, view); functions broadcast those axes against the points' leading axes,
+so points of shape `[..., N, 3]` go with cameras of shape `[...]`.
+
+Two distortion models are supported because the real data need both:
+- "opencv": the Brown-Conrady model as OpenCV implements it.
+- "h36m": the variant Human3.6M's calibration was fitted with (DESIGN.md section 6), whose tangential
+  terms differ from OpenCV's; its `dist` holds (k1, k2, p[0], p[1], k3) in the file's order.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+DistortionModel = Literal["opencv", "h36m"]
+
+
+@struct.dataclass
+class Cameras:
+    """A batch of cameras.  K: [..., 3, 3], R: [..., 3, 3], t: [..., 3] (mm), dist: [..., 5] or None."""
+
+    K: jax.Array
+    R: jax.Array
+    t: jax.Array
+    dist: jax.Array | None = None
+    distortion_model: str = struct.field(pytree_node=False, default="opencv")
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return tuple(self.K.shape[:-2])
+
+    def __getitem__(self, index) -> "Cameras":
+        """Index the leading axes of every field, e.g. `cameras[:, 0]` is view 0 of every sample."""
+        return jax.tree.map(lambda field: field[index], self)
+
+    def without_distortion(self) -> "Cameras":
+        return self.replace(dist=None)
+
+
+def camera_centers(cameras: Cameras) -> jax.Array:
+    """Camera centres in world coordinates, `-R^T t`: [..., 3]."""
+    return -jnp.einsum("...ji,...j->...i", cameras.R, cameras.t)
+
+
+def world_to_camera(cameras: Cameras, points_world: jax.Array) -> jax.Array:
+    """[..., N, 3] world points -> [..., N, 3] camera coordinates (mm)."""
+    return jnp.einsum("...ij,...nj->...ni", cameras.R, points_world) + cameras.t[..., None, :]
+
+
+def camera_to_world(cameras: Cameras, points_camera: jax.Array) -> jax.Array:
+    """Inverse of `world_to_camera`."""
+    return jnp.einsum("...ji,...nj->...ni", cameras.R, points_camera - cameras.t[..., None, :])
+
+
+def rotate_between_cameras(source: Cameras, target: Cameras, vectors: jax.Array) -> jax.Array:
+    """Rotate direction vectors [..., N, 3] from `source` camera axes to `target` camera axes.
+
+    Root-relative poses are differences of points, so the translation cancels: R_target R_source^T.
+    """
+    relative = jnp.einsum("...ij,...kj->...ik", target.R, source.R)
+    return jnp.einsum("...ij,...nj->...ni", relative, vectors)
+
+
+def _distort(xy: jax.Array, dist: jax.Array, model: str) -> jax.Array:
+    """Apply lens distortion to normalized image coordinates xy [..., N, 2]."""
+    k1, k2, p1, p2, k3 = (dist[..., None, i] for i in range(5))
+    x, y = xy[..., 0], xy[..., 1]
+    r2 = x * x + y * y
+    radial = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
+    if model == "opencv":
+        x_d = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        y_d = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    elif model == "h36m":
+        tangential = p1 * y + p2 * x
+        x_d = x * (radial + tangential) + p2 * r2
+        y_d = y * (radial + tangential) + p1 * r2
+    else:
+        raise ValueError(f"unknown distortion model {model!r}; expected 'opencv' or 'h36m'")
+    return jnp.stack([x_d, y_d], axis=-1)
+
+
+def _apply_intrinsics(K: jax.Array, xy: jax.Array) -> jax.Array:
+    """Normalized coordinates [..., N, 2] -> pixels through K (skew included)."""
+    homogeneous = jnp.concatenate([xy, jnp.ones_like(xy[..., :1])], axis=-1)
+    return jnp.einsum("...ij,...nj->...ni", K[..., :2, :], homogeneous)
+
+
+def _remove_intrinsics(K: jax.Array, pixels: jax.Array) -> jax.Array:
+    """Pixels [..., N, 2] -> normalized image coordinates, solving the upper-triangular K."""
+    fx, fy, skew = K[..., 0, 0, None], K[..., 1, 1, None], K[..., 0, 1, None]
+    cx, cy = K[..., 0, 2, None], K[..., 1, 2, None]
+    y = (pixels[..., 1] - cy) / fy
+    x = (pixels[..., 0] - cx - skew * y) / fx
+    return jnp.stack([x, y], axis=-1)
+
+
+def project_from_camera(cameras: Cameras, points_camera: jax.Array, min_depth: float = 1.0) -> jax.Array:
+    """Camera-frame points [..., N, 3] (mm) -> pixels [..., N, 2], distortion applied if present.
+
+    Depths below `min_depth` mm are clamped so that a point behind the camera yields a large but
+    finite pixel value (and finite gradients) instead of inf/NaN; the data validation rejects such
+    geometry in the input, this only protects the losses from wild predictions.
+    """
+    depth = jnp.maximum(points_camera[..., 2:3], min_depth)
+    normalized = points_camera[..., :2] / depth
+    if cameras.dist is not None:
+        normalized = _distort(normalized, cameras.dist, cameras.distortion_model)
+    return _apply_intrinsics(cameras.K, normalized)
+
+
+def project(cameras: Cameras, points_world: jax.Array) -> jax.Array:
+    """World points [..., N, 3] (mm) -> pixels [..., N, 2], with distortion if `cameras.dist` is set."""
+    return project_from_camera(cameras, world_to_camera(cameras, points_world))
+
+
+def projection_matrices(cameras: Cameras) -> jax.Array:
+    """Pinhole projection matrices `K [R | t]`: [..., 3, 4] (for undistorted pixels)."""
+    extrinsics = jnp.concatenate([cameras.R, cameras.t[..., :, None]], axis=-1)
+    return cameras.K @ extrinsics
+
+
+def undistort_points(cameras: Cameras, pixels: jax.Array, iterations: int = 20) -> jax.Array:
+    """Distorted pixels [..., N, 2] -> undistorted pixels, by fixed-point iteration (jittable).
+
+    Solves `distort(x) = x_d` with `x <- x_d - (distort(x) - x)`, which converges for the mild
+    distortion of real calibrations (|displacement gradient| < 1 over the image).  Cameras without
+    distortion return the input unchanged.
+    """
+    if cameras.dist is None:
+        return pixels
+    distorted = _remove_intrinsics(cameras.K, pixels)
+
+    def refine(_, estimate):
+        return distorted - (_distort(estimate, cameras.dist, cameras.distortion_model) - estimate)
+
+    undistorted = jax.lax.fori_loop(0, iterations, refine, distorted)
+    return _apply_intrinsics(cameras.K, undistorted)
+
+
+InputNormalization = Literal["intrinsics", "intrinsics_scale"]
+
+
+def normalize_keypoints(
+    keypoints2d: jax.Array,
+    K: jax.Array,
+    confidence: jax.Array | None = None,
+    mode: InputNormalization = "intrinsics_scale",
+    root: int = 0,
+) -> jax.Array:
+    """One view's 2D pose -> the lifter's input: [..., J, 2] (undistorted pixels) -> [..., J, 2].
+
+    1. Through the intrinsics: pixel -> normalized image coordinate K^-1 [u, v, 1].  This removes the
+       focal length, principal point and image size, so a lifter trained on one rig sees the same
+       input distribution on another (pixels would tie it to one camera model).
+    2. Root-relative: the root (pelvis) is moved to the origin, as the paper does.
+    3. With mode "intrinsics_scale", divided by the pose's RMS distance to the root.  What is left of
+       the 2D scale is mostly the subject's distance from the camera, which a root-relative 3D pose
+       does not depend on; removing it lets the model transfer across subject distances and rigs.
+       The 3D output stays metric: the network learns body size from the training poses.
+
+    Joints with confidence 0 are set to 0 (and excluded from the scale), so a missing joint never
+    injects a garbage coordinate.  A pose whose root is missing gives all zeros; callers mask it.
+    """
+    normalized = _remove_intrinsics(K, keypoints2d)
+    relative = normalized - normalized[..., root : root + 1, :]
+    if confidence is None:
+        valid = jnp.ones(keypoints2d.shape[:-1], dtype=keypoints2d.dtype)
+    else:
+        valid = (confidence > 0).astype(keypoints2d.dtype) * (confidence[..., root : root + 1] > 0)
+    relative = relative * valid[..., None]
+    if mode == "intrinsics_scale":
+        count = jnp.maximum(valid.sum(-1, keepdims=True) - 1.0, 1.0)
+        mean_square = (relative**2).sum((-2, -1))[..., None] / count
+        relative = relative / jnp.sqrt(mean_square + 1e-12)[..., None]
+    elif mode != "intrinsics":
+        raise ValueError(f"unknown input normalization {mode!r}; expected 'intrinsics' or 'intrinsics_scale'")
+    return relative

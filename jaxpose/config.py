@@ -1,0 +1,65 @@
+"""The library's configuration dataclasses: model, losses, optimizer.
+
+They live in the library, not in `experiments/`, because a checkpoint must be loadable (the model
+rebuilt from its saved config) by code that knows nothing of the experiments.  The experiments'
+config tree (`experiments.config`) composes them with data, run and parallelism settings.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelConfig:
+    """The lifter (see `jaxpose.model.Lifter`) and how a 2D pose is turned into its input."""
+
+    width: int = 1024
+    """Hidden width of every layer."""
+    stages: int = 2
+    """1 = Martinez et al.'s network; 2 = the authors' encoder + decoder."""
+    blocks_per_stage: int = 2
+    """Residual blocks (two Linear-BatchNorm-ReLU-Dropout layers each) per stage."""
+    dropout_rate: float = 0.5
+    """Dropout probability after every hidden layer (0 disables it)."""
+    use_batchnorm: bool = True
+    """BatchNorm after every hidden Linear layer."""
+    input_normalization: Literal["intrinsics", "intrinsics_scale"] = "intrinsics_scale"
+    """2D input: through K^-1 and root-relative ("intrinsics"), then scaled to unit RMS ("intrinsics_scale")."""
+
+
+@dataclasses.dataclass(frozen=True)
+class LossConfig:
+    """Loss weights (paper defaults), the output-triangulation schedule, and the supervision mode."""
+
+    input_triangulation: float = 1.0
+    """omega_1: pseudo-label (input triangulation) term, metres^2."""
+    reprojection: float = 1.0
+    """omega_2: re-projection term, focal-normalized image units."""
+    consistency: float = 0.001
+    """omega_3: cross-view consistency term, metres."""
+    output_triangulation: float = 0.01
+    """omega_4: output triangulation term, metres^2."""
+    output_triangulation_start: float = 0.9
+    """Fraction of training after which the output triangulation term is switched on (paper: last 10%)."""
+    triangulation: Literal["svd", "eigh", "normal"] = "svd"
+    """Solver of the output triangulation inside the train step (see jaxpose.triangulation)."""
+    supervision: Literal["self", "full"] = "self"
+    """"self": the four geometric losses; "full": L2 to the 3D ground truth (the supervised upper bound)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class OptimizerConfig:
+    """Adam with an optional learning-rate schedule."""
+
+    learning_rate: float = 1e-3
+    """Peak learning rate (paper: 1e-3)."""
+    schedule: Literal["constant", "cosine"] = "constant"
+    """"constant" (paper) or "cosine" decay to `final_learning_fraction` of the peak."""
+    warmup_steps: int = 0
+    """Linear warm-up steps before the schedule."""
+    final_learning_fraction: float = 0.01
+    """With "cosine": the final learning rate as a fraction of the peak."""
+    gradient_clip_norm: float = 0.0
+    """Clip the global gradient norm to this value (0 = no clipping)."""

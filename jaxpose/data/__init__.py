@@ -1,0 +1,16 @@
+"""Multi-view data: the batch contract, the in-memory data set, and the loaders."""
+
+from jaxpose.data.batch import BatchValidationError, MultiViewBatch, validate_batch, validate_cameras
+from jaxpose.data.dataset import MultiViewDataset, concatenate, epoch_order, steps_per_epoch, training_batches
+
+__all__ = [
+    "BatchValidationError",
+    "MultiViewBatch",
+    "MultiViewDataset",
+    "concatenate",
+    "epoch_order",
+    "steps_per_epoch",
+    "training_batches",
+    "validate_batch",
+    "validate_cameras",
+]

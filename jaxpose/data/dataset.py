@@ -1,0 +1,204 @@
+"""An in-memory multi-view data set and its batching.
+
+Every loader (synthetic, Human3.6M, HumanEva-I, MPI-INF-3DHP) returns a `MultiViewDataset`: numpy
+arrays with one row per synchronized instant, so shuffling moves whole multi-view samples and can
+never mix views of different instants (the authors' release recovered views by reshaping rows).
+Cameras are stored once per rig (a subject's calibration) and gathered per batch by `rig_index`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator, Mapping
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpose.camera import Cameras, projection_matrices, undistort_points
+from jaxpose.data.batch import MultiViewBatch
+from jaxpose.skeleton import Skeleton
+from jaxpose.triangulation import Method, triangulate
+
+
+@dataclasses.dataclass(frozen=True)
+class MultiViewDataset:
+    """N instants, C views, J joints; all arrays numpy float32 unless said otherwise.
+
+    keypoints2d f32[N, C, J, 2] pixels; confidence f32[N, C, J]; rigs: `Cameras` of numpy arrays
+    with leading [R, C]; rig_index i32[N]; target3d f32[N, J, 3] world mm or None; pseudo3d and
+    pseudo3d_weight (f32[N, J, 3], f32[N, J]) once `with_pseudo_labels` has run; labels: per-sample
+    string/int arrays such as "subject", "action", "frame" used to group evaluation results.
+    """
+
+    skeleton: Skeleton
+    keypoints2d: np.ndarray
+    confidence: np.ndarray
+    rigs: Cameras
+    rig_index: np.ndarray
+    target3d: np.ndarray | None = None
+    pseudo3d: np.ndarray | None = None
+    pseudo3d_weight: np.ndarray | None = None
+    labels: Mapping[str, np.ndarray] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self):
+        N, C, J, two = self.keypoints2d.shape
+        if two != 2 or J != self.skeleton.num_joints:
+            raise ValueError(
+                f"keypoints2d: expected (N, C, {self.skeleton.num_joints}, 2) for skeleton {self.skeleton.name},"
+                f" got {self.keypoints2d.shape}"
+            )
+        expected = {
+            "confidence": (self.confidence, (N, C, J)),
+            "rig_index": (self.rig_index, (N,)),
+            "target3d": (self.target3d, (N, J, 3)),
+            "pseudo3d": (self.pseudo3d, (N, J, 3)),
+            "pseudo3d_weight": (self.pseudo3d_weight, (N, J)),
+        }
+        for name, (array, shape) in expected.items():
+            if array is not None and array.shape != shape:
+                raise ValueError(f"{name}: expected shape {shape}, got {array.shape}")
+        if self.rigs.K.shape[1] != C:
+            raise ValueError(f"rigs: {self.rigs.K.shape[1]} views per rig but keypoints2d has C={C}")
+        if N and (self.rig_index.min() < 0 or self.rig_index.max() >= self.rigs.K.shape[0]):
+            raise ValueError(f"rig_index: values must lie in [0, {self.rigs.K.shape[0]}), got {self.rig_index.max()}")
+        for name, values in self.labels.items():
+            if len(values) != N:
+                raise ValueError(f"labels[{name!r}]: {len(values)} entries for {N} samples")
+
+    def __len__(self) -> int:
+        return self.keypoints2d.shape[0]
+
+    @property
+    def num_views(self) -> int:
+        return self.keypoints2d.shape[1]
+
+    def subset(self, indices: np.ndarray) -> "MultiViewDataset":
+        def take(array):
+            return None if array is None else array[indices]
+
+        return dataclasses.replace(
+            self,
+            keypoints2d=self.keypoints2d[indices],
+            confidence=self.confidence[indices],
+            rig_index=self.rig_index[indices],
+            target3d=take(self.target3d),
+            pseudo3d=take(self.pseudo3d),
+            pseudo3d_weight=take(self.pseudo3d_weight),
+            labels={name: values[indices] for name, values in self.labels.items()},
+        )
+
+    def where(self, **label_values) -> "MultiViewDataset":
+        """The samples whose labels are in the given values, e.g. `where(subject=["S9", "S11"])`."""
+        keep = np.ones(len(self), dtype=bool)
+        for name, values in label_values.items():
+            keep &= np.isin(self.labels[name], np.asarray(values))
+        return self.subset(np.flatnonzero(keep))
+
+    def cameras_for(self, indices: np.ndarray) -> Cameras:
+        return jax.tree.map(lambda field: field[self.rig_index[indices]], self.rigs)
+
+    def batch(self, indices: np.ndarray) -> MultiViewBatch:
+        """Gather samples into a `MultiViewBatch` of numpy arrays (vectorized, no per-sample loop)."""
+        if self.pseudo3d is None:
+            raise ValueError("dataset has no pseudo-labels yet: call with_pseudo_labels() first")
+        return MultiViewBatch(
+            keypoints2d=self.keypoints2d[indices],
+            confidence=self.confidence[indices],
+            cameras=self.cameras_for(indices),
+            pseudo3d=self.pseudo3d[indices],
+            pseudo3d_weight=self.pseudo3d_weight[indices],
+            target3d=None if self.target3d is None else self.target3d[indices],
+        )
+
+    def undistorted(self) -> "MultiViewDataset":
+        """Undistort the detections once on load and drop the distortion from the rigs.
+
+        Everything downstream (triangulation, losses, the lifter input) is then pinhole, and no
+        training step repeats the iterative undistortion.
+        """
+        if self.rigs.dist is None:
+            return self
+        cameras = self.cameras_for(np.arange(len(self)))
+        points = np.asarray(jax.jit(undistort_points)(cameras, jnp.asarray(self.keypoints2d)))
+        return dataclasses.replace(self, keypoints2d=points.astype(np.float32), rigs=self.rigs.without_distortion())
+
+    def with_pseudo_labels(
+        self, method: Method = "svd", min_views: int = 2, chunk_size: int = 65536
+    ) -> "MultiViewDataset":
+        """Triangulate the detections of all views once (the input triangulation, paper Eq. 2).
+
+        Views weigh in by detector confidence (0 drops a view); a joint seen by fewer than
+        `min_views` views gets pseudo3d_weight 0.  Robust alternatives: `jaxpose.robust`.
+        """
+        dataset = self.undistorted()
+        solve = jax.jit(lambda P, points, weights: triangulate(P, points, weights, method))
+        pseudo3d = np.empty((len(dataset), dataset.skeleton.num_joints, 3), np.float32)
+        for start in range(0, len(dataset), chunk_size):
+            rows = np.arange(start, min(start + chunk_size, len(dataset)))
+            P = projection_matrices(dataset.cameras_for(rows))
+            pseudo3d[rows] = np.asarray(
+                solve(P, jnp.asarray(dataset.keypoints2d[rows]), jnp.asarray(dataset.confidence[rows]))
+            )
+        views = (dataset.confidence > 0).sum(1)
+        weight = (views >= min_views).astype(np.float32)
+        return dataclasses.replace(dataset, pseudo3d=pseudo3d, pseudo3d_weight=weight)
+
+
+def concatenate(datasets: list[MultiViewDataset]) -> MultiViewDataset:
+    """Join data sets of one skeleton and view count; their rigs are stacked and re-indexed."""
+    if not datasets:
+        raise ValueError("concatenate: no data sets given")
+    first = datasets[0]
+    for other in datasets[1:]:
+        if other.skeleton != first.skeleton or other.num_views != first.num_views:
+            raise ValueError("concatenate: data sets differ in skeleton or number of views")
+        if (other.rigs.dist is None) != (first.rigs.dist is None) or (
+            other.rigs.distortion_model != first.rigs.distortion_model
+        ):
+            raise ValueError("concatenate: data sets differ in their distortion model")
+
+    def join(name):
+        arrays = [getattr(d, name) for d in datasets]
+        return None if any(a is None for a in arrays) else np.concatenate(arrays)
+
+    offsets = np.cumsum([0] + [d.rigs.K.shape[0] for d in datasets[:-1]])
+    rigs = jax.tree.map(lambda *fields: np.concatenate(fields), *[d.rigs for d in datasets])
+    label_names = set.intersection(*(set(d.labels) for d in datasets))
+    return MultiViewDataset(
+        skeleton=first.skeleton,
+        keypoints2d=join("keypoints2d"),
+        confidence=join("confidence"),
+        rigs=rigs,
+        rig_index=np.concatenate([d.rig_index + o for d, o in zip(datasets, offsets)]).astype(np.int32),
+        target3d=join("target3d"),
+        pseudo3d=join("pseudo3d"),
+        pseudo3d_weight=join("pseudo3d_weight"),
+        labels={name: np.concatenate([d.labels[name] for d in datasets]) for name in sorted(label_names)},
+    )
+
+
+def epoch_order(num_samples: int, seed: int, epoch: int) -> np.ndarray:
+    """The sample order of one epoch: a pure function of (seed, epoch), so a resumed run replays it."""
+    return np.random.default_rng([seed, epoch]).permutation(num_samples)
+
+
+def steps_per_epoch(num_samples: int, batch_size: int) -> int:
+    """Full batches per epoch (the remainder is dropped so every step has one shape: one compile)."""
+    if num_samples < batch_size:
+        raise ValueError(f"batch size {batch_size} is larger than the training set ({num_samples} samples)")
+    return num_samples // batch_size
+
+
+def training_batches(
+    dataset: MultiViewDataset, batch_size: int, seed: int, start_step: int = 0
+) -> Iterator[tuple[int, MultiViewBatch]]:
+    """Endless (step, batch) stream from `start_step` on; shuffles whole samples every epoch."""
+    per_epoch = steps_per_epoch(len(dataset), batch_size)
+    step = start_step
+    while True:
+        epoch, offset = divmod(step, per_epoch)
+        order = epoch_order(len(dataset), seed, epoch)
+        for position in range(offset, per_epoch):
+            yield step, dataset.batch(order[position * batch_size : (position + 1) * batch_size])
+            step += 1

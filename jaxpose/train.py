@@ -1,0 +1,168 @@
+"""The train state, ONE jitted `train_step`, and single-view prediction.
+
+`train_step(state, batch, key)` runs the lifter on all C views of every sample as one batch of
+B*C poses (so BatchNorm sees all views), evaluates the four losses, and applies the Adam update and
+the BatchNorm statistics update, all inside one `jax.jit` with the state donated.  Dropout keys are
+`fold_in(key, step)`, so a resumed run draws exactly the masks an uninterrupted one would.  The
+output-triangulation weight is a function of the traced step, so switching it on in the last 10%
+of training does not recompile.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from jaxpose.camera import normalize_keypoints
+from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
+from jaxpose.data.batch import MultiViewBatch
+from jaxpose.losses import LossWeights, input_triangulation_loss, total_loss
+from jaxpose.model import Lifter
+
+
+@struct.dataclass
+class TrainState:
+    step: jax.Array
+    params: Any
+    batch_stats: Any
+    opt_state: Any
+
+    @property
+    def variables(self) -> dict[str, Any]:
+        return {"params": self.params, "batch_stats": self.batch_stats}
+
+
+def build_model(config: ModelConfig, num_joints: int) -> Lifter:
+    return Lifter(
+        num_joints=num_joints,
+        width=config.width,
+        stages=config.stages,
+        blocks_per_stage=config.blocks_per_stage,
+        dropout_rate=config.dropout_rate,
+        use_batchnorm=config.use_batchnorm,
+    )
+
+
+def learning_rate_schedule(config: OptimizerConfig, total_steps: int) -> optax.Schedule:
+    if config.schedule == "constant":
+        main = optax.constant_schedule(config.learning_rate)
+    elif config.schedule == "cosine":
+        main = optax.cosine_decay_schedule(
+            config.learning_rate, max(total_steps - config.warmup_steps, 1), alpha=config.final_learning_fraction
+        )
+    else:
+        raise ValueError(f"unknown learning-rate schedule {config.schedule!r}")
+    if config.warmup_steps <= 0:
+        return main
+    warmup = optax.linear_schedule(0.0, config.learning_rate, config.warmup_steps)
+    return optax.join_schedules([warmup, main], [config.warmup_steps])
+
+
+def make_optimizer(config: OptimizerConfig, total_steps: int) -> optax.GradientTransformation:
+    adam = optax.adam(learning_rate_schedule(config, total_steps))
+    if config.gradient_clip_norm > 0:
+        return optax.chain(optax.clip_by_global_norm(config.gradient_clip_norm), adam)
+    return adam
+
+
+def init_train_state(model: Lifter, optimizer: optax.GradientTransformation, key: jax.Array) -> TrainState:
+    dummy = jnp.zeros((2, model.num_joints, 2), jnp.float32)
+    variables = model.init({"params": key}, dummy, train=False)
+    params = variables["params"]
+    return TrainState(
+        step=jnp.zeros((), jnp.int32),
+        params=params,
+        batch_stats=variables.get("batch_stats", {}),
+        opt_state=optimizer.init(params),
+    )
+
+
+def lifter_inputs(batch: MultiViewBatch, mode: str) -> jax.Array:
+    """The lifter input of every view, [B, C, J, 2] (detections must be undistorted pixels)."""
+    return normalize_keypoints(batch.keypoints2d, batch.cameras.K, batch.confidence, mode)
+
+
+def output_triangulation_start_step(loss: LossConfig, total_steps: int) -> int:
+    return int(round(loss.output_triangulation_start * total_steps))
+
+
+def make_loss_fn(
+    model: Lifter, model_config: ModelConfig, loss: LossConfig, output_start_step: int
+) -> Callable[..., tuple[jax.Array, tuple[dict[str, jax.Array], Any]]]:
+    """loss_fn(params, batch_stats, batch, dropout_key, step) -> (loss, (metrics, new batch_stats))."""
+
+    def loss_fn(params, batch_stats, batch: MultiViewBatch, dropout_key, step):
+        inputs = lifter_inputs(batch, model_config.input_normalization)
+        pred, updates = model.apply(
+            {"params": params, "batch_stats": batch_stats},
+            inputs,
+            train=True,
+            rngs={"dropout": dropout_key},
+            mutable=["batch_stats"],
+        )
+        if loss.supervision == "full":
+            supervised = batch.replace(pseudo3d=batch.target3d, pseudo3d_weight=None)
+            value = input_triangulation_loss(pred, supervised)
+            metrics = {"supervised": value}
+        else:
+            output_weight = jnp.where(step >= output_start_step, loss.output_triangulation, 0.0)
+            weights = LossWeights(
+                input_triangulation=loss.input_triangulation,
+                reprojection=loss.reprojection,
+                consistency=loss.consistency,
+                output_triangulation=output_weight,
+            )
+            value, metrics = total_loss(pred, batch, weights, loss.triangulation)
+            metrics = dict(metrics, output_triangulation_weight=output_weight)
+        return value, (metrics, updates.get("batch_stats", batch_stats))
+
+    return loss_fn
+
+
+def make_train_step(
+    model: Lifter,
+    model_config: ModelConfig,
+    optimizer: optax.GradientTransformation,
+    loss: LossConfig,
+    total_steps: int,
+) -> Callable[[TrainState, MultiViewBatch, jax.Array], tuple[TrainState, dict[str, jax.Array]]]:
+    """The pure train step (un-jitted; see `jit_train_step`)."""
+    if loss.supervision not in ("self", "full"):
+        raise ValueError(f"unknown supervision {loss.supervision!r}; expected 'self' or 'full'")
+    loss_fn = make_loss_fn(model, model_config, loss, output_triangulation_start_step(loss, total_steps))
+    grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
+
+    def train_step(state: TrainState, batch: MultiViewBatch, key: jax.Array):
+        if loss.supervision == "full" and batch.target3d is None:
+            raise ValueError("supervision='full' needs batch.target3d")
+        dropout_key = jax.random.fold_in(key, state.step)
+        (value, (metrics, batch_stats)), grads = grad_fn(state.params, state.batch_stats, batch, dropout_key, state.step)
+        updates, opt_state = optimizer.update(grads, state.opt_state, state.params)
+        params = optax.apply_updates(state.params, updates)
+        metrics = dict(metrics, loss=value, grad_norm=optax.global_norm(grads))
+        new_state = TrainState(step=state.step + 1, params=params, batch_stats=batch_stats, opt_state=opt_state)
+        return new_state, metrics
+
+    return train_step
+
+
+def jit_train_step(train_step: Callable) -> Callable:
+    """`jax.jit` with the state donated: its buffers are reused for the new state."""
+    return jax.jit(train_step, donate_argnums=0)
+
+
+def make_predict_fn(model: Lifter, model_config: ModelConfig) -> Callable[..., jax.Array]:
+    """Jitted single-view inference (the eval step):
+    predict(variables, keypoints2d [N, J, 2] undistorted px, K [N, 3, 3], confidence [N, J]) -> [N, J, 3] mm."""
+
+    @jax.jit
+    def predict(variables, keypoints2d, K, confidence):
+        inputs = normalize_keypoints(keypoints2d, K, confidence, model_config.input_normalization)
+        return model.apply(variables, inputs, train=False)
+
+    return predict

@@ -1,0 +1,304 @@
+"""Matplotlib figures of skeletons for experiment reports and notebooks.
+
+Figures are built with `matplotlib.figure.Figure`, not pyplot: no global state, no display needed,
+nothing is ever shown; the caller saves them (`save_figure`) or lets a notebook render them.
+
+Conventions (DESIGN.md section 2): 2D keypoints in pixels, image y pointing down; 3D poses in mm in
+a camera frame (x right, y down, z forward).  3D panels plot (x, z, -y), so the person stands
+upright and depth goes into the screen, with equal scale on all axes.  Bones are coloured by the
+side of their child joint, read from the skeleton's (left, right) pairs: left LEFT_COLOR, right
+RIGHT_COLOR, the rest (spine, head, root) CENTER_COLOR.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from matplotlib import animation
+from matplotlib import pyplot as plt
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.ticker import MaxNLocator
+
+from jaxpose.skeleton import Skeleton
+
+LEFT_COLOR = "tab:blue"
+RIGHT_COLOR = "tab:red"
+CENTER_COLOR = "0.25"
+# Ground truth under a prediction: one neutral dashed colour, so the prediction keeps the side colours.
+GT_STYLE = {"color": "0.55", "linestyle": "--", "linewidth": 1.5, "marker": ""}
+# Thin and dotted with small crosses at the joints, so the detections stay visible underneath.
+REPROJECTION_STYLE = {"color": "black", "linestyle": ":", "linewidth": 1.0, "marker": "x", "markersize": 3.0}
+# A three-quarter view from slightly above and behind the camera.
+VIEW_3D = {"elev": 12.0, "azim": -70.0}
+
+
+def _as_array(values, shape: tuple[int | None, ...], name: str) -> np.ndarray:
+    """`values` as a float array of `shape` (None = any size), or a ValueError naming it."""
+    array = np.asarray(values, dtype=np.float64)
+    if array.ndim != len(shape) or any(e is not None and e != g for e, g in zip(shape, array.shape)):
+        expected = tuple("*" if e is None else e for e in shape)
+        raise ValueError(f"{name}: expected shape {expected}, got {array.shape}")
+    return array
+
+
+def _joint_colors(skeleton: Skeleton) -> np.ndarray:
+    colors = np.full(skeleton.num_joints, CENTER_COLOR, dtype=object)
+    for left, right in skeleton.left_right_pairs:
+        colors[left], colors[right] = LEFT_COLOR, RIGHT_COLOR
+    return colors
+
+
+def _draw_bones(ax: Axes, points: np.ndarray, skeleton: Skeleton, drawn: np.ndarray, style: dict) -> list[Line2D]:
+    """One line per bone whose two joints are `drawn`, in `skeleton.bones` order.
+
+    Coloured by side unless `style` sets a colour.
+    """
+    colors = _joint_colors(skeleton)
+    lines = []
+    for child, parent in skeleton.bones:
+        if drawn[child] and drawn[parent]:
+            # Axes.plot takes (x, y) and Axes3D.plot (x, y, z): one column per coordinate.
+            lines += ax.plot(*points[[parent, child]].T, **{"color": colors[child], "linewidth": 2.0, **style})
+    return lines
+
+
+def _to_display(points: np.ndarray) -> np.ndarray:
+    """Camera-frame (x, y, z) -> plotted (x, z, -y): y points down in the camera, up on screen."""
+    return np.stack([points[..., 0], points[..., 2], -points[..., 1]], axis=-1)
+
+
+def _fit_cube(ax, points: np.ndarray, keep_existing: bool) -> None:
+    """Equal-scale cubic limits around the finite `points` (plotted coordinates).
+
+    With `keep_existing`, the cube also covers the current limits (an overlay on a drawn pose).
+    """
+    finite = points[np.isfinite(points).all(axis=-1)]
+    if finite.size == 0:
+        return
+    center = (finite.min(axis=0) + finite.max(axis=0)) / 2
+    # 10% margin, and at least 1 mm, so a single point still gets a box.
+    half = max(np.ptp(finite, axis=0).max() / 2 * 1.1, 1.0)
+    low, high = center - half, center + half
+    if keep_existing:
+        current = np.array([ax.get_xlim3d(), ax.get_ylim3d(), ax.get_zlim3d()])
+        low, high = np.minimum(low, current[:, 0]), np.maximum(high, current[:, 1])
+        center, half = (low + high) / 2, (high - low).max() / 2
+    ax.set_xlim3d(center[0] - half, center[0] + half)
+    ax.set_ylim3d(center[1] - half, center[1] + half)
+    ax.set_zlim3d(center[2] - half, center[2] + half)
+    ax.set_box_aspect((1.0, 1.0, 1.0))
+
+
+def plot_pose_2d(
+    ax: Axes, keypoints, skeleton: Skeleton, confidence=None, joint_size: float = 12.0, **style
+) -> list[Line2D]:
+    """Draw 2D keypoints [J, 2] (pixels) on image axes: bones as lines, joints as dots of area `joint_size` (0: none).
+
+    Joints with confidence <= 0 or non-finite coordinates are not drawn, nor are their bones.
+    `style`: Line2D properties for the bones (a `color` also colours the dots).  Makes the axes
+    equal-aspect with y pointing down, as in the image.  Returns the bone lines.
+    """
+    keypoints = _as_array(keypoints, (skeleton.num_joints, 2), "keypoints")
+    visible = np.isfinite(keypoints).all(axis=-1)
+    if confidence is not None:
+        visible &= _as_array(confidence, (skeleton.num_joints,), "confidence") > 0
+    lines = _draw_bones(ax, keypoints, skeleton, visible, style)
+    if joint_size > 0:
+        dot_colors = style.get("color", list(_joint_colors(skeleton)[visible]))
+        ax.scatter(
+            keypoints[visible, 0], keypoints[visible, 1], s=joint_size, c=dot_colors, alpha=style.get("alpha"), zorder=3
+        )
+    ax.set_aspect("equal")
+    if not ax.yaxis_inverted():  # invert_yaxis toggles, so guard repeated calls
+        ax.invert_yaxis()
+    return lines
+
+
+def plot_pose_3d(ax, pose, skeleton: Skeleton, **style) -> list[Line2D]:
+    """Draw a 3D pose [J, 3] (mm, camera frame) on 3D axes, upright, at equal scale.
+
+    Every bone gets a line, in `skeleton.bones` order (a bone with a non-finite joint is an empty
+    line), so callers can animate them.  `style`: Line2D properties.  Calling it again on the same
+    axes (e.g. ground truth then prediction) grows the limits to fit both.  Returns the bone lines.
+    """
+    pose = _as_array(pose, (skeleton.num_joints, 3), "pose")
+    points = _to_display(pose)
+    had_data = ax.has_data()
+    every_joint = np.ones(skeleton.num_joints, bool)
+    lines = _draw_bones(ax, points, skeleton, every_joint, {"marker": "o", "markersize": 2.5, **style})
+    _fit_cube(ax, points, keep_existing=had_data)
+    ax.set_xlabel("x (mm)", fontsize=7)
+    ax.set_ylabel("z (mm)", fontsize=7)
+    ax.set_zlabel("-y (mm)", fontsize=7)
+    ax.tick_params(labelsize=6)
+    for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+        axis.set_major_locator(MaxNLocator(4))  # the default crowds the tick labels of small panels
+    return lines
+
+
+def _add_3d_axes(fig: Figure, *subplot_spec):
+    ax = fig.add_subplot(*subplot_spec, projection="3d")
+    ax.view_init(**VIEW_3D)
+    return ax
+
+
+def _set_image_size(ax: Axes, image_size: tuple[int, int] | None) -> None:
+    """Frame the whole image, (width, height) in pixels, y down; None keeps the autoscaled limits."""
+    if image_size is not None:
+        width, height = image_size
+        ax.set_xlim(0, width)
+        ax.set_ylim(height, 0)
+
+
+def _side_legend(ax: Axes, extra: tuple[tuple[str, dict], ...] = ()) -> None:
+    """Legend of the side colours plus `extra` (label, line style) entries."""
+    entries = (("left", {"color": LEFT_COLOR}), ("right", {"color": RIGHT_COLOR}), ("centre", {"color": CENTER_COLOR}))
+    handles = [Line2D([], [], **{"linewidth": 2.0, **style}, label=label) for label, style in entries + extra]
+    ax.legend(handles=handles, fontsize=7, loc="upper left", framealpha=0.8)
+
+
+def figure_lifting(
+    keypoints2d, pose3d, skeleton: Skeleton, image_size: tuple[int, int] | None = None, title: str | None = None,
+    confidence=None,
+) -> Figure:
+    """The 2D detection [J, 2] beside the lifted 3D pose [J, 3]; `image_size` = (width, height) pixels."""
+    fig = Figure(figsize=(9.0, 4.5), layout="constrained")
+    ax2d = fig.add_subplot(1, 2, 1)
+    plot_pose_2d(ax2d, keypoints2d, skeleton, confidence)
+    _set_image_size(ax2d, image_size)
+    ax2d.set_title("2D detection (px)", fontsize=9)
+    _side_legend(ax2d)
+    ax3d = _add_3d_axes(fig, 1, 2, 2)
+    plot_pose_3d(ax3d, pose3d, skeleton)
+    ax3d.set_title("lifted 3D pose (mm)", fontsize=9)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def figure_gt_vs_prediction(gt, pred, skeleton: Skeleton, titles=None, max_samples: int = 4) -> Figure:
+    """A row of 3D panels, one per sample (the first `max_samples`), ground truth dashed grey under the prediction.
+
+    gt, pred: [N, J, 3] mm; any alignment (root, Procrustes) is the caller's.  `titles`: one per sample.
+    """
+    gt = _as_array(gt, (None, skeleton.num_joints, 3), "gt")
+    pred = _as_array(pred, gt.shape, "pred")
+    count = min(len(gt), max_samples)
+    if count < 1:
+        raise ValueError(f"figure_gt_vs_prediction: nothing to draw ({len(gt)} samples, max_samples={max_samples})")
+    fig = Figure(figsize=(3.8 * count, 3.8), layout="constrained")
+    for i in range(count):
+        ax = _add_3d_axes(fig, 1, count, i + 1)
+        plot_pose_3d(ax, gt[i], skeleton, **GT_STYLE)
+        plot_pose_3d(ax, pred[i], skeleton)
+        ax.set_title(titles[i] if titles is not None else f"sample {i}", fontsize=9)
+    _side_legend(fig.axes[0], (("ground truth", GT_STYLE),))
+    return fig
+
+
+def figure_multiview_sample(
+    keypoints2d, confidence, projections_of_triangulation, predictions, skeleton: Skeleton,
+    image_size: tuple[int, int] | None = None,
+) -> Figure:
+    """One column per view: the detections [C, J, 2] (confidence [C, J]; 0 = not drawn) with the
+    triangulation re-projected [C, J, 2] dotted black, and below, when given, that view's predicted
+    pose [C, J, 3] in its camera frame.  Either optional input may be None.
+    """
+    keypoints2d = _as_array(keypoints2d, (None, skeleton.num_joints, 2), "keypoints2d")
+    views = len(keypoints2d)
+    confidence = _as_array(confidence, keypoints2d.shape[:2], "confidence")
+    rows = 1 if predictions is None else 2
+    fig = Figure(figsize=(3.4 * views, 3.4 * rows), layout="constrained")
+    if projections_of_triangulation is not None:
+        projections_of_triangulation = _as_array(
+            projections_of_triangulation, keypoints2d.shape, "projections_of_triangulation"
+        )
+    if predictions is not None:
+        predictions = _as_array(predictions, (views, skeleton.num_joints, 3), "predictions")
+    for view in range(views):
+        ax = fig.add_subplot(rows, views, view + 1)
+        plot_pose_2d(ax, keypoints2d[view], skeleton, confidence[view])
+        if projections_of_triangulation is not None:
+            plot_pose_2d(ax, projections_of_triangulation[view], skeleton, joint_size=0.0, **REPROJECTION_STYLE)
+        _set_image_size(ax, image_size)
+        ax.set_title(f"view {view}: detections (px)", fontsize=9)
+        if predictions is not None:
+            ax3d = _add_3d_axes(fig, rows, views, views + view + 1)
+            plot_pose_3d(ax3d, predictions[view], skeleton)
+            ax3d.set_title(f"view {view}: prediction (mm)", fontsize=9)
+    extra = (("triangulation re-projected", REPROJECTION_STYLE),) if projections_of_triangulation is not None else ()
+    _side_legend(fig.axes[0], extra)
+    return fig
+
+
+def figure_loss_curves(
+    history: dict[str, list[tuple[int, float]]], log_y: bool = True, overlay: bool = False
+) -> Figure:
+    """Loss terms against the step: one panel per term, or all on one panel if `overlay`.
+
+    history: term name -> [(step, value), ...].  The y axis is logarithmic when `log_y` and every
+    finite value on the panel is positive; otherwise linear (e.g. a loss that can go negative).
+    """
+    if not history:
+        raise ValueError("figure_loss_curves: history is empty")
+    terms = list(history.items())
+    panels = [terms] if overlay else [[term] for term in terms]
+    columns = min(len(panels), 3)
+    rows = math.ceil(len(panels) / columns)
+    fig = Figure(figsize=(4.0 * columns, 3.0 * rows), layout="constrained")
+    for i, panel in enumerate(panels):
+        ax = fig.add_subplot(rows, columns, i + 1)
+        values_on_panel = []
+        for name, points in panel:
+            steps_values = np.asarray(points, np.float64).reshape(-1, 2)  # reshape: an empty list too
+            ax.plot(steps_values[:, 0], steps_values[:, 1], label=name, linewidth=1.2)
+            values_on_panel.append(steps_values[:, 1])
+        values = np.concatenate(values_on_panel)
+        finite = values[np.isfinite(values)]
+        if log_y and finite.size and (finite > 0).all():
+            ax.set_yscale("log")
+        ax.set_xlabel("step")
+        ax.grid(True, alpha=0.3)
+        if overlay:
+            ax.legend(fontsize=8)
+        else:
+            name, points = panel[0]
+            ax.set_title(name if points else f"{name} (no data)", fontsize=9)
+    return fig
+
+
+def save_sequence_gif(poses, skeleton: Skeleton, path, fps: int = 10) -> Path:
+    """Animate a 3D pose sequence [T, J, 3] (mm, camera frame) to a GIF at `path`; returns the path.
+
+    The limits are fixed over the whole sequence, so motion is not hidden by rescaling.
+    """
+    poses = _as_array(poses, (None, skeleton.num_joints, 3), "poses")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    points = _to_display(poses)
+    fig = Figure(figsize=(4.0, 4.0), dpi=80)
+    ax = _add_3d_axes(fig, 1, 1, 1)
+    lines = plot_pose_3d(ax, poses[0], skeleton)
+    _fit_cube(ax, points.reshape(-1, 3), keep_existing=False)
+
+    def draw_frame(t: int) -> list[Line2D]:
+        for line, (child, parent) in zip(lines, skeleton.bones):
+            line.set_data_3d(*points[t, [parent, child]].T)
+        ax.set_title(f"frame {t}", fontsize=9)
+        return lines
+
+    animation.FuncAnimation(fig, draw_frame, frames=len(poses)).save(path, writer=animation.PillowWriter(fps=fps))
+    return path
+
+
+def save_figure(fig: Figure, path, dpi: int = 150) -> Path:
+    """Save `fig` as PNG (creating the folder) and close it, so report loops do not accumulate figures."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi, format="png", bbox_inches="tight")
+    plt.close(fig)  # releases pyplot-made figures; a no-op for the plain Figures built here
+    return path

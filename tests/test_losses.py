@@ -1,0 +1,102 @@
+"""The four geometric losses: zero at the truth, growing under perturbation, finite gradients."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from geometry_helpers import exact_batch
+
+from jaxpose import losses
+from jaxpose.losses import LossWeights, total_loss
+
+LOSS_FUNCTIONS = {
+    "input_triangulation": losses.input_triangulation_loss,
+    "reprojection": losses.reprojection_loss,
+    "consistency": losses.consistency_loss,
+    "output_triangulation": losses.output_triangulation_loss,
+}
+
+
+def _perturbation(rng, shape, scale_mm):
+    noise = jnp.asarray(rng.normal(0, scale_mm, shape), jnp.float32)
+    return noise.at[..., 0, :].set(0.0)  # the lifter output keeps its root at zero
+
+
+@pytest.mark.parametrize("name", sorted(LOSS_FUNCTIONS))
+def test_loss_vanishes_at_truth_and_grows_under_perturbation(name):
+    rng = np.random.default_rng(0)
+    batch, truth = exact_batch(rng, 6, 4, 17)
+    loss_fn = jax.jit(LOSS_FUNCTIONS[name])
+    at_truth = float(loss_fn(truth, batch))
+    perturbed = [float(loss_fn(truth + _perturbation(rng, truth.shape, s), batch)) for s in (10.0, 40.0)]
+    assert at_truth < 1e-3 * perturbed[0], (at_truth, perturbed)
+    assert perturbed[1] > perturbed[0] > 0
+    gradient = jax.grad(loss_fn)(truth + _perturbation(rng, truth.shape, 10.0), batch)
+    assert np.isfinite(np.asarray(gradient)).all() and float(jnp.abs(gradient).sum()) > 0
+
+
+def test_output_triangulation_of_consistent_predictions_is_the_truth():
+    rng = np.random.default_rng(1)
+    batch, truth = exact_batch(rng, 4, 3, 16)
+    np.testing.assert_allclose(losses.output_triangulation(truth, batch), batch.pseudo3d, atol=0.1)
+
+
+def test_consistency_gradient_flows_only_into_the_transformed_view():
+    # View c is the target ("ground truth") for view c': with 2 views, perturbing view 0 changes
+    # the gradient of view 0 only through the pair where view 0 is the source.
+    rng = np.random.default_rng(2)
+    batch, truth = exact_batch(rng, 2, 2, 15)
+    pred = truth + _perturbation(rng, truth.shape, 20.0)
+    gradient = jax.grad(losses.consistency_loss)(pred, batch)
+    assert float(jnp.abs(gradient[:, 0]).sum()) > 0 and float(jnp.abs(gradient[:, 1]).sum()) > 0
+
+
+def test_total_loss_is_the_weighted_sum_of_terms():
+    rng = np.random.default_rng(3)
+    batch, truth = exact_batch(rng, 4, 4, 17)
+    pred = truth + _perturbation(rng, truth.shape, 25.0)
+    weights = LossWeights(2.0, 0.5, 0.3, 0.7)
+    loss, terms = total_loss(pred, batch, weights)
+    assert set(terms) == {"input_triangulation", "reprojection", "consistency", "output_triangulation"}
+    expected = 2.0 * terms["input_triangulation"] + 0.5 * terms["reprojection"] + 0.3 * terms["consistency"]
+    expected += 0.7 * terms["output_triangulation"]
+    np.testing.assert_allclose(loss, expected, rtol=1e-6)
+    for name, fn in LOSS_FUNCTIONS.items():
+        np.testing.assert_allclose(terms[name], fn(pred, batch), rtol=1e-5)
+
+
+def test_input_triangulation_loss_matches_numpy_oracle():
+    rng = np.random.default_rng(4)
+    batch, truth = exact_batch(rng, 3, 4, 17)
+    pred = truth + _perturbation(rng, truth.shape, 30.0)
+    R, t = np.asarray(batch.cameras.R, np.float64), np.asarray(batch.cameras.t, np.float64)
+    camera = np.einsum("bcij,bnj->bcni", R, np.asarray(batch.pseudo3d, np.float64)) + t[:, :, None]
+    target = camera - camera[:, :, :1]
+    squared = (((target - np.asarray(pred, np.float64)) / 1000.0) ** 2).sum(-1)[..., 1:]
+    np.testing.assert_allclose(losses.input_triangulation_loss(pred, batch), squared.mean(), rtol=1e-4)
+
+
+@pytest.mark.parametrize("num_views", [2, 3, 4, 8])
+@pytest.mark.parametrize("num_joints", [15, 16, 17])
+def test_total_loss_jits_for_any_views_and_joints(num_views, num_joints):
+    rng = np.random.default_rng(num_views * 100 + num_joints)
+    batch, truth = exact_batch(rng, 2, num_views, num_joints)
+    loss, terms = jax.jit(total_loss)(truth + _perturbation(rng, truth.shape, 10.0), batch, LossWeights())
+    assert np.isfinite(float(loss)) and all(np.isfinite(float(v)) for v in terms.values())
+
+
+def test_missing_joints_and_views_give_no_nan_and_are_ignored():
+    rng = np.random.default_rng(5)
+    batch, truth = exact_batch(rng, 4, 4, 17)
+    pred = truth + _perturbation(rng, truth.shape, 15.0)
+    confidence = batch.confidence.at[0, 1, 5].set(0.0).at[1, 2, :].set(0.0).at[2, 3, 0].set(0.0)
+    # Garbage (NaN) where the detector reported nothing must not leak into any term or gradient.
+    keypoints = jnp.where(confidence[..., None] > 0, batch.keypoints2d, jnp.nan)
+    masked = batch.replace(confidence=confidence, keypoints2d=keypoints)
+    value, grads = jax.value_and_grad(lambda p: total_loss(p, masked)[0])(pred)
+    assert np.isfinite(float(value)) and np.isfinite(np.asarray(grads)).all()
+    # A joint whose pseudo-label weight is 0 teaches nothing through L_in.
+    weight = jnp.ones(batch.pseudo3d.shape[:-1]).at[:, 7].set(0.0)
+    untrusted = batch.replace(pseudo3d_weight=weight, pseudo3d=batch.pseudo3d.at[:, 7].add(1e4))
+    gradient = jax.grad(losses.input_triangulation_loss)(pred, untrusted)
+    assert float(jnp.abs(gradient[..., 7, :]).max()) == 0.0
