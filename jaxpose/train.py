@@ -144,7 +144,7 @@ def make_train_step(
         (value, (metrics, batch_stats)), grads = grad_fn(state.params, state.batch_stats, batch, dropout_key, state.step)
         updates, opt_state = optimizer.update(grads, state.opt_state, state.params)
         params = optax.apply_updates(state.params, updates)
-        metrics = dict(metrics, loss=value, grad_norm=optax.global_norm(grads))
+        metrics = dict(metrics, loss=value, grad_norm=optax.tree.norm(grads))
         new_state = TrainState(step=state.step + 1, params=params, batch_stats=batch_stats, opt_state=opt_state)
         return new_state, metrics
 
