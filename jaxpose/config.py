@@ -8,7 +8,9 @@ config tree (`experiments.config`) composes them with data, run and parallelism 
 from __future__ import annotations
 
 import dataclasses
-from typing import Literal
+from typing import Annotated, Literal
+
+import tyro
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,7 +47,7 @@ class LossConfig:
     """Fraction of training after which the output triangulation term is switched on (paper: last 10%)."""
     triangulation: Literal["svd", "eigh", "normal"] = "svd"
     """Solver of the output triangulation inside the train step (see jaxpose.triangulation)."""
-    supervision: Literal["self", "full"] = "self"
+    supervision: Annotated[Literal["self", "full"], tyro.conf.arg(aliases=("--supervision",))] = "self"
     """"self": the four geometric losses; "full": L2 to the 3D ground truth (the supervised upper bound)."""
 
 

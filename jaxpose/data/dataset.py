@@ -95,6 +95,10 @@ class MultiViewDataset:
             keep &= np.isin(self.labels[name], np.asarray(values))
         return self.subset(np.flatnonzero(keep))
 
+    def usable_view_count(self) -> np.ndarray:
+        """i32[N]: views whose root and at least one other joint were detected (confidence > 0)."""
+        return ((self.confidence[..., 0] > 0) & ((self.confidence[..., 1:] > 0).sum(-1) >= 1)).sum(-1)
+
     def cameras_for(self, indices: np.ndarray) -> Cameras:
         return jax.tree.map(lambda field: field[self.rig_index[indices]], self.rigs)
 

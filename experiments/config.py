@@ -1,0 +1,107 @@
+"""The experiment config tree, shared by every data set; each entry point fills in its `data` part.
+
+Frozen dataclasses, turned into a command line by tyro: every field's docstring is its `--help`.
+The resolved tree is written to `<run_dir>/config.json`, which is also how a run directory is
+loaded for inference (`jaxpose.inference`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+from typing import Any, Generic, Literal, TypeVar
+
+from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
+
+DataT = TypeVar("DataT")
+
+
+@dataclasses.dataclass(frozen=True)
+class PseudoLabelConfig:
+    """How the input triangulation (the pseudo-labels) is computed, once, before training."""
+
+    method: Literal["svd", "normal"] = "svd"
+    """DLT solver: "svd" (reference) or "normal" (closed-form least squares)."""
+    min_views: int = 2
+    """A joint seen (confidence > 0) by fewer views gets no pseudo-label."""
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Training loop."""
+
+    batch_size: int = 1024
+    """Multi-view samples per step; the lifter sees batch_size x C poses."""
+    epochs: int = 20
+    """Passes over the training samples."""
+    max_steps: int = 0
+    """Stop after this many steps (0 = train all epochs).  The schedules still span all epochs."""
+    seed: int = 0
+    """Seeds the initialization, the data order and the dropout masks."""
+    log_every: int = 50
+    """Steps between lines in metrics.jsonl."""
+    checkpoint_every: int = 1000
+    """Steps between checkpoints (one is also written at the end and on Ctrl-C/SIGTERM)."""
+    keep_checkpoints: int = 3
+    """Checkpoints kept on disk (the newest ones)."""
+    eval_batch_size: int = 16384
+    """Poses per inference call during evaluation."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig:
+    """The run directory and reporting."""
+
+    run_dir: pathlib.Path = pathlib.Path("runs/default")
+    """Holds config.json, metrics.jsonl, checkpoints/, report.{json,md} and plots/.  Starting again
+    on the same directory resumes from its last complete checkpoint."""
+    overwrite: bool = False
+    """Start from scratch even if run_dir holds a run (its checkpoints and logs are deleted)."""
+    plot_samples: int = 4
+    """Test samples drawn as GT-vs-prediction skeletons in the report."""
+    progress: bool = True
+    """Show progress bars."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ParallelConfig:
+    """Data parallelism over devices and hosts (see README, "Training on several devices and hosts")."""
+
+    data: int = -1
+    """Devices on the mesh's data axis; -1 = all devices of all processes."""
+    coordinator_address: str | None = None
+    """host:port of process 0 for multi-host runs (None = single process, or from SLURM/cluster env)."""
+    num_processes: int | None = None
+    """Number of processes of a multi-host run."""
+    process_id: int | None = None
+    """This process's index in a multi-host run."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ExperimentConfig(Generic[DataT]):
+    """A whole experiment: data, model, losses, optimizer, training, run directory, parallelism."""
+
+    data: DataT
+    model: ModelConfig = ModelConfig()
+    loss: LossConfig = LossConfig()
+    optimizer: OptimizerConfig = OptimizerConfig()
+    pseudo_labels: PseudoLabelConfig = PseudoLabelConfig()
+    train: TrainConfig = TrainConfig()
+    run: RunConfig = RunConfig()
+    parallel: ParallelConfig = ParallelConfig()
+
+
+def to_json_dict(config: Any) -> Any:
+    """A dataclass tree as JSON-ready dicts (paths and tuples become strings and lists)."""
+    if dataclasses.is_dataclass(config):
+        return {f.name: to_json_dict(getattr(config, f.name)) for f in dataclasses.fields(config)}
+    if isinstance(config, (list, tuple)):
+        return [to_json_dict(v) for v in config]
+    if isinstance(config, pathlib.Path):
+        return str(config)
+    return config
+
+
+def dumps(config: Any) -> str:
+    return json.dumps(to_json_dict(config), indent=2, sort_keys=True)

@@ -1,0 +1,267 @@
+"""Train, checkpoint, resume, evaluate and report: the loop every experiment entry point shares.
+
+A run directory holds:
+  config.json      the resolved config (also what `jaxpose.inference` loads a model from)
+  metrics.jsonl    one line per `train.log_every` steps (appended across resumes)
+  checkpoints/     Orbax CheckpointManager steps (the newest `train.keep_checkpoints`)
+  report.json/.md  the evaluation on the test split, with the reference rows
+  plots/           loss curves and GT-vs-prediction skeletons (PNG)
+Ctrl-C or SIGTERM saves a checkpoint before exit; starting again on the same directory resumes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import pathlib
+import shutil
+import signal
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import numpy as np
+from tqdm.auto import tqdm
+
+from experiments.config import ExperimentConfig, dumps, to_json_dict
+from jaxpose import checkpoint, evaluation, viz
+from jaxpose.data.batch import validate_batch
+from jaxpose.data.dataset import MultiViewDataset, steps_per_epoch, training_batches
+from jaxpose.train import (
+    TrainState,
+    build_model,
+    init_train_state,
+    jit_train_step,
+    make_optimizer,
+    make_predict_fn,
+    make_train_step,
+)
+
+log = logging.getLogger("jaxpose")
+
+
+@dataclasses.dataclass(frozen=True)
+class Splits:
+    """What an entry point's data loader returns."""
+
+    train: MultiViewDataset
+    test: MultiViewDataset
+    group_label: str
+    """The label that groups test results (e.g. "action", "motion")."""
+
+
+class Interrupted(Exception):
+    """Raised inside the loop when SIGINT/SIGTERM arrived; the checkpoint is already saved."""
+
+
+# Fields that must match for a run directory to be resumed (the rest may change between attempts).
+_RESUME_KEYS = ("data", "model", "loss", "optimizer", "pseudo_labels")
+_RESUME_TRAIN_KEYS = ("batch_size", "epochs", "seed")
+
+
+def _identity(config_json: dict) -> dict:
+    identity = {key: config_json.get(key) for key in _RESUME_KEYS}
+    identity["train"] = {key: config_json.get("train", {}).get(key) for key in _RESUME_TRAIN_KEYS}
+    return identity
+
+
+def prepare_run_dir(config: ExperimentConfig) -> pathlib.Path:
+    """Create (or check, for a resume) the run directory and write config.json."""
+    run_dir = config.run.run_dir
+    config_path = run_dir / "config.json"
+    if config.run.overwrite and run_dir.exists():
+        shutil.rmtree(run_dir)
+    if config_path.exists():
+        previous = json.loads(config_path.read_text())
+        if _identity(previous) != _identity(to_json_dict(config)):
+            raise SystemExit(
+                f"{run_dir} holds a run with a different config ({config_path}); resume it with the same"
+                " settings, pick another --run.run-dir, or pass --run.overwrite to start over."
+            )
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "plots").mkdir(exist_ok=True)
+    if jax.process_index() == 0:
+        config_path.write_text(dumps(config))
+    return run_dir
+
+
+class _SignalFlag:
+    """Turns SIGINT/SIGTERM into a flag the loop polls, so the checkpoint is written between steps."""
+
+    def __init__(self):
+        self.received: int | None = None
+        self._previous = {}
+
+    def __enter__(self):
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum, _frame):
+        if self.received is not None:  # a second Ctrl-C: stop at once
+            raise KeyboardInterrupt
+        self.received = signum
+        log.warning("signal %d received: saving a checkpoint before exit", signum)
+
+    def __exit__(self, *exc):
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+
+def _append_jsonl(path: pathlib.Path, record: dict) -> None:
+    if jax.process_index() == 0:
+        with path.open("a") as f:
+            f.write(json.dumps(record) + "\n")
+
+
+def _read_jsonl(path: pathlib.Path) -> list[dict]:
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def train(
+    config: ExperimentConfig,
+    train_set: MultiViewDataset,
+    run_dir: pathlib.Path,
+    place_batch: Callable[[Any], Any] = jax.device_put,
+) -> tuple[TrainState, Any]:
+    """Train (or resume) on `train_set`, which must carry pseudo-labels.  Returns (state, model)."""
+    cfg = config.train
+    per_epoch = steps_per_epoch(len(train_set), cfg.batch_size)
+    total_steps = per_epoch * cfg.epochs
+    stop_step = min(total_steps, cfg.max_steps) if cfg.max_steps > 0 else total_steps
+    model = build_model(config.model, train_set.skeleton.num_joints)
+    optimizer = make_optimizer(config.optimizer, total_steps)
+    init_key, dropout_key = jax.random.split(jax.random.key(cfg.seed))
+    state = init_train_state(model, optimizer, init_key)
+    manager = checkpoint.checkpoint_manager(run_dir / "checkpoints", cfg.keep_checkpoints)
+    restored = checkpoint.restore_latest(manager, state)
+    if restored is not None:
+        state = restored
+        log.info("resumed from step %d of %d", int(state.step), total_steps)
+    step_fn = jit_train_step(make_train_step(model, config.model, optimizer, config.loss, total_steps))
+    start = int(state.step)
+    metrics_path = run_dir / "metrics.jsonl"
+    views = train_set.num_views
+    log.info(
+        "training: %d samples x %d views, batch %d, %d steps/epoch, %d epochs (%d steps), from step %d",
+        len(train_set), views, cfg.batch_size, per_epoch, cfg.epochs, total_steps, start,
+    )
+    bar = tqdm(total=stop_step, initial=start, desc="train", unit="step", disable=not config.run.progress or jax.process_index() != 0)
+    last_time, last_step = time.perf_counter(), start
+    with _SignalFlag() as interrupt:
+        batches = training_batches(train_set, cfg.batch_size, cfg.seed, start)
+        for step, batch in batches:
+            if step >= stop_step:
+                break
+            state, metrics = step_fn(state, place_batch(batch), dropout_key)
+            done = step + 1
+            bar.update(1)
+            if done % cfg.log_every == 0 or done == stop_step:
+                metrics = {k: float(v) for k, v in jax.device_get(metrics).items()}
+                now = time.perf_counter()
+                rate = (done - last_step) * cfg.batch_size / max(now - last_time, 1e-9)
+                last_time, last_step = now, done
+                record = {"step": done, "epoch": done / per_epoch, "samples_per_s": rate, **metrics}
+                _append_jsonl(metrics_path, record)
+                bar.set_postfix(loss=f"{metrics['loss']:.4g}", samples_s=f"{rate:.0f}")
+            if done % cfg.checkpoint_every == 0 or done == stop_step or interrupt.received is not None:
+                checkpoint.save(manager, state)
+            if interrupt.received is not None:
+                manager.wait_until_finished()
+                bar.close()
+                raise Interrupted(f"stopped by signal {interrupt.received} at step {done}; checkpoint saved in {run_dir}")
+    bar.close()
+    checkpoint.save(manager, state)
+    manager.wait_until_finished()
+    return state, model
+
+
+def evaluate_and_report(
+    config: ExperimentConfig,
+    splits: Splits,
+    state: TrainState,
+    model,
+    run_dir: pathlib.Path,
+    method_name: str,
+    wall_time: float,
+) -> dict:
+    """Single-view evaluation on every test view, the reference rows, report.{json,md}, plots."""
+    test = splits.test
+    if test.target3d is None:
+        raise ValueError("the test split has no 3D ground truth to evaluate against")
+    predict_fn = make_predict_fn(model, config.model)
+    pred = evaluation.predict_all_views(predict_fn, state.variables, test, config.train.eval_batch_size)
+    target = evaluation.poses_in_views(test, test.target3d)
+    groups = test.labels.get(splits.group_label)
+    valid = test.confidence[..., 0] > 0  # a view whose root was not detected cannot be lifted
+    test_triangulated = test.with_pseudo_labels(config.pseudo_labels.method, config.pseudo_labels.min_views)
+    triangulation = evaluation.poses_in_views(test, test_triangulated.pseudo3d)
+    mean_pose = np.broadcast_to(evaluation.mean_pose_prediction(splits.train), pred.shape)
+    rows = {
+        method_name: evaluation.evaluate_poses(pred, target, groups, valid),
+        "Input triangulation (multi-view, reference)": evaluation.evaluate_poses(triangulation, target, groups, valid),
+        "Mean pose (baseline)": evaluation.evaluate_poses(np.ascontiguousarray(mean_pose), target, groups, valid),
+    }
+    report = {
+        "method": method_name,
+        "results": rows,
+        "train_steps": int(state.step),
+        "wall_time_s": wall_time,
+        "devices": [str(d) for d in jax.devices()],
+        "config": to_json_dict(config),
+    }
+    if jax.process_index() == 0:
+        (run_dir / "report.json").write_text(json.dumps(report, indent=2))
+        tables = [
+            evaluation.markdown_table(rows, "p_mpjpe", f"P-MPJPE (mm) per {splits.group_label}"),
+            evaluation.markdown_table(rows, "mpjpe", f"MPJPE (mm) per {splits.group_label}"),
+            evaluation.markdown_table(rows, "n_mpjpe", f"N-MPJPE (mm) per {splits.group_label}"),
+        ]
+        (run_dir / "report.md").write_text("\n\n".join(tables) + "\n")
+        _plots(config, test, pred, target, run_dir)
+    return report
+
+
+def _plots(config, test: MultiViewDataset, pred, target, run_dir: pathlib.Path) -> None:
+    history = _read_jsonl(run_dir / "metrics.jsonl")
+    keys = [k for k in ("loss", "input_triangulation", "reprojection", "consistency", "output_triangulation", "supervised") if history and k in history[-1]]
+    if history:
+        curves = {k: [(r["step"], r[k]) for r in history if k in r] for k in keys}
+        viz.save_figure(viz.figure_loss_curves(curves), run_dir / "plots" / "loss_curves.png")
+    count = min(config.run.plot_samples, len(test))
+    if count:
+        picks = np.linspace(0, len(test) - 1, count).astype(int)
+        figure = viz.figure_gt_vs_prediction(target[picks, 0], pred[picks, 0], test.skeleton)
+        viz.save_figure(figure, run_dir / "plots" / "gt_vs_prediction.png")
+
+
+def run(config: ExperimentConfig, load_data: Callable[[Any], Splits]) -> dict:
+    """The whole job: data -> pseudo-labels -> train (or resume) -> evaluate -> report."""
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s", stream=sys.stderr)
+    begin = time.perf_counter()
+    run_dir = prepare_run_dir(config)
+    splits = load_data(config.data)
+    log.info("data: %d train / %d test samples, %d views, %d joints", len(splits.train), len(splits.test), splits.train.num_views, splits.train.skeleton.num_joints)
+    usable = splits.train.usable_view_count() >= config.pseudo_labels.min_views
+    if not usable.all():
+        log.warning("dropping %d training samples with fewer than %d usable views", int((~usable).sum()), config.pseudo_labels.min_views)
+    train_set = splits.train.subset(np.flatnonzero(usable))
+    train_set = train_set.with_pseudo_labels(config.pseudo_labels.method, config.pseudo_labels.min_views)
+    validate_batch(train_set.batch(np.arange(len(train_set))))
+    splits = dataclasses.replace(splits, train=train_set)
+    try:
+        state, model = train(config, train_set, run_dir)
+    except Interrupted as stop:
+        log.warning("%s", stop)
+        raise SystemExit(130) from None
+    method = "Lifter, supervised (3D ground truth)" if config.loss.supervision == "full" else "Lifter, self-supervised (ours)"
+    report = evaluate_and_report(config, splits, state, model, run_dir, method, time.perf_counter() - begin)
+    if jax.process_index() == 0:
+        print((run_dir / "report.md").read_text())
+        print(f"run directory: {run_dir}  (wall time {time.perf_counter() - begin:.0f} s)")
+    return report

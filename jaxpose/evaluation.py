@@ -1,0 +1,125 @@
+"""Evaluation of a lifter on a multi-view test set by single-view inference on every view.
+
+Every (instant, view) pair of the test set is one single-view prediction, compared with the ground
+truth in that view's camera frame, root-relative.  Results are grouped by a label (action, motion
+family) and averaged over groups, as the paper's tables average over actions.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpose.camera import world_to_camera
+from jaxpose.data.dataset import MultiViewDataset
+from jaxpose.metrics import pose_metrics
+
+METRIC_NAMES = ("mpjpe", "p_mpjpe", "n_mpjpe", "pck", "auc")
+
+
+def poses_in_views(dataset: MultiViewDataset, poses_world: np.ndarray) -> np.ndarray:
+    """World poses [N, J, 3] -> root-relative poses in every view's camera frame [N, C, J, 3]."""
+    cameras = dataset.cameras_for(np.arange(len(dataset)))
+    in_camera = np.asarray(jax.jit(world_to_camera)(cameras, jnp.asarray(poses_world)[:, None]))
+    return in_camera - in_camera[..., :1, :]
+
+
+def predict_all_views(
+    predict_fn: Callable[..., jax.Array], variables, dataset: MultiViewDataset, batch_size: int = 16384
+) -> np.ndarray:
+    """Single-view predictions for every view of every sample: [N, C, J, 3] mm.
+
+    Batches are padded to a fixed size so the predictor compiles once.
+    """
+    dataset = dataset.undistorted()
+    N, C, J, _ = dataset.keypoints2d.shape
+    keypoints = dataset.keypoints2d.reshape(N * C, J, 2)
+    confidence = dataset.confidence.reshape(N * C, J)
+    K = np.asarray(dataset.rigs.K)[dataset.rig_index].reshape(N * C, 3, 3)
+    size = min(batch_size, N * C)
+    out = np.empty((N * C, J, 3), np.float32)
+    for start in range(0, N * C, size):
+        stop = min(start + size, N * C)
+        pad = size - (stop - start)
+        chunk = [np.concatenate([a[start:stop], np.repeat(a[stop - 1 : stop], pad, 0)]) for a in (keypoints, K, confidence)]
+        out[start:stop] = np.asarray(predict_fn(variables, *chunk))[: stop - start]
+    return out.reshape(N, C, J, 3)
+
+
+def compute_metrics(pred: np.ndarray, target: np.ndarray, chunk: int = 65536) -> dict[str, np.ndarray]:
+    """Per-pose metrics for [M, J, 3] poses, in chunks of fixed size (one compile)."""
+    M = pred.shape[0]
+    results = {name: np.empty(M, np.float32) for name in METRIC_NAMES}
+    size = min(chunk, M)
+    for start in range(0, M, size):
+        stop = min(start + size, M)
+        pad = size - (stop - start)
+        p = np.concatenate([pred[start:stop], np.repeat(pred[stop - 1 : stop], pad, 0)])
+        t = np.concatenate([target[start:stop], np.repeat(target[stop - 1 : stop], pad, 0)])
+        for name, values in pose_metrics(jnp.asarray(p), jnp.asarray(t)).items():
+            results[name][start:stop] = np.asarray(values)[: stop - start]
+    return results
+
+
+def summarize(
+    per_pose: Mapping[str, np.ndarray], groups: np.ndarray | None = None, valid: np.ndarray | None = None
+) -> dict:
+    """{"overall": {metric: mean}, "groups": {group: {metric: mean}}, "group_average": {metric: mean}}.
+
+    `overall` averages over all poses; `group_average` averages the per-group means (the paper's
+    "Avg." column).  Metrics in mm except pck/auc (percent).
+    """
+    count = len(next(iter(per_pose.values())))
+    valid = np.ones(count, bool) if valid is None else valid
+
+    def mean(mask):
+        return {
+            name: float(values[mask].mean() * (100.0 if name in ("pck", "auc") else 1.0)) for name, values in per_pose.items()
+        } | {"count": int(mask.sum())}
+
+    summary = {"overall": mean(valid)}
+    if groups is not None:
+        names = sorted(set(groups[valid].tolist()))
+        summary["groups"] = {str(name): mean(valid & (groups == name)) for name in names}
+        summary["group_average"] = {
+            metric: float(np.mean([summary["groups"][str(n)][metric] for n in names])) for metric in per_pose
+        }
+    return summary
+
+
+def evaluate_poses(
+    pred: np.ndarray, target: np.ndarray, groups: np.ndarray | None = None, view_valid: np.ndarray | None = None
+) -> dict:
+    """Evaluate [N, C, J, 3] predictions against [N, C, J, 3] targets; groups: per-sample labels [N]."""
+    N, C = pred.shape[:2]
+    per_pose = compute_metrics(pred.reshape(N * C, *pred.shape[2:]), target.reshape(N * C, *target.shape[2:]))
+    expanded_groups = None if groups is None else np.repeat(np.asarray(groups), C)
+    valid = None if view_valid is None else view_valid.reshape(N * C)
+    return summarize(per_pose, expanded_groups, valid)
+
+
+def mean_pose_prediction(train: MultiViewDataset) -> np.ndarray:
+    """The mean-pose baseline: the average training pseudo-label in camera frames [J, 3]."""
+    if train.pseudo3d is None:
+        raise ValueError("mean_pose_prediction needs the training pseudo-labels")
+    return poses_in_views(train, train.pseudo3d).mean((0, 1))
+
+
+def markdown_table(rows: Mapping[str, Mapping], metric: str, title: str | None = None, digits: int = 1) -> str:
+    """A table of `metric` with one row per method and one column per group plus "Avg." and "All".
+
+    `rows` maps a method name to a `summarize` result.
+    """
+    groups = sorted({g for summary in rows.values() for g in summary.get("groups", {})})
+    header = ["Method", *groups, "Avg.", "All"]
+    lines = [] if title is None else [f"**{title}**", ""]
+    lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for method, summary in rows.items():
+        cells = [f"{summary['groups'][g][metric]:.{digits}f}" if g in summary.get("groups", {}) else "-" for g in groups]
+        average = summary.get("group_average", summary["overall"])[metric]
+        cells += [f"{average:.{digits}f}", f"{summary['overall'][metric]:.{digits}f}"]
+        lines.append("| " + " | ".join([method, *cells]) + " |")
+    return "\n".join(lines)
