@@ -1,0 +1,107 @@
+"""Checked readers for the file kinds of the real data sets: HDF5, npz, MATLAB .mat and JSON.
+
+Each reader turns a missing, empty, truncated or foreign file into a `DataFormatError` that names
+the file and what was expected in it, instead of an h5py / zipfile / pickle traceback.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import pickle
+import zipfile
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+import scipy.io
+
+from jaxpose.data.errors import DataFormatError
+
+# What numpy, zipfile and pickle raise on an empty, truncated or foreign .npz file.
+_NPZ_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, pickle.UnpicklingError, AttributeError, ImportError)
+
+
+def require_file(path: Path, what: str) -> Path:
+    """`path` itself, or a `DataFormatError` saying that `what` was expected there."""
+    if not path.is_file():
+        raise DataFormatError(path, what, "no such file" if not path.exists() else "not a regular file")
+    return path
+
+
+@contextlib.contextmanager
+def open_h5(path: Path, what: str) -> Iterator[h5py.File]:
+    """Open an HDF5 file read-only; unreadable files and failed reads become `DataFormatError`."""
+    require_file(path, what)
+    try:
+        with h5py.File(path, "r") as file:
+            yield file
+    except OSError as error:  # h5py's error for bad signatures, truncation and failed reads
+        raise DataFormatError(path, f"{what} (an HDF5 file)", f"a file h5py cannot read ({error})") from None
+
+
+def h5_dataset(group: h5py.Group, name: str, path: Path, what: str) -> np.ndarray:
+    """Read dataset `name` of `group` fully, or raise naming the datasets that are there."""
+    node = group.get(name)
+    if not isinstance(node, h5py.Dataset):
+        found = sorted(group.keys())
+        raise DataFormatError(
+            f"{path}:{group.name}", f"{what}: a dataset {name!r}", f"only {found}" if found else "an empty group"
+        )
+    return node[()]
+
+
+def read_h5_dataset(path: Path, name: str, what: str) -> np.ndarray:
+    """One whole dataset of one HDF5 file."""
+    with open_h5(path, what) as file:
+        return h5_dataset(file, name, path, what)
+
+
+def load_npz_object(path: Path, key: str, what: str) -> Any:
+    """The pickled object stored under `key` of an .npz file (the VideoPose3D files store dicts).
+
+    Unpickling runs code from the file, so only load files from a source you trust.
+    """
+    require_file(path, what)
+    try:
+        with np.load(path, allow_pickle=True) as archive:
+            keys = archive.files
+            value = archive[key] if key in keys else None
+    except _NPZ_ERRORS as error:
+        raise DataFormatError(path, f"{what} (an .npz file)", f"a file numpy cannot read ({error!r})") from None
+    if value is None:
+        raise DataFormatError(path, f"{what}: an array {key!r}", f"only {sorted(keys)}")
+    return value.item() if value.dtype == object and value.shape == () else value
+
+
+def read_mat(path: Path, names: Sequence[str], what: str) -> dict[str, np.ndarray]:
+    """Variables of a MATLAB .mat file, in MATLAB's axis order, whichever kind the file is.
+
+    v7.3 files are HDF5; h5py lists a MATLAB array's axes in reverse (a MATLAB 3x17x1xN array
+    reads as N x 1 x 17 x 3), so they are transposed back.  Older files go through
+    `scipy.io.loadmat`, which already keeps MATLAB's order.
+    """
+    require_file(path, what)
+    if h5py.is_hdf5(path):
+        with open_h5(path, what) as file:
+            return {name: np.transpose(h5_dataset(file, name, path, what)) for name in names}
+    try:
+        variables = scipy.io.loadmat(path, variable_names=list(names))
+    except Exception as error:  # scipy raises several unrelated types (MatReadError, ValueError, ...)
+        raise DataFormatError(path, f"{what} (a MATLAB .mat file)", f"a file scipy cannot read ({error!r})") from None
+    missing = [name for name in names if name not in variables]
+    if missing:
+        present = sorted(key for key in variables if not key.startswith("__"))
+        raise DataFormatError(path, f"{what}: variables {list(names)}", f"{missing} missing (has {present})")
+    return {name: variables[name] for name in names}
+
+
+def read_json(path: Path, what: str) -> Any:
+    """A JSON document; invalid text becomes a `DataFormatError` with the parser's position."""
+    require_file(path, what)
+    try:
+        return json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise DataFormatError(path, f"{what} (a JSON file)", f"invalid JSON ({error})") from None

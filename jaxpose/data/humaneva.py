@@ -1,0 +1,156 @@
+"""HumanEva-I in VideoPose3D's layout: 3 views, 15 joints (`HUMANEVA_15`), 60 fps.
+
+Files in `data_dir` (DESIGN.md section 6)::
+
+    data_3d_humaneva15.npz            positions_3d: "Train/S1" -> "Walk 1 chunk0" -> f32[N, 15, 3] world m
+    data_2d_humaneva15_<source>.npz   positions_2d: same keys -> 3 x f32[N, 15, 2] pixels (C1, C2, C3)
+    cameras.json                      a jaxpose camera file (`jaxpose.data.camera_file`) with subjects
+                                      "S1".."S3", cameras "C1", "C2", "C3" (used for both partitions)
+
+Protocol: the training split is Train/S1-S3, all actions; the test split Validate/S1-S3, Walk and
+Jog only.  The motion capture loses markers now and then: frames whose 3D has a NaN or an all-zero
+joint, or whose 2D has a NaN, are dropped (their count is logged).  Labels: "subject" ("S1"),
+"action" ("Walk"), "sequence" ("Walk 1 chunk0"), "frame" (row of the sequence's arrays).
+"""
+
+from __future__ import annotations
+
+import logging
+import warnings
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from jaxpose.data.camera_file import load_cameras
+from jaxpose.data.dataset import MultiViewDataset
+from jaxpose.data.errors import DataFormatError
+from jaxpose.data.recordings import Recording, build_dataset, stack_views
+from jaxpose.data.videopose3d import load_positions, subject_poses3d, subject_views2d
+from jaxpose.skeleton import HUMANEVA_15
+
+logger = logging.getLogger(__name__)
+
+TRAIN_SUBJECTS = ("Train/S1", "Train/S2", "Train/S3")
+TEST_SUBJECTS = ("Validate/S1", "Validate/S2", "Validate/S3")
+TEST_ACTIONS = ("Walk", "Jog")
+CAMERA_NAMES = ("C1", "C2", "C3")
+POSES_3D_FILE = "data_3d_humaneva15.npz"
+
+
+def load_humaneva(
+    data_dir: str | Path,
+    split: str = "train",
+    *,
+    detections: str | Path = "gt",
+    subjects: tuple[str, ...] | None = None,
+    cameras_path: str | Path | None = None,
+    stride: int = 1,
+    progress: bool = True,
+) -> MultiViewDataset:
+    """Load the HumanEva-I training or test split as a `MultiViewDataset` (world mm, pixels).
+
+    split: "train" (Train/S1-S3, all actions) or "test" (Validate/S1-S3, Walk and Jog).
+    subjects: a subset of the split's subjects (default: all three).  detections: "gt" (the 3D
+    projected through the cameras, with distortion), a source name such as "detectron_pt_coco"
+    (-> `data_2d_humaneva15_<source>.npz`), or the path of a 2D npz.  cameras_path: default
+    `<data_dir>/cameras.json`.  stride: keep every stride-th frame.
+    """
+    data_dir = Path(data_dir)
+    if split not in ("train", "test"):
+        raise ValueError(f"split must be 'train' or 'test', got {split!r}")
+    if stride < 1:
+        raise ValueError(f"stride must be >= 1, got {stride}")
+    split_subjects = TRAIN_SUBJECTS if split == "train" else TEST_SUBJECTS
+    subjects = split_subjects if subjects is None else tuple(subjects)
+    if not set(subjects) <= set(split_subjects):
+        raise ValueError(f"subjects of the {split} split are {split_subjects}, got {subjects}")
+
+    calibration_path = Path(cameras_path) if cameras_path else data_dir / "cameras.json"
+    rigs = _subject_rigs(calibration_path, subjects)
+    path3d = data_dir / POSES_3D_FILE
+    positions3d = load_positions(path3d, "positions_3d", "VideoPose3D HumanEva-I 3D poses")
+    positions2d = None
+    if detections != "gt":
+        is_path = isinstance(detections, Path) or str(detections).endswith(".npz")
+        path2d = Path(detections) if is_path else data_dir / f"data_2d_humaneva15_{detections}.npz"
+        positions2d = load_positions(path2d, "positions_2d", "VideoPose3D HumanEva-I 2D keypoints")
+
+    plan, skipped = [], []
+    for subject in subjects:
+        poses = subject_poses3d(path3d, positions3d, subject, HUMANEVA_15.num_joints)
+        views = {}
+        if positions2d is not None:
+            views = subject_views2d(path2d, positions2d, subject, CAMERA_NAMES, HUMANEVA_15.num_joints)
+            skipped += [f"{subject} {name!r} (2D without 3D)" for name in sorted(set(views) - set(poses))]
+        for name in sorted(poses):
+            if split == "test" and _action(name) not in TEST_ACTIONS:
+                continue
+            cameras = None
+            if positions2d is not None:
+                missing = [camera for camera in CAMERA_NAMES if camera not in views.get(name, {})]
+                if missing:
+                    skipped.append(f"{subject} {name!r} (no 2D for cameras {missing})")
+                    continue
+                cameras = {camera: views[name][camera] for camera in CAMERA_NAMES}
+            plan.append((subject, name, poses[name], cameras))
+    if skipped:
+        warnings.warn(f"HumanEva-I: skipped {len(skipped)} sequences: " + "; ".join(skipped), stacklevel=2)
+    if not plan:
+        raise DataFormatError(data_dir, f"HumanEva-I {split} sequences of {list(subjects)}", "none with both 3D and 2D")
+
+    recordings, dropped = [], 0
+    for subject, name, poses, cameras in tqdm(plan, desc=f"HumanEva-I {split}", unit="seq", disable=not progress):
+        recording, invalid = _read_recording(subject, name, poses, cameras, stride)
+        recordings.append(recording)
+        dropped += invalid
+    kept = sum(len(r.frames) for r in recordings)
+    logger.info(
+        "HumanEva-I %s: dropped %d of %d frames with invalid markers (NaN or all-zero)", split, dropped, kept + dropped
+    )
+    if not kept:
+        raise DataFormatError(data_dir, f"HumanEva-I {split} frames with valid markers", "none")
+    return build_dataset(HUMANEVA_15, recordings, rigs)
+
+
+def _action(sequence: str) -> str:
+    """"Walk 1 chunk0" -> "Walk"."""
+    return sequence.split(" ")[0]
+
+
+def _subject_rigs(path: Path, subjects: tuple[str, ...]) -> dict:
+    """Each partition subject ("Train/S1") gets the cameras C1-C3 of its person ("S1")."""
+    calibration = load_cameras(path)
+    rigs = {}
+    for subject in subjects:
+        person = subject.split("/")[-1]
+        if person not in calibration:
+            raise DataFormatError(path, f"cameras of subject {person!r}", f"subjects {sorted(calibration)}")
+        names, cameras = calibration[person]
+        if not set(CAMERA_NAMES) <= set(names):
+            raise DataFormatError(path, f"subject {person!r}: cameras {list(CAMERA_NAMES)}", f"cameras {names}")
+        rigs[person] = cameras[np.array([names.index(camera) for camera in CAMERA_NAMES])]
+    return rigs
+
+
+def _read_recording(
+    subject: str, name: str, poses: np.ndarray, cameras: dict[str, np.ndarray] | None, stride: int
+) -> tuple[Recording, int]:
+    """One sequence with its invalid frames dropped; also returns how many were dropped."""
+    frames = np.arange(0, len(poses), stride, dtype=np.int32)
+    points = poses[frames].astype(np.float64) * 1000.0  # metres -> mm
+    valid = np.isfinite(points).all((1, 2)) & ~(points == 0).all(-1).any(-1)
+    keypoints = None
+    if cameras is not None:
+        keypoints = stack_views(f"HumanEva-I {subject} {name!r}", cameras, len(poses), frames)
+        valid &= np.isfinite(keypoints).all((1, 2, 3))
+        keypoints = keypoints[valid]
+    recording = Recording(
+        subject=subject.split("/")[-1],
+        action=_action(name),
+        sequence=name,
+        frames=frames[valid],
+        points3d=points[valid].astype(np.float32),
+        keypoints2d=keypoints,
+    )
+    return recording, int((~valid).sum())

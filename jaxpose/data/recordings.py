@@ -1,0 +1,110 @@
+"""From per-sequence arrays of a real data set to one `MultiViewDataset`.
+
+The Human3.6M and HumanEva-I loaders read files into `Recording`s (one subject's sequence, already
+down-sampled) and hand them to `build_dataset`, which stacks them, attaches one rig per subject and,
+where a recording carries no 2D, projects its 3D ground truth through the real cameras.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Mapping, Sequence
+
+import jax
+import numpy as np
+
+from jaxpose.camera import Cameras, project
+from jaxpose.data.dataset import MultiViewDataset
+from jaxpose.data.errors import DataFormatError
+from jaxpose.skeleton import Skeleton
+
+logger = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True)
+class Recording:
+    """n kept frames of one sequence seen by C cameras, J joints.
+
+    frames: i32[n] frame numbers in the original recording; points3d: f32[n, J, 3] world mm;
+    keypoints2d: f32[n, C, J, 2] pixels, or None for ground-truth 2D (projected from points3d).
+    """
+
+    subject: str
+    action: str
+    sequence: str
+    frames: np.ndarray
+    points3d: np.ndarray
+    keypoints2d: np.ndarray | None
+
+
+def build_dataset(skeleton: Skeleton, recordings: Sequence[Recording], rigs: Mapping[str, Cameras]) -> MultiViewDataset:
+    """Stack recordings into a data set; `rigs[subject]` is that subject's `Cameras` [C] (numpy).
+
+    Either every recording has keypoints2d or none has (then all 2D are projections of the 3D,
+    with distortion).  Confidence is 1 everywhere: the detection files carry no scores.
+    """
+    if not recordings:
+        raise ValueError("build_dataset: no recordings")
+    if len({r.keypoints2d is None for r in recordings}) > 1:
+        raise ValueError("build_dataset: either all recordings carry 2D detections or none does")
+    subjects = list(dict.fromkeys(r.subject for r in recordings))
+    stacked = jax.tree.map(lambda *fields: np.stack(fields), *[rigs[s] for s in subjects])
+    rig_of = {subject: index for index, subject in enumerate(subjects)}
+    rig_index = np.concatenate([np.full(len(r.frames), rig_of[r.subject], np.int32) for r in recordings])
+    target3d = np.concatenate([r.points3d for r in recordings]).astype(np.float32, copy=False)
+    if recordings[0].keypoints2d is None:
+        keypoints2d = project_to_views(stacked, rig_index, target3d)
+    else:
+        keypoints2d = np.concatenate([r.keypoints2d for r in recordings]).astype(np.float32, copy=False)
+
+    def label(field):
+        return np.concatenate([np.full(len(r.frames), getattr(r, field)) for r in recordings])
+
+    return MultiViewDataset(
+        skeleton=skeleton,
+        keypoints2d=keypoints2d,
+        confidence=np.ones(keypoints2d.shape[:3], np.float32),
+        rigs=stacked,
+        rig_index=rig_index,
+        target3d=target3d,
+        labels={
+            "subject": label("subject"),
+            "action": label("action"),
+            "sequence": label("sequence"),
+            "frame": np.concatenate([r.frames for r in recordings]).astype(np.int32),
+        },
+    )
+
+
+def project_to_views(rigs: Cameras, rig_index: np.ndarray, points3d: np.ndarray, chunk_size: int = 65536) -> np.ndarray:
+    """Ground-truth 2D: world points f32[N, J, 3] through every camera of their rig -> f32[N, C, J, 2].
+
+    Runs in fixed-size chunks (the last one padded) so that the projection compiles once.
+    """
+    count, joints = points3d.shape[:2]
+    views = rigs.K.shape[1]
+    chunk_size = max(1, min(chunk_size, count))
+    projected = np.empty((count, views, joints, 2), np.float32)
+    project_chunk = jax.jit(lambda cameras, points: project(cameras, points[:, None]))
+    for start in range(0, count, chunk_size):
+        rows = np.minimum(np.arange(start, start + chunk_size), count - 1)
+        cameras = jax.tree.map(lambda field: field[rig_index[rows]], rigs)
+        stop = min(start + chunk_size, count)
+        projected[start:stop] = np.asarray(project_chunk(cameras, points3d[rows]))[: stop - start]
+    return projected
+
+
+def stack_views(where: str, views: Mapping[str, np.ndarray], count: int, frames: np.ndarray) -> np.ndarray:
+    """The kept `frames` of each camera's 2D (camera name -> f[N_c, J, 2], in view order) -> f32[n, C, J, 2].
+
+    Each camera's 2D must cover the `count` frames of the 3D sequence; frames past its end are
+    ignored (some published detection files run longer than the mocap).
+    """
+    for camera, view in views.items():
+        if len(view) < count:
+            expected = f"2D for all {count} frames of the 3D sequence"
+            raise DataFormatError(f"{where}, camera {camera}", expected, f"{len(view)} frames")
+        if len(view) > count:
+            logger.info("%s, camera %s: ignoring %d 2D frames past the end of the 3D", where, camera, len(view) - count)
+    return np.stack([view[frames] for view in views.values()], axis=1).astype(np.float32)
