@@ -104,3 +104,10 @@ def test_argument_checks(files):
         load_humaneva(files.root, "validation")
     with pytest.raises(ValueError, match="subjects of the test split"):
         load_humaneva(files.root, "test", subjects=("Train/S1",))
+
+
+def test_walking_spelled_either_way_is_a_walk_test_action():
+    from jaxpose.data.humaneva import _action
+
+    assert _action("Walk 1 chunk0") == _action("Walking 1 chunk3") == "Walk"
+    assert _action("Jog 1 chunk0") == "Jog" and _action("ThrowCatch 1 chunk0") == "ThrowCatch"

@@ -113,9 +113,15 @@ def load_humaneva(
     return build_dataset(HUMANEVA_15, recordings, rigs)
 
 
+# Canonical action names by prefix: releases spell HumanEva's walking trials both "Walk 1 chunk0"
+# and "Walking 1 chunk0"; matching by prefix keeps them in the Walk/Jog test split either way.
+_ACTION_PREFIXES = ("Walk", "Jog", "Box", "Gestures", "ThrowCatch")
+
+
 def _action(sequence: str) -> str:
-    """"Walk 1 chunk0" -> "Walk"."""
-    return sequence.split(" ")[0]
+    """"Walk 1 chunk0" or "Walking 1 chunk0" -> "Walk"; unknown names keep their first word."""
+    first = sequence.split(" ")[0]
+    return next((prefix for prefix in _ACTION_PREFIXES if first.startswith(prefix)), first)
 
 
 def _subject_rigs(path: Path, subjects: tuple[str, ...]) -> dict:

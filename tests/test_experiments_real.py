@@ -1,0 +1,195 @@
+"""The real-data entry points end to end on tiny fixture trees (tests/fixtures_real_data.py):
+experiments.h36m (Martinez and VideoPose3D layouts), experiments.humaneva, experiments.mpi_inf_3dhp,
+their presets, paper-layout tables, --help and missing-data errors."""
+
+import dataclasses
+import json
+import re
+
+import pytest
+
+from experiments import cli, h36m, humaneva, mpi_inf_3dhp, paper_tables
+from experiments.config import ExperimentConfig
+from fixtures_real_data import write_h36m_martinez_tree, write_h36m_videopose3d_files, write_humaneva_files
+from fixtures_real_data import write_mpi_inf_3dhp_test_set
+from jaxpose.data.mpi_inf_3dhp import camera_intrinsics
+
+# A tiny network and one short epoch: these tests check the plumbing, not the accuracy.
+TINY = [
+    "--model.width", "32", "--train.epochs", "1", "--train.batch-size", "8", "--train.eval-batch-size", "256",
+    "--run.no-progress", "--run.plot-samples", "0",
+]
+H36M_SUBJECTS = ["--data.train-subjects", "S1", "--data.test-subjects", "S9"]
+TABLE_II_HEADER = "| Method | Dir. | Dis. | Eat | Greet | Phone | Photo | Pose | Purch. | Sit | SitD | Smoke | Wait | WalkD | Walk | WalkT | Avg |"
+TABLE_III_HEADER = "| Method | Walking S1 | Walking S2 | Walking S3 | Jogging S1 | Jogging S2 | Jogging S3 | Avg |"
+
+
+@pytest.fixture(scope="module")
+def h36m_tree(tmp_path_factory):
+    """S1 (train) and S9 (test) with Directions 1, TakingPhoto, WalkingDog 1, Walking 1 in both layouts."""
+    root = tmp_path_factory.mktemp("h36m")
+    fixture = write_h36m_martinez_tree(root / "martinez")
+    write_h36m_videopose3d_files(root / "videopose3d", fixture)
+    return root
+
+
+@pytest.fixture(scope="module")
+def sh_run(h36m_tree, tmp_path_factory):
+    """Martinez layout, Stacked Hourglass 2D (16 joints), trained with full supervision."""
+    run_dir = tmp_path_factory.mktemp("runs") / "h36m_sh"
+    argv = ["--data.data-dir", str(h36m_tree / "martinez"), "--data.detections", "sh", "--supervision", "full"]
+    report = h36m.main(argv + H36M_SUBJECTS + TINY + ["--run.run-dir", str(run_dir)])
+    return run_dir, report
+
+
+@pytest.fixture(scope="module")
+def cpn_run(h36m_tree, tmp_path_factory):
+    """VideoPose3D layout with CPN-named 2D (17 joints) and cameras.h5 from elsewhere, self-supervised."""
+    run_dir = tmp_path_factory.mktemp("runs") / "h36m_cpn"
+    argv = [
+        "--data.data-dir", str(h36m_tree / "videopose3d"), "--data.detections", "cpn",
+        "--data.cameras-path", str(h36m_tree / "martinez" / "cameras.h5"),
+    ]
+    report = h36m.main(argv + H36M_SUBJECTS + TINY + ["--run.run-dir", str(run_dir)])
+    return run_dir, report
+
+
+def _table_rows(path, header):
+    """The rows of the first markdown table in `path` whose header line is `header`."""
+    lines = path.read_text().splitlines()
+    start = lines.index(header)
+    rows = []
+    for line in lines[start + 2 :]:
+        if not line.startswith("|"):
+            break
+        rows.append([cell.strip() for cell in line.strip("|").split("|")])
+    return rows
+
+
+def test_h36m_martinez_layout_supervised(sh_run):
+    run_dir, report = sh_run
+    assert "Lifter, supervised (3D ground truth)" in report["results"]
+    assert (run_dir / "report.md").exists() and (run_dir / "report.json").exists()
+    rows = _table_rows(run_dir / paper_tables.TABLE_FILE, TABLE_II_HEADER)
+    ours = rows[0]
+    assert ours[0] == "Lifter, supervised (3D ground truth)"
+    by_column = dict(zip(TABLE_II_HEADER.strip("| ").split(" | "), ours))
+    for column in ("Dir.", "Photo", "WalkD", "Walk", "Avg"):  # the fixture's four actions
+        float(by_column[column])
+    assert by_column["Eat"] == "-"
+    assert any(row[0] == "Paper: ours (self-supervised)" and row[-1] == "62.0" for row in rows)
+
+
+def test_h36m_videopose3d_layout_self_supervised(cpn_run):
+    run_dir, report = cpn_run
+    assert "Lifter, self-supervised (ours)" in report["results"]
+    assert set(report["results"]["Lifter, self-supervised (ours)"]["groups"]) == {"Directions", "Photo", "WalkDog", "Walking"}
+    config = json.loads((run_dir / "config.json").read_text())
+    assert config["data"]["detections"] == "cpn" and config["model"]["width"] == 32
+    text = (run_dir / paper_tables.TABLE_FILE).read_text()
+    assert TABLE_II_HEADER in text and "MPJPE (mm, root-relative, no alignment" in text
+
+
+def test_humaneva_table_iii_layout(tmp_path):
+    files = write_humaneva_files(tmp_path / "humaneva", subjects=("S1", "S2"))
+    run_dir = tmp_path / "run"
+    argv = [
+        "--data.data-dir", str(files.root), "--data.train-subjects", "Train/S1", "Train/S2",
+        "--data.test-subjects", "Validate/S1", "Validate/S2", "--run.run-dir", str(run_dir),
+    ]
+    report = humaneva.main(argv + TINY)
+    groups = report["results"]["Lifter, self-supervised (ours)"]["groups"]
+    assert set(groups) == {"Walk S1", "Walk S2", "Jog S1", "Jog S2"}  # no Gestures: the protocol tests Walk, Jog
+    assert (run_dir / "report.md").exists()
+    ours = _table_rows(run_dir / paper_tables.TABLE_FILE, TABLE_III_HEADER)[0]
+    assert [cell == "-" for cell in ours[1:7]] == [False, False, True, False, False, True]
+    float(ours[7])
+
+
+def test_mpi_inf_3dhp_evaluation_of_an_h36m17_run(cpn_run, tmp_path):
+    run_dir, _ = cpn_run
+    K = {name: camera_intrinsics(name) for name in ("TS1", "TS5")}
+    data = write_mpi_inf_3dhp_test_set(tmp_path / "3dhp", {"TS1": "v7.3", "TS5": "v5"}, K=K)
+    out = tmp_path / "out"
+    argv = ["--run-dir", str(run_dir), "--data-dir", str(data.root), "--sequences", "TS1", "TS5", "--out-dir", str(out)]
+    report = mpi_inf_3dhp.main(argv + ["--no-progress"])
+    frames = sum(int(valid.sum()) for valid in data.valid.values())
+    assert report["frames"] == frames == report["by_activity"]["overall"]["count"]
+    assert set(report["by_sequence"]["groups"]) == {"TS1", "TS5"}
+    for summary in report["by_activity"]["groups"].values():
+        assert 0.0 <= summary["pck"] <= 100.0 and 0.0 <= summary["auc"] <= summary["pck"] + 1e-6
+    assert json.loads((out / "report.json").read_text())["checkpoint_step"] == report["checkpoint_step"]
+    text = (out / "report.md").read_text()
+    assert "| Activity | Frames | PCK@150mm (%) | AUC (%) | MPJPE (mm) | P-MPJPE (mm) |" in text
+    assert "| Paper: ours (self-supervised) | 2935 | 65.9 | 32.5 | - | - |" in text
+
+
+def test_mpi_inf_3dhp_rejects_a_16_joint_model(sh_run, tmp_path):
+    run_dir, _ = sh_run
+    with pytest.raises(SystemExit) as stop:
+        mpi_inf_3dhp.main(["--run-dir", str(run_dir), "--data-dir", str(tmp_path), "--no-progress"])
+    assert "16 joints" in str(stop.value.code) and "--data.detections sh" in str(stop.value.code)
+
+
+def test_mpi_inf_3dhp_missing_data(cpn_run, tmp_path):
+    with pytest.raises(SystemExit) as stop:
+        mpi_inf_3dhp.main(["--run-dir", str(cpn_run[0]), "--data-dir", str(tmp_path / "none"), "--no-progress"])
+    assert "annot_data.mat" in str(stop.value.code) and "Getting the data" in str(stop.value.code)
+
+
+@pytest.mark.parametrize("module, data_dir", [(h36m, "data/h36m"), (humaneva, "data/humaneva")])
+def test_missing_data_is_one_message_and_leaves_no_run_dir(module, data_dir, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as stop:
+        module.main([])
+    message = stop.value.code
+    assert isinstance(message, str) and message.startswith("error: ")  # printed to stderr, exit status 1
+    assert 'README section "Getting the data"' in message and f"--data.data-dir {data_dir}" in message
+    assert not (tmp_path / "runs").exists()
+
+
+def _assert_every_flag_documented(help_text: str, flags: list[str]) -> None:
+    """Each flag's entry in tyro's help has words besides its metavar and default: a field without a
+    docstring shows only "(default: ...)".  Works with and without the box-drawing characters."""
+    lines = [re.sub("[│╭╮╰╯─]", " ", line).strip() for line in help_text.splitlines()]
+    for flag in flags:
+        first = next(i for i, line in enumerate(lines) if re.match(rf"{re.escape(flag)}([ ,]|$)", line))
+        entry = [lines[first][len(flag) :]]
+        for line in lines[first + 1 :]:
+            if not line or line.startswith("-"):
+                break
+            entry.append(line)
+        text = re.sub(r"\{[^}]*\}|\[[^\]]*\]", " ", " ".join(entry)).split("(default:")[0]
+        assert len(re.findall(r"\b[a-z]{2,}\b", text)) >= 2, f"{flag} has no help text: {text!r}"
+
+
+@pytest.mark.parametrize("module, data_type", [(h36m, h36m.H36MData), (humaneva, humaneva.HumanEvaData)])
+def test_help_lists_presets_and_documents_every_data_flag(module, data_type, capsys):
+    with pytest.raises(SystemExit) as stop:
+        module.main(["--preset", "paper", "--help"])
+    assert stop.value.code == 0
+    text = capsys.readouterr().out
+    assert "--preset {cpu,paper}" in text and "defaults shown below are those of --preset paper" in text
+    _assert_every_flag_documented(text, ["--data." + f.name.replace("_", "-") for f in dataclasses.fields(data_type)])
+
+
+def test_mpi_inf_3dhp_help(capsys):
+    with pytest.raises(SystemExit) as stop:
+        mpi_inf_3dhp.main(["--help"])
+    assert stop.value.code == 0
+    flags = ["--" + f.name.replace("_", "-") for f in dataclasses.fields(mpi_inf_3dhp.Mpi3dhpEvaluation)]
+    _assert_every_flag_documented(capsys.readouterr().out, flags)
+
+
+@pytest.mark.parametrize("module", [h36m, humaneva])
+def test_presets(module):
+    data_type = type(module.DEFAULT.data)
+    assert module.DEFAULT is module.PRESETS["cpu"]
+    paper = cli.parse(ExperimentConfig[data_type], module.PRESETS, module.PRESET_NOTES, ["--preset", "paper"], "", "x")
+    assert paper == module.PRESETS["paper"]
+    assert (paper.optimizer.learning_rate, paper.optimizer.schedule, paper.optimizer.warmup_steps) == (1e-3, "constant", 0)
+    assert (paper.train.batch_size, paper.train.epochs) == ((8192, 500) if module is h36m else (1600, 5000))
+    assert paper.model == type(paper.model)() and paper.loss == type(paper.loss)()
+    supervised = cli.parse(ExperimentConfig[data_type], module.PRESETS, module.PRESET_NOTES, ["--supervision", "full"], "", "x")
+    assert supervised.loss.supervision == "full"
+    assert str(supervised.run.run_dir) == f"{module.DEFAULT.run.run_dir}_supervised"
