@@ -12,19 +12,33 @@ import json
 import pathlib
 from typing import Any, Generic, Literal, TypeVar
 
+from jaxpose import robust
 from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
+from jaxpose.robust import PseudoLabelMethod
 
 DataT = TypeVar("DataT")
 
 
 @dataclasses.dataclass(frozen=True)
 class PseudoLabelConfig:
-    """How the input triangulation (the pseudo-labels) is computed, once, before training."""
+    """How the input triangulation (the pseudo-labels) is computed, once, before training.
 
-    method: Literal["svd", "normal"] = "svd"
-    """DLT solver: "svd" (reference) or "normal" (closed-form least squares)."""
+    The field names are the keyword arguments of `MultiViewDataset.with_pseudo_labels`.
+    """
+
+    method: PseudoLabelMethod = "svd"
+    """"svd" (reference), "eigh" or "normal" (closed form): the DLT with views weighted by detector
+    confidence; "unweighted": the paper's DLT, every detected view weight 1; "irls" / "ransac":
+    robust, views that disagree with the others are down-weighted / rejected (see jaxpose.robust)."""
     min_views: int = 2
-    """A joint seen (confidence > 0) by fewer views gets no pseudo-label."""
+    """A joint seen (confidence > 0) by fewer views (with "irls"/"ransac": fewer agreeing views)
+    gets no pseudo-label (weight 0)."""
+    threshold_px: float = robust.DEFAULT_THRESHOLD_PX
+    """"irls"/"ransac": a view agrees with a joint's 3D point when it reprojects within this many pixels."""
+    irls_iterations: int = robust.DEFAULT_IRLS_ITERATIONS
+    """"irls": re-weighting rounds before the final solve on the agreeing views."""
+    irls_scale_px: float = robust.DEFAULT_IRLS_SCALE_PX
+    """"irls": scale of the Cauchy weight 1 / (1 + (residual / scale)^2), pixels."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,16 +80,24 @@ class RunConfig:
 
 @dataclasses.dataclass(frozen=True)
 class ParallelConfig:
-    """Data parallelism over devices and hosts (see README, "Training on several devices and hosts")."""
+    """Data parallelism over devices and hosts (see README, "Training on several devices and hosts").
+
+    The train state is replicated, every batch is split by samples over the devices, and BatchNorm
+    statistics are taken over the whole (global) batch; `train.batch_size` is that global batch and
+    must be a multiple of the number of devices.  Leave the last three fields unset for one process,
+    or under `srun` (SLURM) / `mpirun` (Open MPI), where JAX reads them from the environment.
+    """
 
     data: int = -1
-    """Devices on the mesh's data axis; -1 = all devices of all processes."""
+    """Devices on the mesh's data axis: -1 = all devices of all processes; N = the first N (one
+    process only)."""
     coordinator_address: str | None = None
-    """host:port of process 0 for multi-host runs (None = single process, or from SLURM/cluster env)."""
+    """host:port of process 0, reachable from every process, for a multi-process run (None = one
+    process, or from the SLURM/Open MPI environment)."""
     num_processes: int | None = None
-    """Number of processes of a multi-host run."""
+    """Number of processes of a multi-process run (None = one process, or from the cluster environment)."""
     process_id: int | None = None
-    """This process's index in a multi-host run."""
+    """This process's index, 0..num_processes-1 (None = from the cluster environment)."""
 
 
 @dataclasses.dataclass(frozen=True)
