@@ -22,6 +22,7 @@ import sys
 
 import tyro
 
+from experiments import cli
 from experiments.config import ExperimentConfig
 from experiments.runner import run
 
@@ -69,7 +70,10 @@ def main(argv: list[str] | None = None) -> str:
     default = dataclasses.replace(default, run=dataclasses.replace(default.run, run_dir=pathlib.Path(f"runs/ablation_{chosen.dataset}")))
     description = __doc__ + f"\nFlags below are those of experiments.{chosen.dataset}."
     base = tyro.cli(ExperimentConfig[type(default.data)], default=default, args=rest, description=description)
-    results = [(label, run(config, module.load_splits)) for label, config in ablation_configs(base)]
+    load_splits = module.load_splits
+    if hasattr(module, "expected_files"):  # real data: a missing file is one message, not a traceback
+        load_splits = cli.guard_data_errors(load_splits, module.expected_files)
+    results = [(label, run(config, load_splits)) for label, config in ablation_configs(base)]
     table = ablation_table(results)
     base.run.run_dir.mkdir(parents=True, exist_ok=True)
     (base.run.run_dir / "ablation.md").write_text(table + "\n")

@@ -12,8 +12,8 @@ subcommand name and the top-level `--help` would not list them.
 
 Data errors.  A missing or malformed data file ends the program with one message (what was expected
 where, what was found, the files this run reads, and the README section "Getting the data") and a
-non-zero exit status, not a traceback.  A run directory that this failed start created is removed
-again, so that a corrected command does not trip over the config it recorded.
+non-zero exit status, not a traceback.  The runner loads the data before it creates the run
+directory, so a failed start leaves nothing behind.
 """
 
 from __future__ import annotations
@@ -35,10 +35,6 @@ from jaxpose.data.errors import DataFormatError
 
 DEFAULT_PRESET = "cpu"
 SUPERVISED_SUFFIX = "_supervised"
-
-
-class _DataUnavailable(Exception):
-    """Raised by the guarded loader: the data could not be loaded (message ready to print)."""
 
 
 def parse(
@@ -73,45 +69,29 @@ def parse(
     return config
 
 
-def run_experiment(
-    config: ExperimentConfig,
-    load_splits: Callable[[Any], Splits],
-    expected_files: Callable[[Any], str],
-    table: paper_tables.PaperTable,
-) -> dict:
-    """`experiments.runner.run`, with data errors turned into one message and exit status 1, then
-    the paper-layout table written into (and printed from) the run directory."""
+def guard_data_errors(load_splits: Callable[[Any], Splits], expected_files: Callable[[Any], str]) -> Callable[[Any], Splits]:
+    """`load_splits` whose data errors end the program with one message and exit status 1."""
 
     def guarded_load(data) -> Splits:
         try:
             return load_splits(data)
         # ValueError: the loaders' argument checks (an unknown --data.detections, a bad stride).
         except (DataFormatError, ValueError) as error:
-            raise _DataUnavailable(f"error: {error}\n{expected_files(data)}") from None
+            raise SystemExit(f"error: {error}\n{expected_files(data)}") from None
 
-    run_dir = config.run.run_dir
-    # The outermost folder this start will create (run_dir itself, or a missing parent such as runs/).
-    created = next((p for p in reversed([run_dir, *run_dir.parents]) if not p.exists()), None)
-    try:
-        report = run(config, guarded_load)
-    except _DataUnavailable as stop:
-        if created is not None:
-            _remove_unstarted_run(run_dir, created)
-        raise SystemExit(str(stop)) from None
+    return guarded_load
+
+
+def run_experiment(
+    config: ExperimentConfig,
+    load_splits: Callable[[Any], Splits],
+    expected_files: Callable[[Any], str],
+    table: paper_tables.PaperTable,
+) -> dict:
+    """`experiments.runner.run` with data errors as one message (`guard_data_errors`), then the
+    paper-layout table written into (and printed from) the run directory."""
+    report = run(config, guard_data_errors(load_splits, expected_files))
     if jax.process_index() == 0:
-        path = paper_tables.write(table, report["results"], run_dir)
+        path = paper_tables.write(table, report["results"], config.run.run_dir)
         print(path.read_text())
     return report
-
-
-def _remove_unstarted_run(run_dir: pathlib.Path, created: pathlib.Path) -> None:
-    """Undo what the runner wrote before loading the data: config.json and the folders from `created`
-    down to run_dir/plots, as long as they are empty (nothing else is ever deleted)."""
-    if (run_dir / "checkpoints").exists():  # cannot happen before training, but never delete a run
-        return
-    (run_dir / "config.json").unlink(missing_ok=True)
-    folders = [run_dir / "plots", run_dir, *run_dir.parents]
-    for folder in folders[: folders.index(created) + 1]:
-        if not folder.is_dir() or any(folder.iterdir()):
-            return
-        folder.rmdir()

@@ -27,14 +27,13 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from experiments.config import ExperimentConfig, dumps, to_json_dict
-from jaxpose import checkpoint, evaluation, viz
+from jaxpose import checkpoint, evaluation, parallel, viz
 from jaxpose.data.batch import validate_batch
-from jaxpose.data.dataset import MultiViewDataset, steps_per_epoch, training_batches
+from jaxpose.data.dataset import MultiViewDataset, steps_per_epoch
 from jaxpose.train import (
     TrainState,
     build_model,
     init_train_state,
-    jit_train_step,
     make_optimizer,
     make_predict_fn,
     make_train_step,
@@ -68,23 +67,28 @@ def _identity(config_json: dict) -> dict:
     return identity
 
 
+def check_resumable(config: ExperimentConfig) -> None:
+    """Fail early (before any data are loaded) if run_dir holds a run of a different config."""
+    config_path = config.run.run_dir / "config.json"
+    if config.run.overwrite or not config_path.exists():
+        return
+    if _identity(json.loads(config_path.read_text())) != _identity(to_json_dict(config)):
+        raise SystemExit(
+            f"{config.run.run_dir} holds a run with a different config ({config_path}); resume it with the same"
+            " settings, pick another --run.run-dir, or pass --run.overwrite to start over."
+        )
+
+
 def prepare_run_dir(config: ExperimentConfig) -> pathlib.Path:
     """Create (or check, for a resume) the run directory and write config.json."""
+    check_resumable(config)
     run_dir = config.run.run_dir
-    config_path = run_dir / "config.json"
-    if config.run.overwrite and run_dir.exists():
+    if config.run.overwrite and run_dir.exists() and jax.process_index() == 0:
         shutil.rmtree(run_dir)
-    if config_path.exists():
-        previous = json.loads(config_path.read_text())
-        if _identity(previous) != _identity(to_json_dict(config)):
-            raise SystemExit(
-                f"{run_dir} holds a run with a different config ({config_path}); resume it with the same"
-                " settings, pick another --run.run-dir, or pass --run.overwrite to start over."
-            )
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "plots").mkdir(exist_ok=True)
     if jax.process_index() == 0:
-        config_path.write_text(dumps(config))
+        (run_dir / "config.json").write_text(dumps(config))
     return run_dir
 
 
@@ -123,42 +127,43 @@ def _read_jsonl(path: pathlib.Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
 
-def train(
-    config: ExperimentConfig,
-    train_set: MultiViewDataset,
-    run_dir: pathlib.Path,
-    place_batch: Callable[[Any], Any] = jax.device_put,
-) -> tuple[TrainState, Any]:
-    """Train (or resume) on `train_set`, which must carry pseudo-labels.  Returns (state, model)."""
+def train(config: ExperimentConfig, train_set: MultiViewDataset, run_dir: pathlib.Path) -> tuple[TrainState, Any]:
+    """Train (or resume) on `train_set`, which must carry pseudo-labels.  Returns (state, model).
+
+    Data parallel over `config.parallel.data` devices of all processes (`jaxpose.parallel`); the
+    returned state is this process's copy, on one local device.
+    """
     cfg = config.train
     per_epoch = steps_per_epoch(len(train_set), cfg.batch_size)
     total_steps = per_epoch * cfg.epochs
     stop_step = min(total_steps, cfg.max_steps) if cfg.max_steps > 0 else total_steps
     model = build_model(config.model, train_set.skeleton.num_joints)
     optimizer = make_optimizer(config.optimizer, total_steps)
+    mesh = parallel.data_mesh(config.parallel.data)
     init_key, dropout_key = jax.random.split(jax.random.key(cfg.seed))
-    state = init_train_state(model, optimizer, init_key)
+    state, dropout_key = parallel.replicate((init_train_state(model, optimizer, init_key), dropout_key), mesh)
     manager = checkpoint.checkpoint_manager(run_dir / "checkpoints", cfg.keep_checkpoints)
-    restored = checkpoint.restore_latest(manager, state)
+    restored = checkpoint.restore_latest(manager, state, discard_unreadable=True)
     if restored is not None:
         state = restored
         log.info("resumed from step %d of %d", int(state.step), total_steps)
-    step_fn = jit_train_step(make_train_step(model, config.model, optimizer, config.loss, total_steps))
+    step_fn = parallel.shard_train_step(make_train_step(model, config.model, optimizer, config.loss, total_steps), mesh)
     start = int(state.step)
     metrics_path = run_dir / "metrics.jsonl"
     views = train_set.num_views
     log.info(
-        "training: %d samples x %d views, batch %d, %d steps/epoch, %d epochs (%d steps), from step %d",
-        len(train_set), views, cfg.batch_size, per_epoch, cfg.epochs, total_steps, start,
+        "training: %d samples x %d views, batch %d over %d devices (%d processes), %d steps/epoch,"
+        " %d epochs (%d steps), from step %d",
+        len(train_set), views, cfg.batch_size, mesh.size, jax.process_count(), per_epoch, cfg.epochs, total_steps, start,
     )
     bar = tqdm(total=stop_step, initial=start, desc="train", unit="step", disable=not config.run.progress or jax.process_index() != 0)
     last_time, last_step = time.perf_counter(), start
     with _SignalFlag() as interrupt:
-        batches = training_batches(train_set, cfg.batch_size, cfg.seed, start)
+        batches = parallel.process_batches(train_set, cfg.batch_size, cfg.seed, mesh, start)
         for step, batch in batches:
             if step >= stop_step:
                 break
-            state, metrics = step_fn(state, place_batch(batch), dropout_key)
+            state, metrics = step_fn(state, batch, dropout_key)
             done = step + 1
             bar.update(1)
             if done % cfg.log_every == 0 or done == stop_step:
@@ -178,7 +183,7 @@ def train(
     bar.close()
     checkpoint.save(manager, state)
     manager.wait_until_finished()
-    return state, model
+    return parallel.local_replica(state), model
 
 
 def evaluate_and_report(
@@ -199,7 +204,7 @@ def evaluate_and_report(
     target = evaluation.poses_in_views(test, test.target3d)
     groups = test.labels.get(splits.group_label)
     valid = test.confidence[..., 0] > 0  # a view whose root was not detected cannot be lifted
-    test_triangulated = test.with_pseudo_labels(config.pseudo_labels.method, config.pseudo_labels.min_views)
+    test_triangulated = test.with_pseudo_labels(**dataclasses.asdict(config.pseudo_labels))
     triangulation = evaluation.poses_in_views(test, test_triangulated.pseudo3d)
     mean_pose = np.broadcast_to(evaluation.mean_pose_prediction(splits.train), pred.shape)
     rows = {
@@ -243,15 +248,20 @@ def _plots(config, test: MultiViewDataset, pred, target, run_dir: pathlib.Path) 
 def run(config: ExperimentConfig, load_data: Callable[[Any], Splits]) -> dict:
     """The whole job: data -> pseudo-labels -> train (or resume) -> evaluate -> report."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s", stream=sys.stderr)
+    # Before anything touches a device: a multi-host run connects its processes first.
+    parallel.initialize(config.parallel.coordinator_address, config.parallel.num_processes, config.parallel.process_id)
     begin = time.perf_counter()
-    run_dir = prepare_run_dir(config)
+    check_resumable(config)
+    # Data first: a missing or malformed file then leaves no run directory behind (and an
+    # --run.overwrite start does not delete the previous run before the data are known to load).
     splits = load_data(config.data)
+    run_dir = prepare_run_dir(config)
     log.info("data: %d train / %d test samples, %d views, %d joints", len(splits.train), len(splits.test), splits.train.num_views, splits.train.skeleton.num_joints)
     usable = splits.train.usable_view_count() >= config.pseudo_labels.min_views
     if not usable.all():
         log.warning("dropping %d training samples with fewer than %d usable views", int((~usable).sum()), config.pseudo_labels.min_views)
     train_set = splits.train.subset(np.flatnonzero(usable))
-    train_set = train_set.with_pseudo_labels(config.pseudo_labels.method, config.pseudo_labels.min_views)
+    train_set = train_set.with_pseudo_labels(**dataclasses.asdict(config.pseudo_labels))
     validate_batch(train_set.batch(np.arange(len(train_set))))
     splits = dataclasses.replace(splits, train=train_set)
     try:

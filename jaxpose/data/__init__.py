@@ -1,7 +1,14 @@
 """Multi-view data: the batch contract, the in-memory data set, and the loaders."""
 
 from jaxpose.data.batch import BatchValidationError, MultiViewBatch, validate_batch, validate_cameras
-from jaxpose.data.dataset import MultiViewDataset, concatenate, epoch_order, steps_per_epoch, training_batches
+from jaxpose.data.dataset import (
+    MultiViewDataset,
+    concatenate,
+    epoch_order,
+    steps_per_epoch,
+    training_batches,
+    training_indices,
+)
 
 __all__ = [
     "BatchValidationError",
@@ -11,6 +18,7 @@ __all__ = [
     "epoch_order",
     "steps_per_epoch",
     "training_batches",
+    "training_indices",
     "validate_batch",
     "validate_cameras",
 ]

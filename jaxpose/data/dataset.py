@@ -9,6 +9,7 @@ Cameras are stored once per rig (a subject's calibration) and gathered per batch
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Iterator, Mapping
 
 import jax
@@ -18,7 +19,14 @@ import numpy as np
 from jaxpose.camera import Cameras, projection_matrices, undistort_points
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.skeleton import Skeleton
-from jaxpose.triangulation import Method, triangulate
+from jaxpose import robust
+from jaxpose.robust import PseudoLabelMethod
+
+
+# Module-level, so that every data set (train and test splits, repeated calls) shares its compilations.
+_pseudo_labels = jax.jit(
+    robust.pseudo_labels, static_argnames=("method", "min_views", "threshold_px", "irls_iterations", "irls_scale_px")
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -128,24 +136,45 @@ class MultiViewDataset:
         return dataclasses.replace(self, keypoints2d=points.astype(np.float32), rigs=self.rigs.without_distortion())
 
     def with_pseudo_labels(
-        self, method: Method = "svd", min_views: int = 2, chunk_size: int = 65536
+        self,
+        method: PseudoLabelMethod = "svd",
+        min_views: int = 2,
+        *,
+        threshold_px: float = robust.DEFAULT_THRESHOLD_PX,
+        irls_iterations: int = robust.DEFAULT_IRLS_ITERATIONS,
+        irls_scale_px: float = robust.DEFAULT_IRLS_SCALE_PX,
+        chunk_size: int = 16384,
     ) -> "MultiViewDataset":
         """Triangulate the detections of all views once (the input triangulation, paper Eq. 2).
 
-        Views weigh in by detector confidence (0 drops a view); a joint seen by fewer than
-        `min_views` views gets pseudo3d_weight 0.  Robust alternatives: `jaxpose.robust`.
+        `method` and the thresholds are those of `jaxpose.robust.pseudo_labels`: "svd" (default),
+        "eigh", "normal" weigh views by detector confidence, "unweighted" is the paper's plain DLT,
+        "irls" and "ransac" also reject views that disagree with the others.  A joint without
+        `min_views` (agreeing) views gets pseudo3d_weight 0.  So does every joint of a sample whose
+        root gets 0: the pseudo-label is used root-relative, so a bad root spoils every joint.
         """
         dataset = self.undistorted()
-        solve = jax.jit(lambda P, points, weights: triangulate(P, points, weights, method))
-        pseudo3d = np.empty((len(dataset), dataset.skeleton.num_joints, 3), np.float32)
-        for start in range(0, len(dataset), chunk_size):
-            rows = np.arange(start, min(start + chunk_size, len(dataset)))
+        solve = functools.partial(
+            _pseudo_labels,
+            method=method,
+            min_views=min_views,
+            threshold_px=threshold_px,
+            irls_iterations=irls_iterations,
+            irls_scale_px=irls_scale_px,
+        )
+        count, joints = len(dataset), dataset.skeleton.num_joints
+        pseudo3d = np.empty((count, joints, 3), np.float32)
+        weight = np.empty((count, joints), np.float32)
+        chunk_size = max(1, min(chunk_size, count))
+        for start in range(0, count, chunk_size):
+            # Fixed-size chunks (the last one padded by repeating a row): one compilation.
+            rows = np.minimum(np.arange(start, start + chunk_size), count - 1)
+            stop = min(start + chunk_size, count)
             P = projection_matrices(dataset.cameras_for(rows))
-            pseudo3d[rows] = np.asarray(
-                solve(P, jnp.asarray(dataset.keypoints2d[rows]), jnp.asarray(dataset.confidence[rows]))
-            )
-        views = (dataset.confidence > 0).sum(1)
-        weight = (views >= min_views).astype(np.float32)
+            points, valid = solve(P, jnp.asarray(dataset.keypoints2d[rows]), jnp.asarray(dataset.confidence[rows]))
+            pseudo3d[start:stop] = np.asarray(points)[: stop - start]
+            weight[start:stop] = np.asarray(valid)[: stop - start]
+        weight *= weight[:, :1]
         return dataclasses.replace(dataset, pseudo3d=pseudo3d, pseudo3d_weight=weight)
 
 
@@ -194,15 +223,25 @@ def steps_per_epoch(num_samples: int, batch_size: int) -> int:
     return num_samples // batch_size
 
 
+def training_indices(num_samples: int, batch_size: int, seed: int, start_step: int = 0) -> Iterator[tuple[int, np.ndarray]]:
+    """Endless (step, sample indices of the batch) stream from `start_step` on.
+
+    Whole samples are shuffled every epoch by `epoch_order`, so the indices of a step depend only on
+    (seed, step): a resumed run, or a process holding a slice of the batch, sees the same batches.
+    """
+    per_epoch = steps_per_epoch(num_samples, batch_size)
+    step = start_step
+    while True:
+        epoch, offset = divmod(step, per_epoch)
+        order = epoch_order(num_samples, seed, epoch)
+        for position in range(offset, per_epoch):
+            yield step, order[position * batch_size : (position + 1) * batch_size]
+            step += 1
+
+
 def training_batches(
     dataset: MultiViewDataset, batch_size: int, seed: int, start_step: int = 0
 ) -> Iterator[tuple[int, MultiViewBatch]]:
     """Endless (step, batch) stream from `start_step` on; shuffles whole samples every epoch."""
-    per_epoch = steps_per_epoch(len(dataset), batch_size)
-    step = start_step
-    while True:
-        epoch, offset = divmod(step, per_epoch)
-        order = epoch_order(len(dataset), seed, epoch)
-        for position in range(offset, per_epoch):
-            yield step, dataset.batch(order[position * batch_size : (position + 1) * batch_size])
-            step += 1
+    for step, indices in training_indices(len(dataset), batch_size, seed, start_step):
+        yield step, dataset.batch(indices)
