@@ -174,7 +174,7 @@ def normalize_keypoints(
         valid = jnp.ones(keypoints2d.shape[:-1], dtype=keypoints2d.dtype)
     else:
         valid = (confidence > 0).astype(keypoints2d.dtype) * (confidence[..., root : root + 1] > 0)
-    relative = relative * valid[..., None]
+    relative = jnp.where(valid[..., None] > 0, relative, 0.0)  # `where`: a missing joint may hold NaN
     if mode == "intrinsics_scale":
         count = jnp.maximum(valid.sum(-1, keepdims=True) - 1.0, 1.0)
         mean_square = (relative**2).sum((-2, -1))[..., None] / count

@@ -40,11 +40,18 @@ def save(manager: ocp.CheckpointManager, state: TrainState) -> None:
     manager.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(state)))
 
 
-def restore_latest(manager: ocp.CheckpointManager, template: TrainState) -> TrainState | None:
+def restore_latest(
+    manager: ocp.CheckpointManager, template: TrainState, discard_unreadable: bool = False
+) -> TrainState | None:
     """The newest readable checkpoint as a `TrainState` shaped (and sharded) like `template`.
 
     Returns None when the directory holds no checkpoint.  An unreadable newest step is reported
     with a warning and the next older one tried; if none can be read, raises `CheckpointError`.
+
+    discard_unreadable: delete the unreadable steps newer than the one restored.  A resuming run
+    wants this: `save` skips a step that exists, so a corrupt step would otherwise never be
+    rewritten (a run whose final checkpoint was corrupt would keep it after training again).  Only
+    done once an older step was read with `template`, so a template that fits no step deletes nothing.
     """
     steps = sorted(manager.all_steps(), reverse=True)
     if not steps:
@@ -54,9 +61,14 @@ def restore_latest(manager: ocp.CheckpointManager, template: TrainState) -> Trai
     for step in steps:
         try:
             restored = manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))
-            return restored["state"]
         except Exception as error:  # noqa: BLE001 - any failure to read means "try the previous one"
             message = f"checkpoint step {step} in {manager.directory} is unreadable ({type(error).__name__}: {error})"
             warnings.warn(message + "; falling back to the previous checkpoint", stacklevel=2)
-            failures.append(message)
-    raise CheckpointError("no readable checkpoint:\n  " + "\n  ".join(failures))
+            failures.append((step, message))
+            continue
+        if discard_unreadable:
+            for bad_step, _ in failures:
+                manager.delete(bad_step)
+                log.warning("deleted unreadable checkpoint step %d (training replays it from step %d)", bad_step, step)
+        return restored["state"]
+    raise CheckpointError("no readable checkpoint:\n  " + "\n  ".join(message for _, message in failures))

@@ -107,14 +107,22 @@ def validate_cameras(cameras: Cameras, batch_shape: tuple[int, ...], name: str =
 def validate_batch(batch: MultiViewBatch, min_views: int = 2) -> None:
     """Reject what would silently poison training; raises `BatchValidationError`.
 
-    Checks: shapes and float dtypes of every field; no NaN/inf anywhere; confidence in [0, 1]; at
-    least `min_views` usable views (root and one more joint with confidence > 0) in every sample;
-    cameras (see `validate_cameras`); the pseudo-label in front of every camera that sees it.
+    Checks: shapes and float dtypes of every field; no NaN/inf anywhere; confidence and
+    pseudo3d_weight in [0, 1]; at least `min_views` usable views (root and one more joint with
+    confidence > 0) in every sample; cameras (see `validate_cameras`); no camera with most of a
+    sample's joints behind it; every pseudo-label of positive weight in front of every camera that
+    sees it.
     """
+    if not isinstance(batch.cameras, Cameras):
+        raise BatchValidationError(f"cameras: expected a jaxpose.camera.Cameras, got {type(batch.cameras).__name__}")
     keypoints = np.asarray(batch.keypoints2d)
     if keypoints.ndim != 4 or keypoints.shape[-1] != 2:
         raise BatchValidationError(f"keypoints2d: expected shape (B, C, J, 2), got {keypoints.shape}")
     B, C, J, _ = keypoints.shape
+    if B == 0 or J < 2:
+        raise BatchValidationError(
+            f"keypoints2d: need at least 1 sample and 2 joints (root and one more), got shape {keypoints.shape}"
+        )
     keypoints = _check_shape("keypoints2d", keypoints, (B, C, J, 2))
     confidence = _check_shape("confidence", batch.confidence, (B, C, J))
     pseudo3d = _check_shape("pseudo3d", batch.pseudo3d, (B, J, 3))
@@ -128,6 +136,10 @@ def validate_batch(batch: MultiViewBatch, min_views: int = 2) -> None:
     if batch.pseudo3d_weight is not None:
         weight = _check_shape("pseudo3d_weight", batch.pseudo3d_weight, (B, J))
         _check_finite("pseudo3d_weight", weight)
+        outside = (weight < 0) | (weight > 1)
+        if outside.any():
+            index = _first_index(outside)
+            raise BatchValidationError(f"pseudo3d_weight: values must lie in [0, 1]; {weight[index]} at index {index}")
     if batch.target3d is not None:
         target = _check_shape("target3d", batch.target3d, (B, J, 3))
         _check_finite("target3d", target)
@@ -145,7 +157,20 @@ def validate_batch(batch: MultiViewBatch, min_views: int = 2) -> None:
     depth = np.einsum("bcij,bnj->bcni", np.asarray(batch.cameras.R), pseudo3d)[..., 2] + np.asarray(
         batch.cameras.t
     )[:, :, None, 2]
-    behind = (depth <= 0) & (confidence > 0)
+    detected = confidence > 0
+    behind = (depth <= 0) & detected
+    # One joint behind a camera can be an outlier's triangulation (its label then has weight 0); most
+    # of a sample's joints behind a camera cannot: that camera faces away or its convention is wrong.
+    share = behind.sum(-1) / np.maximum(detected.sum(-1), 1)
+    facing_away = share > 0.5
+    if facing_away.any():
+        sample, view = _first_index(facing_away)
+        raise BatchValidationError(
+            f"pseudo3d: {share[sample, view]:.0%} of the detected joints of sample {sample} are behind camera {view}:"
+            " it faces away; check the camera convention (x_cam = R x_world + t, t in mm)"
+        )
+    if batch.pseudo3d_weight is not None:  # a label of weight 0 is never used, wherever it lies
+        behind &= np.asarray(batch.pseudo3d_weight)[:, None, :] > 0
     if behind.any():
         index = _first_index(behind)
         raise BatchValidationError(

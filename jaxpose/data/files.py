@@ -10,6 +10,7 @@ import contextlib
 import json
 import pickle
 import zipfile
+import zlib
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -20,8 +21,13 @@ import scipy.io
 
 from jaxpose.data.errors import DataFormatError
 
-# What numpy, zipfile and pickle raise on an empty, truncated or foreign .npz file.
-_NPZ_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, pickle.UnpicklingError, AttributeError, ImportError)
+# What numpy, zipfile, zlib and pickle raise on an empty, truncated, garbled or foreign .npz file.
+_NPZ_ERRORS = (
+    OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, pickle.UnpicklingError, AttributeError, ImportError,
+)  # fmt: skip
+# What h5py raises on a damaged file: OSError mostly; garbled metadata also gives RuntimeError (link
+# iteration), KeyError, ValueError, or names that are bytes (TypeError where they meet strings).
+_H5_ERRORS = (OSError, RuntimeError, KeyError, ValueError, TypeError, UnicodeDecodeError)
 
 
 def require_file(path: Path, what: str) -> Path:
@@ -33,13 +39,16 @@ def require_file(path: Path, what: str) -> Path:
 
 @contextlib.contextmanager
 def open_h5(path: Path, what: str) -> Iterator[h5py.File]:
-    """Open an HDF5 file read-only; unreadable files and failed reads become `DataFormatError`."""
+    """Open an HDF5 file read-only; unreadable files and failed reads (also those of the caller's
+    block) become `DataFormatError`."""
     require_file(path, what)
     try:
         with h5py.File(path, "r") as file:
             yield file
-    except OSError as error:  # h5py's error for bad signatures, truncation and failed reads
-        raise DataFormatError(path, f"{what} (an HDF5 file)", f"a file h5py cannot read ({error})") from None
+    except DataFormatError:  # a ValueError too, raised by the reader about the file's contents
+        raise
+    except _H5_ERRORS as error:
+        raise DataFormatError(path, f"{what} (an HDF5 file)", f"a file h5py cannot read ({error!r})") from None
 
 
 def h5_dataset(group: h5py.Group, name: str, path: Path, what: str) -> np.ndarray:
@@ -51,6 +60,15 @@ def h5_dataset(group: h5py.Group, name: str, path: Path, what: str) -> np.ndarra
             f"{path}:{group.name}", f"{what}: a dataset {name!r}", f"only {found}" if found else "an empty group"
         )
     return node[()]
+
+
+def real_array(value: Any, where: str, what: str) -> np.ndarray:
+    """`value` as a numpy array of real numbers (bool, int or float), or a `DataFormatError` naming
+    its dtype: strings, complex numbers and Python objects would fail later, far from the file."""
+    array = np.asarray(value)
+    if array.dtype.kind not in "biuf":
+        raise DataFormatError(where, f"{what}: real numbers", f"an array of dtype {array.dtype}, shape {array.shape}")
+    return array
 
 
 def read_h5_dataset(path: Path, name: str, what: str) -> np.ndarray:

@@ -37,7 +37,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from jaxpose.data.errors import DataFormatError
-from jaxpose.data.files import read_mat
+from jaxpose.data.files import read_mat, real_array
 from jaxpose.skeleton import MPI_INF_3DHP_17, Skeleton
 
 SEQUENCES = ("TS1", "TS2", "TS3", "TS4", "TS5", "TS6")
@@ -129,10 +129,13 @@ def load_mpi_inf_3dhp_test(
 def _read_sequence(data_dir: Path, name: str) -> dict[str, np.ndarray]:
     path = data_dir / name / "annot_data.mat"
     fields = ("annot2", "annot3", "univ_annot3", "valid_frame", "activity_annotation")
-    mat = read_mat(path, fields, "MPI-INF-3DHP test annotations")
-    valid = np.asarray(mat["valid_frame"]).reshape(-1)
+    mat = {
+        field: real_array(value, f"{path} {field}", "MPI-INF-3DHP test annotations")
+        for field, value in read_mat(path, fields, "MPI-INF-3DHP test annotations").items()
+    }
+    valid = mat["valid_frame"].reshape(-1)
     count = len(valid)
-    activity = np.asarray(mat["activity_annotation"]).reshape(-1)
+    activity = mat["activity_annotation"].reshape(-1)
     if len(activity) != count:
         raise DataFormatError(f"{path} activity_annotation", f"{count} values (one per frame)", f"{len(activity)}")
     keep = np.flatnonzero(valid != 0)
@@ -142,7 +145,14 @@ def _read_sequence(data_dir: Path, name: str) -> dict[str, np.ndarray]:
         array = np.asarray(mat[field], dtype=np.float64)
         if array.shape[:2] != (dims, 17) or int(np.prod(array.shape[2:])) != count:
             raise DataFormatError(f"{path} {field}", f"a {dims} x 17 x 1 x {count} array", f"shape {array.shape}")
-        return array.reshape(dims, 17, count).transpose(2, 1, 0)[keep][:, _FILE_TO_OURS].astype(np.float32)
+        with np.errstate(over="ignore"):
+            poses = array.reshape(dims, 17, count).transpose(2, 1, 0)[keep][:, _FILE_TO_OURS].astype(np.float32)
+        bad = ~np.isfinite(poses).all((1, 2))
+        if bad.any():  # a valid frame is evaluated: it must not carry a NaN into the metrics
+            first = int(keep[np.argmax(bad)])
+            found = f"NaN/inf (in float32) in {int(bad.sum())} valid frames, the first is frame {first}"
+            raise DataFormatError(f"{path} {field}", "finite values in every valid frame", found)
+        return poses
 
     univ = joints("univ_annot3", 3)
     return {

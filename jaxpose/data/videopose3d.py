@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxpose.data.errors import DataFormatError
-from jaxpose.data.files import load_npz_object
+from jaxpose.data.files import load_npz_object, real_array
 
 
 def load_positions(path: Path, key: str, what: str) -> Mapping:
@@ -39,11 +39,10 @@ def subject_poses3d(path: Path, positions: Mapping, subject: str, num_joints: in
     """sequence -> f[N, J, 3] world metres (as stored), shapes checked."""
     poses = {}
     for name, array in _subject(path, positions, "positions_3d", subject).items():
-        array = np.asarray(array)
+        where = f"{path} positions_3d[{subject!r}][{name!r}]"
+        array = real_array(array, where, f"f[N, {num_joints}, 3] metres")
         if array.ndim != 3 or array.shape[1:] != (num_joints, 3):
-            raise DataFormatError(
-                f"{path} positions_3d[{subject!r}][{name!r}]", f"f[N, {num_joints}, 3] metres", f"shape {array.shape}"
-            )
+            raise DataFormatError(where, f"f[N, {num_joints}, 3] metres", f"shape {array.shape}")
         poses[name] = array
     return poses
 
@@ -63,9 +62,9 @@ def subject_views2d(
         for camera, array in zip(camera_names, arrays):
             if array is None or len(array) == 0:
                 continue
-            array = np.asarray(array)
+            expected = f"f[N, {num_joints}, 2] pixels"
+            array = real_array(array, f"{where} camera {camera}", expected)
             if array.ndim != 3 or array.shape[1:] != (num_joints, 2):
-                expected = f"f[N, {num_joints}, 2] pixels"
                 raise DataFormatError(f"{where} camera {camera}", expected, f"shape {array.shape}")
             views[name][camera] = array
     return views
