@@ -121,6 +121,14 @@ def _append_jsonl(path: pathlib.Path, record: dict) -> None:
             f.write(json.dumps(record) + "\n")
 
 
+def _truncate_log(path: pathlib.Path, step: int) -> None:
+    """Drop log lines past `step`: a resumed run replays those steps and logs them again."""
+    if jax.process_index() != 0 or not path.exists():
+        return
+    kept = [record for record in _read_jsonl(path) if record["step"] <= step]
+    path.write_text("".join(json.dumps(record) + "\n" for record in kept))
+
+
 def _read_jsonl(path: pathlib.Path) -> list[dict]:
     if not path.exists():
         return []
@@ -144,12 +152,13 @@ def train(config: ExperimentConfig, train_set: MultiViewDataset, run_dir: pathli
     state, dropout_key = parallel.replicate((init_train_state(model, optimizer, init_key), dropout_key), mesh)
     manager = checkpoint.checkpoint_manager(run_dir / "checkpoints", cfg.keep_checkpoints)
     restored = checkpoint.restore_latest(manager, state, discard_unreadable=True)
+    metrics_path = run_dir / "metrics.jsonl"
     if restored is not None:
         state = restored
         log.info("resumed from step %d of %d", int(state.step), total_steps)
+    _truncate_log(metrics_path, int(jax.device_get(state.step)))
     step_fn = parallel.shard_train_step(make_train_step(model, config.model, optimizer, config.loss, total_steps), mesh)
     start = int(state.step)
-    metrics_path = run_dir / "metrics.jsonl"
     views = train_set.num_views
     log.info(
         "training: %d samples x %d views, batch %d over %d devices (%d processes), %d steps/epoch,"

@@ -64,18 +64,18 @@ def _masked_mean(values: jax.Array, mask: jax.Array) -> jax.Array:
 
 def _without_root(mask: jax.Array) -> jax.Array:
     """Zero the root joint (last axis) of a mask: its error is zero by construction."""
-    return mask.at[..., ROOT].set(0.0)
+    return jnp.asarray(mask).at[..., ROOT].set(0.0)
 
 
 def usable_views(batch: MultiViewBatch) -> jax.Array:
     """f32[B, C]: 1 where the view's root was detected, so its root-relative input is defined."""
-    return (batch.confidence[..., ROOT] > 0).astype(batch.keypoints2d.dtype)
+    return jnp.asarray(batch.confidence[..., ROOT] > 0, dtype=jnp.float32)
 
 
 def _label_weight(batch: MultiViewBatch) -> jax.Array:
     if batch.pseudo3d_weight is None:
-        return jnp.ones(batch.pseudo3d.shape[:-1], batch.pseudo3d.dtype)
-    return batch.pseudo3d_weight
+        return jnp.ones(batch.pseudo3d.shape[:-1], jnp.float32)
+    return jnp.asarray(batch.pseudo3d_weight)
 
 
 def _root_relative(points: jax.Array) -> jax.Array:
@@ -97,7 +97,9 @@ def input_triangulation_loss(pred: jax.Array, batch: MultiViewBatch) -> jax.Arra
     """L_in (Eq. 2): L2 between each view's prediction and the pseudo-label in that camera."""
     target = _world_pose_in_views(batch.cameras, batch.pseudo3d)
     squared = jnp.sum(((target - pred) / MM_PER_M) ** 2, axis=-1)  # [B, C, J]
-    mask = usable_views(batch)[..., None] * _label_weight(batch)[:, None, :]
+    label = _label_weight(batch)
+    # The target is root-relative, so an untrusted root spoils every joint of its sample.
+    mask = usable_views(batch)[..., None] * (label * label[:, ROOT : ROOT + 1])[:, None, :]
     return _masked_mean(squared, _without_root(mask))
 
 

@@ -100,3 +100,20 @@ def test_missing_joints_and_views_give_no_nan_and_are_ignored():
     untrusted = batch.replace(pseudo3d_weight=weight, pseudo3d=batch.pseudo3d.at[:, 7].add(1e4))
     gradient = jax.grad(losses.input_triangulation_loss)(pred, untrusted)
     assert float(jnp.abs(gradient[..., 7, :]).max()) == 0.0
+
+
+def test_an_untrusted_root_silences_its_sample_in_the_input_triangulation_loss():
+    rng = np.random.default_rng(6)
+    batch, truth = exact_batch(rng, 3, 4, 17)
+    pred = truth + _perturbation(rng, truth.shape, 15.0)
+    weight = jnp.ones(batch.pseudo3d.shape[:-1]).at[1, 0].set(0.0)
+    gradient = jax.grad(losses.input_triangulation_loss)(pred, batch.replace(pseudo3d_weight=weight))
+    assert float(jnp.abs(gradient[1]).max()) == 0.0 and float(jnp.abs(gradient[0]).max()) > 0.0
+
+
+def test_total_loss_accepts_a_numpy_batch_outside_jit():
+    rng = np.random.default_rng(7)
+    batch, truth = exact_batch(rng, 2, 3, 17)
+    numpy_batch = jax.tree.map(np.asarray, batch)
+    loss, _ = total_loss(np.asarray(truth), numpy_batch)
+    assert float(loss) < 1e-3
