@@ -39,14 +39,31 @@ def predict_all_views(
     keypoints = dataset.keypoints2d.reshape(N * C, J, 2)
     confidence = dataset.confidence.reshape(N * C, J)
     K = np.asarray(dataset.rigs.K)[dataset.rig_index].reshape(N * C, 3, 3)
-    size = min(batch_size, N * C)
-    out = np.empty((N * C, J, 3), np.float32)
-    for start in range(0, N * C, size):
-        stop = min(start + size, N * C)
-        pad = size - (stop - start)
-        chunk = [np.concatenate([a[start:stop], np.repeat(a[stop - 1 : stop], pad, 0)]) for a in (keypoints, K, confidence)]
-        out[start:stop] = np.asarray(predict_fn(variables, *chunk))[: stop - start]
+    out = predict_in_chunks(predict_fn, variables, keypoints, K, confidence, min(batch_size, N * C))
     return out.reshape(N, C, J, 3)
+
+
+def predict_in_chunks(
+    predict_fn: Callable[..., jax.Array],
+    variables,
+    keypoints2d: np.ndarray,
+    K: np.ndarray,
+    confidence: np.ndarray,
+    chunk_size: int,
+) -> np.ndarray:
+    """Single-view predictions [M, J, 3] mm for keypoints2d [M, J, 2], K [M, 3, 3], confidence [M, J].
+
+    Every call of `predict_fn` gets exactly `chunk_size` rows (the last chunk is padded by
+    repeating its last row), so it compiles once per chunk size.
+    """
+    M, J, _ = keypoints2d.shape
+    out = np.empty((M, J, 3), np.float32)
+    for start in range(0, M, chunk_size):
+        stop = min(start + chunk_size, M)
+        pad = chunk_size - (stop - start)
+        chunk = [np.concatenate([a[start:stop], np.repeat(a[stop - 1 : stop], pad, 0)]) for a in (keypoints2d, K, confidence)]
+        out[start:stop] = np.asarray(predict_fn(variables, *chunk))[: stop - start]
+    return out
 
 
 def compute_metrics(pred: np.ndarray, target: np.ndarray, chunk: int = 65536) -> dict[str, np.ndarray]:

@@ -1,0 +1,308 @@
+"""Single-view inference with a trained lifter: load a run, lift 2D detections to 3D poses.
+
+    from jaxpose import inference
+    lifter = inference.load("runs/synthetic")        # the run directory, or its checkpoints/
+    poses = lifter.predict(keypoints2d, intrinsics=K, confidence=scores)   # f32[N, J, 3] mm
+
+A run directory (see `experiments.runner`) holds `config.json`, whose `model` and `optimizer`
+sections rebuild the network, and `checkpoints/`, Orbax steps of the `TrainState`.  Loading needs
+no data set and no training: the newest readable step is restored (an unreadable one is reported
+and the previous one used) and only its params and BatchNorm statistics are kept.
+
+Which skeleton a run lifts is not written in the run directory; the checkpoint's parameter shapes
+tell J (the network maps 2J numbers to 3J), and J names the skeleton among the lifting skeletons we
+train on (`SKELETONS_BY_JOINTS`); the synthetic main job trains on H36M_17.  Detections in COCO-17 or
+OpenPose BODY_25 layout are converted to H36M_17 with `jaxpose.keypoint_formats` first.
+
+Inputs, in the conventions of DESIGN.md section 2: keypoints in pixels of the image the intrinsics
+describe; confidence 0 marks a missing joint (its coordinates are ignored, NaN allowed).  The root
+(joint 0, the pelvis) must be detected: a pose whose root has confidence 0 cannot be placed
+root-relative, and its output row is NaN (the experiments' evaluation skips those views too).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import orbax.checkpoint as ocp
+
+from jaxpose import checkpoint
+from jaxpose.camera import Cameras, undistort_points
+from jaxpose.config import ModelConfig, OptimizerConfig
+from jaxpose.evaluation import predict_in_chunks
+from jaxpose.skeleton import H36M_16, H36M_17, HUMANEVA_15, Skeleton
+from jaxpose.train import build_model, init_train_state, make_optimizer, make_predict_fn
+
+# The skeletons a lifter is trained on, by joint count.  Their counts differ; MPI-INF-3DHP-17 is
+# left out on purpose: it is a test set only, evaluated with H36M-trained lifters in H36M_17 order.
+SKELETONS_BY_JOINTS: dict[int, Skeleton] = {s.num_joints: s for s in (H36M_17, H36M_16, HUMANEVA_15)}
+
+ROOT = 0
+DEFAULT_BATCH_SIZE = 1024
+
+
+def default_intrinsics(image_size: Sequence[float]) -> np.ndarray:
+    """The intrinsics assumed for an uncalibrated camera: f32[3, 3] for image_size (width, height) px.
+
+    Focal length max(width, height) in both axes (about 53 degrees of horizontal field of view for a
+    landscape image, the usual guess of in-the-wild pipelines), principal point at the image centre,
+    no skew, no distortion.  The lifter's input is root-relative, so the principal point cancels; with
+    the default `input_normalization="intrinsics_scale"` the pose is also scaled to unit size, so the
+    focal length cancels too and only fx/fy matters: the guess is then harmless.
+    """
+    size = np.asarray(image_size, np.float64)
+    if size.shape != (2,) or not np.isfinite(size).all() or (size <= 0).any():
+        raise ValueError(f"image_size: expected (width, height) in pixels, both positive, got {image_size!r}")
+    focal = size.max()
+    return np.array([[focal, 0.0, size[0] / 2], [0.0, focal, size[1] / 2], [0.0, 0.0, 1.0]], np.float32)
+
+
+@jax.jit
+def _undistort(K: jax.Array, dist: jax.Array, keypoints: jax.Array) -> jax.Array:
+    """OpenCV-model undistortion of [N, J, 2] pixels with per-pose K [N, 3, 3] and dist [N, 5]."""
+    cameras = Cameras(K=K, R=jnp.broadcast_to(jnp.eye(3), K.shape), t=jnp.zeros(K.shape[:-1]), dist=dist)
+    return undistort_points(cameras, keypoints)
+
+
+def _chunk_size(count: int, batch_size: int) -> int:
+    """Rows per predictor call: the next power of two >= count, at most batch_size.
+
+    Each chunk size compiles once, so any sequence of calls compiles at most log2(batch_size) + 1
+    times, and a single pose does not pay for a full batch.
+    """
+    return min(batch_size, 1 << max(count - 1, 0).bit_length())
+
+
+@dataclasses.dataclass(frozen=True)
+class Lifter3D:
+    """A trained lifter, ready to lift single-view 2D poses; build it with `load`."""
+
+    skeleton: Skeleton
+    """The joint layout the checkpoint lifts (input and output)."""
+    model_config: ModelConfig
+    variables: dict[str, Any] = dataclasses.field(repr=False)
+    """{"params": ..., "batch_stats": ...} of the restored step."""
+    step: int
+    """The training step of the restored checkpoint."""
+    source: pathlib.Path
+    """The checkpoints directory it was restored from."""
+    predict_fn: Callable[..., jax.Array] = dataclasses.field(repr=False)
+    batch_size: int = DEFAULT_BATCH_SIZE
+    """The most poses per jitted call."""
+
+    @property
+    def num_joints(self) -> int:
+        return self.skeleton.num_joints
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.skeleton.joint_names
+
+    def predict(
+        self,
+        keypoints2d,
+        intrinsics=None,
+        confidence=None,
+        distortion=None,
+        image_size: Sequence[float] | None = None,
+    ) -> np.ndarray:
+        """Root-relative 3D poses f32[N, J, 3] in mm, in each camera's frame (x right, y down, z forward).
+
+        keypoints2d: [N, J, 2] pixels (or one pose [J, 2], giving [J, 3]), in `self.skeleton`'s order.
+        intrinsics:  K [3, 3] shared by all poses, or [N, 3, 3] one per pose; None = `default_intrinsics(image_size)`.
+        confidence:  [N, J] detector scores; only > 0 (detected) vs 0 (missing) matters.  None = all detected.
+        distortion:  OpenCV (k1, k2, p1, p2, k3), [5] or [N, 5]: the keypoints are undistorted first.
+                     None = the keypoints are undistorted (pinhole) pixels already.
+        Rows whose root (joint 0) is missing are NaN.
+        """
+        keypoints = np.asarray(keypoints2d, np.float32)
+        single = keypoints.ndim == 2
+        if single:
+            keypoints = keypoints[None]
+            confidence = None if confidence is None else np.asarray(confidence)[None]
+        keypoints, confidence = self._check_keypoints(keypoints, confidence)
+        count = len(keypoints)
+        K = _check_intrinsics(intrinsics, image_size, count)
+        if distortion is not None:
+            if intrinsics is None:
+                raise ValueError("distortion needs the calibrated intrinsics it belongs to; pass intrinsics= too")
+            dist = _check_per_pose("distortion", distortion, (5,), count)
+            keypoints = np.asarray(_undistort(K, dist, keypoints))
+            # Missing joints were zeroed, and undistorting (0, 0) may diverge: keep them at zero.
+            keypoints = np.where(confidence[..., None] > 0, keypoints, 0.0).astype(np.float32)
+        poses = np.full((count, self.num_joints, 3), np.nan, np.float32)
+        liftable = np.flatnonzero(confidence[:, ROOT] > 0)
+        if len(liftable):
+            poses[liftable] = predict_in_chunks(
+                self.predict_fn, self.variables, keypoints[liftable], K[liftable], confidence[liftable],
+                _chunk_size(len(liftable), self.batch_size),
+            )
+        return poses[0] if single else poses
+
+    def _check_keypoints(self, keypoints: np.ndarray, confidence) -> tuple[np.ndarray, np.ndarray]:
+        """Shapes and values of keypoints/confidence; returns them with missing joints zeroed."""
+        if keypoints.ndim != 3 or keypoints.shape[-1] != 2:
+            raise ValueError(f"keypoints2d: expected [N, J, 2] or [J, 2] pixels, got shape {keypoints.shape}")
+        if keypoints.shape[1] != self.num_joints:
+            raise ValueError(
+                f"keypoints2d has {keypoints.shape[1]} joints per pose, but the checkpoint in {self.source} lifts"
+                f" skeleton {self.skeleton.name!r} with J={self.num_joints} joints {self.joint_names}; convert"
+                " detector layouts with jaxpose.keypoint_formats (COCO-17 and OpenPose BODY_25 -> h36m17)"
+            )
+        if confidence is None:
+            confidence = np.ones(keypoints.shape[:2], np.float32)
+        confidence = np.asarray(confidence, np.float32)
+        if confidence.shape != keypoints.shape[:2]:
+            raise ValueError(f"confidence: expected shape {keypoints.shape[:2]} (N, J), got {confidence.shape}")
+        bad = ~np.isfinite(confidence) | (confidence < 0)
+        if bad.any():
+            pose, joint = np.argwhere(bad)[0]
+            value = confidence[pose, joint]
+            raise ValueError(f"confidence must be finite and >= 0; pose {pose} joint {joint} has {value}")
+        bad = ~np.isfinite(keypoints).all(-1) & (confidence > 0)
+        if bad.any():
+            pose, joint = np.argwhere(bad)[0]
+            raise ValueError(
+                f"keypoints2d: {int(bad.sum())} non-finite keypoints with confidence > 0, first pose {pose} joint"
+                f" {joint} ({self.joint_names[joint]}) = {keypoints[pose, joint]}; give missing joints confidence 0"
+            )
+        return np.where(confidence[..., None] > 0, keypoints, 0.0).astype(np.float32), confidence
+
+
+def _check_per_pose(name: str, values, shape: tuple[int, ...], count: int) -> np.ndarray:
+    """`values` of `shape` (shared) or (count, *shape) (one per pose), finite, as f32[count, *shape]."""
+    array = np.asarray(values, np.float32)
+    if array.shape == shape:
+        array = np.broadcast_to(array, (count, *shape))
+    elif array.shape != (count, *shape):
+        raise ValueError(f"{name}: expected shape {shape} or {(count, *shape)} for {count} poses, got {array.shape}")
+    if not np.isfinite(array).all():
+        raise ValueError(f"{name}: contains NaN or inf")
+    return np.ascontiguousarray(array)
+
+
+def _check_intrinsics(intrinsics, image_size, count: int) -> np.ndarray:
+    """f32[count, 3, 3] intrinsics from K, per-pose K, or the default of an image size."""
+    if intrinsics is None:
+        if image_size is None:
+            raise ValueError(
+                "no intrinsics: pass intrinsics= (K [3, 3] or [N, 3, 3]) or image_size=(width, height) for the"
+                " default camera (focal length max(width, height), principal point at the image centre)"
+            )
+        intrinsics = default_intrinsics(image_size)
+    K = _check_per_pose("intrinsics", intrinsics, (3, 3), count)
+    if (K[:, 0, 0] <= 0).any() or (K[:, 1, 1] <= 0).any():
+        raise ValueError("intrinsics: focal lengths K[0, 0] and K[1, 1] must be positive")
+    upper_triangular = np.isclose(K[:, 2], [0.0, 0.0, 1.0]).all(-1) & np.isclose(K[:, 1, 0], 0.0)
+    if not upper_triangular.all():
+        bad = np.flatnonzero(~upper_triangular)[0]
+        raise ValueError(
+            f"intrinsics: expected K = [[fx, s, cx], [0, fy, cy], [0, 0, 1]] (is it transposed?), got {K[bad].tolist()}"
+        )
+    return K
+
+
+def _locate(path: pathlib.Path) -> tuple[pathlib.Path, pathlib.Path]:
+    """(config.json, checkpoints directory) for a run directory or its checkpoints/ directory."""
+    if not path.exists():
+        raise FileNotFoundError(f"{path} does not exist; expected a run directory (config.json, checkpoints/)")
+    for run_dir, checkpoints in ((path, path / "checkpoints"), (path.parent, path)):
+        if (run_dir / "config.json").is_file():
+            if not checkpoints.is_dir():
+                raise FileNotFoundError(f"{run_dir} has no checkpoints/ directory: the run has not saved a checkpoint")
+            return run_dir / "config.json", checkpoints
+    raise FileNotFoundError(
+        f"no config.json in {path} or its parent; expected a run directory written by the experiments"
+        " (config.json, checkpoints/) or its checkpoints/ directory"
+    )
+
+
+def _read_section(config: dict, config_path: pathlib.Path, name: str, cls):
+    try:
+        return cls(**config[name])
+    except (KeyError, TypeError) as error:
+        raise ValueError(f"{config_path}: no valid {name!r} section for {cls.__name__} ({error!r})") from None
+
+
+def _param_shapes(tree) -> Any:
+    """The shape of every leaf (arrays, ShapeDtypeStructs or Orbax array metadata)."""
+    return jax.tree.map(lambda leaf: tuple(leaf.shape), tree)
+
+
+def _checkpoint_skeleton(manager: ocp.CheckpointManager, model_config: ModelConfig) -> Skeleton:
+    """The skeleton whose lifter (built from `model_config`) has exactly the checkpoint's parameter shapes.
+
+    Read from the newest step whose metadata is readable; comparing whole parameter trees, rather
+    than reading J off one layer, relies on nothing but the model's own definition.
+    """
+    for step in sorted(manager.all_steps(), reverse=True):
+        try:
+            saved = _param_shapes(manager.item_metadata(step)["state"]["params"])
+        except Exception:  # noqa: BLE001 - an unreadable step: try the previous one, as restore_latest does
+            continue
+        for num_joints, skeleton in SKELETONS_BY_JOINTS.items():
+            model = build_model(model_config, num_joints)
+            dummy = jnp.zeros((1, num_joints, 2), jnp.float32)
+            variables = jax.eval_shape(lambda: model.init(jax.random.key(0), dummy, train=False))
+            if _param_shapes(variables["params"]) == saved:
+                return skeleton
+        known = {s.name: j for j, s in SKELETONS_BY_JOINTS.items()}
+        raise ValueError(
+            f"the checkpoint in {manager.directory} does not match the network of config.json ({model_config})"
+            f" for any known skeleton {known}"
+        )
+    raise checkpoint.CheckpointError(f"no checkpoint in {manager.directory} has readable metadata")
+
+
+def load(path: str | pathlib.Path, batch_size: int = DEFAULT_BATCH_SIZE) -> Lifter3D:
+    """The lifter of a run: `path` is the run directory or its checkpoints/ directory.
+
+    Restores the newest readable checkpoint (on the default device).  Raises FileNotFoundError for a
+    missing run directory, config.json or checkpoints/, ValueError for a config.json without a
+    usable model section, and `jaxpose.checkpoint.CheckpointError` when no step can be read.
+    """
+    config_path, checkpoints = _locate(pathlib.Path(path))
+    try:
+        config = json.loads(config_path.read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{config_path} is not valid JSON: {error}") from None
+    model_config = _read_section(config, config_path, "model", ModelConfig)
+    optimizer_config = _read_section(config, config_path, "optimizer", OptimizerConfig)
+    # Nothing is written: no directory is created, and the temporary directory of a save still in
+    # progress (a run that is training right now) is left alone.  (read_only=True would do the same
+    # but logs warnings on every load.)
+    options = ocp.CheckpointManagerOptions(
+        create=False, cleanup_tmp_directories=False, enable_async_checkpointing=False
+    )
+    manager = ocp.CheckpointManager(
+        checkpoints.absolute(), options=options, item_handlers={"state": ocp.StandardCheckpointHandler()}
+    )
+    if not manager.all_steps():
+        raise checkpoint.CheckpointError(f"{checkpoints} holds no checkpoint (the run saves its first one later)")
+    skeleton = _checkpoint_skeleton(manager, model_config)
+    model = build_model(model_config, skeleton.num_joints)
+    # The checkpoint holds the whole TrainState; an abstract template of it (shapes only, nothing
+    # computed) restores it, and the optimizer state is dropped.  The schedule length does not
+    # change the optimizer state's structure, hence total_steps=1.
+    optimizer = make_optimizer(optimizer_config, total_steps=1)
+    shapes = jax.eval_shape(lambda key: init_train_state(model, optimizer, key), jax.random.key(0))
+    device = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+    template = jax.tree.map(lambda s: jax.ShapeDtypeStruct(s.shape, s.dtype, sharding=device), shapes)
+    state = checkpoint.restore_latest(manager, template)
+    manager.close()
+    return Lifter3D(
+        skeleton=skeleton,
+        model_config=model_config,
+        variables=state.variables,
+        step=int(state.step),
+        source=checkpoints,
+        predict_fn=make_predict_fn(model, model_config),
+        batch_size=batch_size,
+    )

@@ -1,0 +1,308 @@
+"""Lift 2D detections from a file to 3D poses with a trained run (single-view inference).
+
+    python -m jaxpose.predict --checkpoint runs/synthetic --input detections.json --output poses.json \\
+        --image-size 1920 1080 --plot plots/
+
+Inputs (the kind is told by the path):
+- COCO keypoint results, a ``.json`` list of {"image_id", "category_id", "keypoints": [x, y, score] * 17,
+  "score"} (what COCO-style detectors write); layout coco17 unless --format says otherwise.
+- OpenPose output, a folder of per-frame ``*_keypoints.json`` files (``--write_json``); every person's
+  ``pose_keypoints_2d`` (BODY_25, 25 * 3 values) is one pose, its image id the file name without
+  ``_keypoints.json``; layout openpose25.  A single such file works too.
+- ``.npz`` with ``keypoints`` [N, J, 2] px and optionally ``confidence`` [N, J], ``image_id`` [N] and
+  ``K`` [N, 3, 3] (one camera per pose); the keypoints are in the checkpoint's own joint layout unless
+  --format names one to convert from.
+COCO-17 and OpenPose BODY_25 are converted to H36M_17 by `jaxpose.keypoint_formats`.
+
+Output, by suffix: ``.json``, a list of {"image_id", "pose3d_mm": [[x, y, z] * J] or null, "joint_names"}
+in input order; or ``.npz`` with ``pose3d_mm`` f32[N, J, 3] (NaN rows), ``valid`` [N], ``image_id`` [N]
+and ``joint_names`` [J].  Poses are root-relative, in mm, in the camera frame (x right, y down,
+z forward).  A pose whose root (the pelvis; for COCO/OpenPose both hips) was not detected cannot be
+lifted: null / NaN.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import pathlib
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from jaxpose import inference, viz
+from jaxpose.checkpoint import CheckpointError
+from jaxpose.keypoint_formats import FORMATS, OPENPOSE_25_JOINT_NAMES, to_h36m17
+
+OUTPUT_SUFFIXES = (".json", ".npz")
+OPENPOSE_SUFFIX = "_keypoints.json"
+# Poses per `Lifter3D.predict` call; inputs larger than this get a progress bar.
+LIFT_BLOCK = 16384
+
+
+@dataclasses.dataclass(frozen=True)
+class Detections:
+    """Poses read from an input file, in the file's joint layout."""
+
+    keypoints: np.ndarray
+    """f32[N, J, 2] pixels."""
+    scores: np.ndarray | None
+    """f32[N, J] detector scores, or None (all detected)."""
+    image_ids: list[Any]
+    """One per pose (int or str), kept in the output."""
+    layout: str | None
+    """The keypoint_formats name of the file's layout; None = the checkpoint's own layout."""
+    intrinsics: np.ndarray | None = None
+    """f32[N, 3, 3], when the file gives a camera per pose."""
+
+
+def _load_json(path: pathlib.Path) -> Any:
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{path} is not valid JSON: {error}") from None
+
+
+def _triplets(values: Sequence[float], where: str, expected: int | None = None) -> np.ndarray:
+    """A flat [x, y, score] * J list as f32[J, 3]."""
+    array = np.asarray(values, np.float32)
+    if array.ndim != 1 or len(array) % 3 or (expected is not None and len(array) != 3 * expected):
+        size = "a multiple of 3" if expected is None else f"{3 * expected} (= {expected} joints x [x, y, score])"
+        raise ValueError(f"{where}: expected a flat list of {size} numbers, got shape {array.shape}")
+    return array.reshape(-1, 3)
+
+
+def _from_triplets(triplets: list[np.ndarray], image_ids: list[Any], layout: str, where: str) -> Detections:
+    if not triplets:
+        raise ValueError(f"{where}: no poses to lift")
+    if len({len(t) for t in triplets}) > 1:
+        raise ValueError(f"{where}: poses have different numbers of keypoints {sorted({len(t) for t in triplets})}")
+    stacked = np.stack(triplets)
+    return Detections(stacked[..., :2], stacked[..., 2], image_ids, layout)
+
+
+def read_coco_results(path: pathlib.Path) -> Detections:
+    """COCO keypoint results: one pose per entry, in file order."""
+    entries = _load_json(path)
+    if not isinstance(entries, list):
+        raise ValueError(f"{path}: expected a COCO keypoint-results list of {{image_id, keypoints, ...}} entries")
+    triplets, image_ids = [], []
+    for index, entry in enumerate(entries):
+        if not isinstance(entry, dict) or "keypoints" not in entry or "image_id" not in entry:
+            raise ValueError(f"{path}: entry {index} lacks 'image_id' or 'keypoints'")
+        triplets.append(_triplets(entry["keypoints"], f"{path}: entry {index} 'keypoints'"))
+        image_ids.append(entry["image_id"])
+    return _from_triplets(triplets, image_ids, "coco17", str(path))
+
+
+def read_openpose(path: pathlib.Path) -> Detections:
+    """OpenPose JSON: a folder of `*_keypoints.json` frames (sorted by name) or one such file."""
+    files = sorted(path.glob("*" + OPENPOSE_SUFFIX)) if path.is_dir() else [path]
+    if not files:
+        raise FileNotFoundError(f"{path} holds no OpenPose files (*{OPENPOSE_SUFFIX})")
+    joints = len(OPENPOSE_25_JOINT_NAMES)  # BODY_25; OpenPose's COCO-18 model is not supported
+    triplets, image_ids = [], []
+    for file in tqdm(files, desc="reading", unit="file", disable=len(files) < 1000):
+        frame = _load_json(file)
+        if not isinstance(frame, dict):
+            raise ValueError(f"{file}: expected an OpenPose frame {{'people': [{{'pose_keypoints_2d': [...]}}, ...]}}")
+        image_id = file.name.removesuffix(OPENPOSE_SUFFIX)
+        for person, entry in enumerate(frame.get("people", [])):
+            values = entry.get("pose_keypoints_2d", [])
+            triplets.append(_triplets(values, f"{file}: person {person} 'pose_keypoints_2d' (BODY_25)", joints))
+            image_ids.append(image_id)
+    return _from_triplets(triplets, image_ids, "openpose25", str(path))
+
+
+def read_npz(path: pathlib.Path) -> Detections:
+    """keypoints [N, J, 2], optional confidence [N, J], image_id [N], K [N, 3, 3]."""
+    with np.load(path, allow_pickle=False) as data:
+        if "keypoints" not in data:
+            raise ValueError(f"{path}: no 'keypoints' array (found {sorted(data.files)})")
+        keypoints = np.asarray(data["keypoints"], np.float32)
+        if keypoints.ndim != 3 or keypoints.shape[-1] != 2:
+            raise ValueError(f"{path}: 'keypoints' must be [N, J, 2] pixels, got shape {keypoints.shape}")
+        count = len(keypoints)
+        scores = np.asarray(data["confidence"], np.float32) if "confidence" in data else None
+        image_ids = data["image_id"].tolist() if "image_id" in data else list(range(count))
+        intrinsics = np.asarray(data["K"], np.float32) if "K" in data else None
+    if len(image_ids) != count:
+        raise ValueError(f"{path}: 'image_id' has {len(image_ids)} entries for {count} poses")
+    if intrinsics is not None and intrinsics.shape != (count, 3, 3):
+        raise ValueError(f"{path}: 'K' must be [N, 3, 3] = {(count, 3, 3)}, got {intrinsics.shape}")
+    return Detections(keypoints, scores, image_ids, None, intrinsics)
+
+
+def read_detections(path: pathlib.Path) -> Detections:
+    """Dispatch on the path: folder -> OpenPose, .npz, .json (COCO results list or one OpenPose frame)."""
+    if not path.exists():
+        raise FileNotFoundError(f"input {path} does not exist")
+    if path.is_dir() or path.name.endswith(OPENPOSE_SUFFIX):
+        return read_openpose(path)
+    if path.suffix == ".npz":
+        return read_npz(path)
+    if path.suffix == ".json":
+        return read_coco_results(path)
+    raise ValueError(f"input {path}: expected a COCO results .json, an OpenPose folder or a .npz")
+
+
+def read_intrinsics(values: Sequence[str]) -> tuple[np.ndarray, np.ndarray | None, tuple[float, float] | None]:
+    """--intrinsics as (K [3, 3], OpenCV distortion [5] or None, image size or None).
+
+    Four numbers fx fy cx cy, or a JSON file holding one camera in the fields of a jaxpose camera
+    file entry: {"K": [[fx, s, cx], [0, fy, cy], [0, 0, 1]], "dist": [k1, k2, p1, p2, k3] or null,
+    "image_size": [width, height] or null}; other fields (R, t, name) are ignored.
+    """
+    if len(values) == 4:
+        fx, fy, cx, cy = (float(v) for v in values)
+        return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], np.float32), None, None
+    if len(values) != 1:
+        raise ValueError(f"--intrinsics takes 4 numbers (fx fy cx cy) or one JSON file, got {len(values)} values")
+    path = pathlib.Path(values[0])
+    if not path.is_file():
+        raise FileNotFoundError(f"--intrinsics file {path} does not exist")
+    camera = _load_json(path)
+    if not isinstance(camera, dict) or "K" not in camera:
+        raise ValueError(f"{path}: expected a camera {{'K': 3x3, 'dist': [5] or null, 'image_size': [w, h]}}")
+    dist = camera.get("dist")
+    size = camera.get("image_size")
+    return (
+        np.asarray(camera["K"], np.float32),
+        None if dist is None else np.asarray(dist, np.float32),
+        None if size is None else tuple(size),
+    )
+
+
+def write_poses(path: pathlib.Path, poses: np.ndarray, image_ids: list[Any], joint_names: Sequence[str]) -> None:
+    """The output file, JSON or npz by suffix (see the module docstring)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    valid = np.isfinite(poses).all((1, 2))
+    if path.suffix == ".npz":
+        np.savez(
+            path, pose3d_mm=poses, valid=valid, image_id=np.asarray(image_ids), joint_names=np.asarray(joint_names)
+        )
+        return
+    # 0.01 mm is far below any pose error; float64 first so the JSON holds no float32 round-off digits.
+    rounded = np.round(poses.astype(np.float64), 2)
+    records = [
+        {"image_id": image_id, "pose3d_mm": pose.tolist() if ok else None, "joint_names": list(joint_names)}
+        for image_id, pose, ok in zip(image_ids, rounded, valid)
+    ]
+    path.write_text(json.dumps(records))
+
+
+def save_plots(
+    directory: pathlib.Path, keypoints, confidence, poses, image_ids, skeleton, image_size, count: int
+) -> list[pathlib.Path]:
+    """`viz.figure_lifting` PNGs of the first `count` lifted poses, named by their input index."""
+    saved = []
+    for i in np.flatnonzero(np.isfinite(poses).all((1, 2)))[:count]:
+        title = f"image {image_ids[i]} (pose {i})"
+        figure = viz.figure_lifting(keypoints[i], poses[i], skeleton, image_size, title, confidence[i])
+        saved.append(viz.save_figure(figure, directory / f"lifting_{i:05d}.png"))
+    return saved
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m jaxpose.predict", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--checkpoint", required=True, type=pathlib.Path, metavar="RUN",
+        help="run directory (config.json + checkpoints/) or its checkpoints/ folder; the newest readable step is used",
+    )
+    parser.add_argument(
+        "--input", required=True, type=pathlib.Path, metavar="FILE",
+        help="COCO keypoint-results .json, OpenPose folder of *_keypoints.json, or .npz (keypoints, confidence,"
+        " image_id, K)",
+    )
+    parser.add_argument(
+        "--output", required=True, type=pathlib.Path, metavar="FILE",
+        help="output .json (list of {image_id, pose3d_mm, joint_names}) or .npz (pose3d_mm, valid, image_id,"
+        " joint_names)",
+    )
+    parser.add_argument(
+        "--format", choices=sorted(FORMATS), default=None,
+        help="joint layout of the input keypoints (default: coco17 for COCO .json, openpose25 for OpenPose, the"
+        " checkpoint's own layout for .npz)",
+    )
+    parser.add_argument(
+        "--intrinsics", nargs="+", metavar="VALUE", default=None,
+        help="camera intrinsics in pixels: four values fx fy cx cy, or one JSON camera file {K, dist, image_size}"
+        " (dist: OpenCV k1 k2 p1 p2 k3, undistorted before lifting); default: focal length max(W, H) and the"
+        " image centre of --image-size",
+    )
+    parser.add_argument(
+        "--image-size", nargs=2, type=float, metavar=("W", "H"), default=None,
+        help="image width and height in pixels: the default intrinsics, and the frame of the plots",
+    )
+    parser.add_argument(
+        "--plot", type=pathlib.Path, default=None, metavar="DIR",
+        help="save 2D-detection / 3D-pose figures (PNG) of the first lifted poses into DIR",
+    )
+    parser.add_argument("--plot-count", type=int, default=4, metavar="N", help="poses --plot draws (default 4)")
+    parser.add_argument(
+        "--batch-size", type=int, default=inference.DEFAULT_BATCH_SIZE, metavar="N",
+        help="most poses per jitted lifter call (default %(default)s)",
+    )
+    return parser  # fmt: skip
+
+
+def run(args: argparse.Namespace) -> np.ndarray:
+    """The whole command: read, convert, lift, write, plot.  Returns the poses f32[N, J, 3]."""
+    if args.output.suffix not in OUTPUT_SUFFIXES:
+        raise ValueError(f"--output {args.output}: the suffix must be one of {OUTPUT_SUFFIXES}")
+    detections = read_detections(args.input)
+    layout = args.format or detections.layout
+    if layout is None:
+        keypoints, confidence = detections.keypoints, detections.scores
+    else:
+        keypoints, confidence = to_h36m17(layout, detections.keypoints, detections.scores)
+    if confidence is None:
+        confidence = np.ones(keypoints.shape[:2], np.float32)
+    K, dist, image_size = (None, None, None) if args.intrinsics is None else read_intrinsics(args.intrinsics)
+    if detections.intrinsics is not None:
+        if K is not None:
+            raise ValueError(f"{args.input} holds a camera per pose ('K'); do not pass --intrinsics as well")
+        K = detections.intrinsics
+    image_size = args.image_size or image_size
+    lifter = inference.load(args.checkpoint, batch_size=args.batch_size)
+    count = len(keypoints)
+    poses = np.empty((count, lifter.num_joints, 3), np.float32)
+    with tqdm(total=count, desc="lifting", unit="pose", disable=count <= LIFT_BLOCK) as bar:
+        for start in range(0, count, LIFT_BLOCK):
+            rows = slice(start, min(start + LIFT_BLOCK, count))
+            per_pose_K = K if K is None or K.ndim == 2 else K[rows]
+            poses[rows] = lifter.predict(keypoints[rows], per_pose_K, confidence[rows], dist, image_size)
+            bar.update(rows.stop - rows.start)
+    write_poses(args.output, poses, detections.image_ids, lifter.joint_names)
+    lifted = int(np.isfinite(poses).all((1, 2)).sum())
+    unliftable = f"; {count - lifted} without a detected root are null" if lifted < count else ""
+    print(
+        f"lifted {lifted} of {count} poses with the {lifter.skeleton.name} lifter (step {lifter.step}) of"
+        f" {lifter.source} -> {args.output}{unliftable}",
+        file=sys.stderr,
+    )
+    if args.plot is not None:
+        saved = save_plots(
+            args.plot, keypoints, confidence, poses, detections.image_ids, lifter.skeleton, image_size, args.plot_count
+        )
+        print(f"saved {len(saved)} figures to {args.plot}", file=sys.stderr)
+    return poses
+
+
+def main(argv: Sequence[str] | None = None) -> np.ndarray:
+    """Entry point; input, checkpoint and shape errors end the process with a one-line message."""
+    args = build_parser().parse_args(argv)
+    try:
+        return run(args)
+    except (ValueError, FileNotFoundError, CheckpointError) as error:
+        raise SystemExit(f"jaxpose.predict: error: {error}") from None
+
+
+if __name__ == "__main__":
+    main()
