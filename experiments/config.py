@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import pathlib
-from typing import Any, Generic, Literal, TypeVar
+from typing import Any, Generic, TypeVar
 
 from jaxpose import robust
 from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig

@@ -16,11 +16,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxpose import robust
 from jaxpose.camera import Cameras, projection_matrices, undistort_points
 from jaxpose.data.batch import MultiViewBatch
-from jaxpose.skeleton import Skeleton
-from jaxpose import robust
 from jaxpose.robust import PseudoLabelMethod
+from jaxpose.skeleton import Skeleton
 
 
 # Module-level, so that every data set (train and test splits, repeated calls) shares its compilations.
