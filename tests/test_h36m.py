@@ -152,7 +152,7 @@ def test_missing_folders_and_files(tree, tmp_path):
     (tmp_path / "empty").mkdir()
     _expect_error(tmp_path / "empty", "MyPoses/3D_positions")
     root = _copy(tree, tmp_path)
-    _expect_error(root, "cameras of subject S11", subjects=("S1", "S11"))
+    _expect_error(root, "cameras of subject 'S11'", subjects=("S1", "S11"))
     shutil.rmtree(root / "S9" / "StackedHourglass")
     _expect_error(root, r"S9/StackedHourglass: expected Stacked Hourglass files .*; found no such folder")
     shutil.rmtree(root / "S9" / "MyPoses")

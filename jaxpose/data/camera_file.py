@@ -313,3 +313,19 @@ def main(argv: Sequence[str] | None = None) -> None:
 
 if __name__ == "__main__":
     main()
+
+
+def select_views(
+    calibration: dict[str, tuple[list[str], Cameras]], path, subject: str, camera_names: tuple[str, ...]
+) -> Cameras:
+    """One subject's cameras in the order `camera_names` (the data set's view order).
+
+    `calibration` is what `load_cameras` returns; a missing subject or camera raises
+    `DataFormatError` naming `path`.
+    """
+    if subject not in calibration:
+        raise DataFormatError(path, f"cameras of subject {subject!r}", f"subjects {sorted(calibration)}")
+    names, cameras = calibration[subject]
+    if not set(camera_names) <= set(names):
+        raise DataFormatError(path, f"subject {subject!r}: cameras {list(camera_names)}", f"cameras {names}")
+    return cameras[np.array([names.index(camera) for camera in camera_names])]

@@ -41,7 +41,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from jaxpose.camera import Cameras
-from jaxpose.data.camera_file import SubjectCameras, load_cameras, read_h36m_cameras
+from jaxpose.data.camera_file import SubjectCameras, load_cameras, read_h36m_cameras, select_views
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.data.errors import DataFormatError
 from jaxpose.data.files import read_h5_dataset
@@ -194,12 +194,7 @@ def _subject_rigs(path: Path, subjects: Sequence[str]) -> dict[str, Cameras]:
     calibration: dict[str, SubjectCameras] = load_cameras(path) if path.suffix == ".json" else read_h36m_cameras(path)
     rigs = {}
     for subject in subjects:
-        if subject not in calibration:
-            raise DataFormatError(path, f"cameras of subject {subject}", f"subjects {sorted(calibration)}")
-        names, cameras = calibration[subject]
-        if not set(CAMERA_NAMES) <= set(names):
-            raise DataFormatError(path, f"subject {subject}: cameras {list(CAMERA_NAMES)}", f"cameras {names}")
-        rigs[subject] = cameras[np.array([names.index(camera) for camera in CAMERA_NAMES])]
+        rigs[subject] = select_views(calibration, path, subject, CAMERA_NAMES)
     return rigs
 
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxpose.data.camera_file import load_cameras
+from jaxpose.data.camera_file import load_cameras, select_views
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.data.errors import DataFormatError
 from jaxpose.data.recordings import Recording, build_dataset, stack_views
@@ -130,12 +130,7 @@ def _subject_rigs(path: Path, subjects: tuple[str, ...]) -> dict:
     rigs = {}
     for subject in subjects:
         person = subject.split("/")[-1]
-        if person not in calibration:
-            raise DataFormatError(path, f"cameras of subject {person!r}", f"subjects {sorted(calibration)}")
-        names, cameras = calibration[person]
-        if not set(CAMERA_NAMES) <= set(names):
-            raise DataFormatError(path, f"subject {person!r}: cameras {list(CAMERA_NAMES)}", f"cameras {names}")
-        rigs[person] = cameras[np.array([names.index(camera) for camera in CAMERA_NAMES])]
+        rigs[person] = select_views(calibration, path, person, CAMERA_NAMES)
     return rigs
 
 
