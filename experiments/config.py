@@ -29,7 +29,8 @@ class PseudoLabelConfig:
     method: PseudoLabelMethod = "svd"
     """"svd" (reference), "eigh" or "normal" (closed form): the DLT with views weighted by detector
     confidence; "unweighted": the paper's DLT, every detected view weight 1; "irls" / "ransac":
-    robust, views that disagree with the others are down-weighted / rejected (see jaxpose.robust)."""
+    robust, views that disagree with the others are down-weighted / rejected (see jaxpose.robust),
+    and no loss takes a rejected detection as its target."""
     min_views: int = 2
     """A joint seen (confidence > 0) by fewer views (with "irls"/"ransac": fewer agreeing views)
     gets no pseudo-label (weight 0)."""

@@ -13,9 +13,14 @@ Choices the paper leaves open, made here once for all four terms:
   sums, so the loss scale does not change with batch size, C or J.  The root joint, zero by
   construction, is excluded from every mean.
 - Masks.  A view is usable when its root (pelvis) has confidence > 0 (the lifter input is root-
-  relative).  An input joint counts when its confidence > 0; a pseudo-label joint counts with its
-  `pseudo3d_weight`.  Masked entries are removed with `where`, so a missing joint can never inject
-  a NaN into the loss or its gradient.
+  relative).  A joint whose pseudo-label has `pseudo3d_weight` 0 (too few consistent views) teaches
+  nothing through any term, and neither does any joint of a sample whose root label has weight 0.
+  A detection serves as a target (L_proj's 2D target, L_con's reference view, a view of L_out's
+  triangulation) only with confidence > 0 and, when the batch carries one, `detection_weight` > 0:
+  the robust pseudo-label methods set it to 0 for views that disagree with the label (outliers).
+  Such a detection is still an input, whose prediction the terms pull towards the consistent
+  views.  Masked entries are removed with `where`, so a missing joint can never inject a NaN into
+  the loss or its gradient.
 - Consistency: view c is the target for view c' as the paper says ("we consider the camera view c
   as the ground-truth"): a stop-gradient on the target side, all ordered pairs c != c'.
 - Output triangulation: each view's prediction is placed at the triangulated root, projected into
@@ -32,7 +37,6 @@ from flax import struct
 
 from jaxpose.camera import (
     Cameras,
-    camera_to_world,
     project_from_camera,
     projection_matrices,
     rotate_between_cameras,
@@ -73,9 +77,20 @@ def usable_views(batch: MultiViewBatch) -> jax.Array:
 
 
 def _label_weight(batch: MultiViewBatch) -> jax.Array:
+    """f32[B, J]: the pseudo-label weight of each joint times that of its root (the labels are
+    used root-relative, so an untrusted root spoils every joint of its sample)."""
     if batch.pseudo3d_weight is None:
         return jnp.ones(batch.pseudo3d.shape[:-1], jnp.float32)
-    return jnp.asarray(batch.pseudo3d_weight)
+    label = jnp.asarray(batch.pseudo3d_weight)
+    return label * label[:, ROOT : ROOT + 1]
+
+
+def target_weight(batch: MultiViewBatch) -> jax.Array:
+    """f32[B, C, J]: how far each detection may serve as a training target; 0 where it is missing
+    (confidence 0) or an outlier (`detection_weight` 0)."""
+    detected = jnp.asarray(batch.confidence) > 0
+    weight = jnp.ones(detected.shape, jnp.float32) if batch.detection_weight is None else batch.detection_weight
+    return jnp.where(detected, weight, 0.0)
 
 
 def _root_relative(points: jax.Array) -> jax.Array:
@@ -93,13 +108,18 @@ def _place_at_root(cameras: Cameras, pred: jax.Array, root_world: jax.Array) -> 
     return pred + root_camera
 
 
+def _in_every_camera(cameras: Cameras, pred: jax.Array) -> jax.Array:
+    """[B, C, C', J, 3]: the prediction of view c' rotated into the axes of camera c."""
+    source = jax.tree.map(lambda field: field[:, None, :], cameras)  # c' along axis 2
+    target = jax.tree.map(lambda field: field[:, :, None], cameras)  # c along axis 1
+    return rotate_between_cameras(source, target, pred[:, None])
+
+
 def input_triangulation_loss(pred: jax.Array, batch: MultiViewBatch) -> jax.Array:
     """L_in (Eq. 2): L2 between each view's prediction and the pseudo-label in that camera."""
     target = _world_pose_in_views(batch.cameras, batch.pseudo3d)
     squared = jnp.sum(((target - pred) / MM_PER_M) ** 2, axis=-1)  # [B, C, J]
-    label = _label_weight(batch)
-    # The target is root-relative, so an untrusted root spoils every joint of its sample.
-    mask = usable_views(batch)[..., None] * (label * label[:, ROOT : ROOT + 1])[:, None, :]
+    mask = usable_views(batch)[..., None] * _label_weight(batch)[:, None, :]
     return _masked_mean(squared, _without_root(mask))
 
 
@@ -107,35 +127,34 @@ def reprojection_loss(pred: jax.Array, batch: MultiViewBatch) -> jax.Array:
     """L_proj (Eq. 3): every view's prediction, placed at the triangulated root, projected into
     every view c (C x C pairs), L1 against view c's root-relative detections."""
     cameras = batch.cameras
-    absolute = _place_at_root(cameras, pred, batch.pseudo3d[:, ROOT])  # [B, C', J, 3]
-    world = camera_to_world(cameras, absolute)  # [B, C', J, 3]
+    # View c' placed at the root and taken to camera c is its pose rotated into camera c's axes plus
+    # the root's position in camera c: one 3x3 rotation per view pair, no round trip through world.
+    rotated = _in_every_camera(cameras, pred)  # [B, C, C', J, 3]
+    root_camera = world_to_camera(cameras, batch.pseudo3d[:, None, ROOT : ROOT + 1, :])  # [B, C, 1, 3]
     target_cameras = jax.tree.map(lambda field: field[:, :, None], cameras)  # [B, C, 1]
-    projected = project_from_camera(target_cameras, world_to_camera(target_cameras, world[:, None]))  # [B,C,C',J,2]
+    projected = project_from_camera(target_cameras, rotated + root_camera[:, :, None])  # [B, C, C', J, 2]
     projected = projected - projected[..., ROOT : ROOT + 1, :]
     detected = batch.keypoints2d - batch.keypoints2d[..., ROOT : ROOT + 1, :]  # [B, C, J, 2]
     focal = jnp.stack([cameras.K[..., 0, 0], cameras.K[..., 1, 1]], axis=-1)[:, :, None, None, :]  # [B,C,1,1,2]
     absolute_error = jnp.sum(jnp.abs(projected - detected[:, :, None]) / focal, axis=-1)  # [B, C, C', J]
-    detected_valid = (batch.confidence > 0) & (batch.confidence[..., ROOT : ROOT + 1] > 0)  # [B, C, J]
-    mask = (
-        detected_valid[:, :, None, :].astype(pred.dtype)
-        * usable_views(batch)[:, None, :, None]
-        * _label_weight(batch)[:, None, None, ROOT : ROOT + 1]
-    )
+    targets = target_weight(batch)
+    targets = targets * targets[..., ROOT : ROOT + 1]  # the detections are taken root-relative
+    mask = targets[:, :, None, :] * usable_views(batch)[:, None, :, None] * _label_weight(batch)[:, None, None, :]
     return _masked_mean(absolute_error, _without_root(mask))
 
 
 def consistency_loss(pred: jax.Array, batch: MultiViewBatch) -> jax.Array:
     """L_con (Eq. 4): view c' rotated into camera c against view c (the target), c != c', L1."""
-    cameras = batch.cameras
-    source = jax.tree.map(lambda field: field[:, None, :], cameras)  # c' along axis 2
-    target = jax.tree.map(lambda field: field[:, :, None], cameras)  # c along axis 1
-    rotated = rotate_between_cameras(source, target, pred[:, None])  # [B, C, C', J, 3]
+    rotated = _in_every_camera(batch.cameras, pred)  # [B, C, C', J, 3]
     reference = jax.lax.stop_gradient(pred)[:, :, None]  # [B, C, 1, J, 3]
     absolute_error = jnp.sum(jnp.abs(rotated - reference), axis=-1) / MM_PER_M  # [B, C, C', J]
     views = usable_views(batch)
     num_views = views.shape[-1]
     pair = views[:, :, None] * views[:, None, :] * (1.0 - jnp.eye(num_views, dtype=pred.dtype))
-    return _masked_mean(absolute_error, _without_root(jnp.ones_like(absolute_error) * pair[..., None]))
+    # The reference joint must be a detection worth a target: a guess for a missing joint, or the
+    # prediction from an outlier, is no ground truth for the other views.
+    mask = pair[..., None] * (target_weight(batch) * _label_weight(batch)[:, None, :])[:, :, None, :]
+    return _masked_mean(absolute_error, _without_root(mask))
 
 
 def output_triangulation(pred: jax.Array, batch: MultiViewBatch, method: Method = "svd") -> jax.Array:
@@ -143,7 +162,11 @@ def output_triangulation(pred: jax.Array, batch: MultiViewBatch, method: Method 
     cameras = batch.cameras.without_distortion()
     absolute = _place_at_root(cameras, pred, batch.pseudo3d[:, ROOT])
     projected = project_from_camera(cameras, absolute)  # [B, C, J, 2]
-    weights = jnp.broadcast_to(usable_views(batch)[..., None], projected.shape[:-1])
+    views = jnp.broadcast_to(usable_views(batch)[..., None], projected.shape[:-1])
+    # Views whose detection of a joint is missing or an outlier do not vote on it, unless fewer
+    # than two views would remain: then all usable views do, so the system stays determined.
+    trusted = views * target_weight(batch)
+    weights = jnp.where(jnp.sum(trusted > 0, axis=-2, keepdims=True) >= 2, trusted, views)
     return triangulate(projection_matrices(cameras), projected, weights, method)
 
 
@@ -152,7 +175,7 @@ def output_triangulation_loss(pred: jax.Array, batch: MultiViewBatch, method: Me
     target_world = jax.lax.stop_gradient(output_triangulation(pred, batch, method))
     target = _world_pose_in_views(batch.cameras, target_world)
     squared = jnp.sum(((target - pred) / MM_PER_M) ** 2, axis=-1)
-    mask = usable_views(batch)[..., None] * _label_weight(batch)[:, None, ROOT : ROOT + 1]
+    mask = usable_views(batch)[..., None] * _label_weight(batch)[:, None, :]
     return _masked_mean(squared, _without_root(jnp.broadcast_to(mask, squared.shape)))
 
 

@@ -25,7 +25,9 @@ solution when the views' weights differ a lot (see `experiments/pseudo_labels.py
 Both end alike (`refine_on_inliers`): the DLT over the views within `threshold_px`, the inliers
 re-selected against that solution and the DLT solved once more; a joint keeps weight 1 only if at
 least `min_views` views end within `threshold_px` of its final point, otherwise it gets weight 0
-and teaches nothing.
+and teaches nothing.  `agreeing_views` names the views that end within `threshold_px`: the others
+are outliers, and `MultiViewDataset.with_pseudo_labels` records them so that the losses do not take
+them as targets either (`MultiViewBatch.detection_weight`).
 
 All functions are pure, jittable, and batched over any leading axes: P [..., C, 3, 4] as built by
 `jaxpose.camera.projection_matrices` (K [R | t], so the third projected coordinate is the depth in
@@ -46,6 +48,7 @@ from jaxpose.triangulation import Method, triangulate
 
 PseudoLabelMethod = Literal["svd", "eigh", "normal", "unweighted", "irls", "ransac"]
 PSEUDO_LABEL_METHODS: tuple[str, ...] = get_args(PseudoLabelMethod)
+OUTLIER_REJECTING_METHODS: tuple[str, ...] = ("irls", "ransac")
 
 DEFAULT_THRESHOLD_PX = 25.0
 DEFAULT_IRLS_ITERATIONS = 3
@@ -97,6 +100,13 @@ def _views_within(residual: jax.Array, confidence: jax.Array, threshold_px: floa
 def _masked_confidence(confidence: jax.Array, keep: jax.Array | bool = True) -> jax.Array:
     """Confidence where detected (and `keep`), else exactly 0 (`where`: no 0 * NaN anywhere)."""
     return jnp.where(keep & (confidence > 0), confidence, 0.0)
+
+
+def agreeing_views(
+    P: jax.Array, points2d: jax.Array, confidence: jax.Array, points3d: jax.Array, threshold_px: float
+) -> jax.Array:
+    """f32[..., C, J]: 1 where a view detected the joint within `threshold_px` of its 3D point, else 0."""
+    return _views_within(reprojection_residuals(P, points2d, points3d), confidence, threshold_px).astype(points2d.dtype)
 
 
 def refine_on_inliers(

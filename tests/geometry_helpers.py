@@ -5,8 +5,16 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
+from jaxpose import losses
 from jaxpose.camera import Cameras, project, world_to_camera
 from jaxpose.data.batch import MultiViewBatch
+
+LOSS_TERMS = {
+    "input_triangulation": losses.input_triangulation_loss,
+    "reprojection": losses.reprojection_loss,
+    "consistency": losses.consistency_loss,
+    "output_triangulation": losses.output_triangulation_loss,
+}
 
 
 def look_at(center: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

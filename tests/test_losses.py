@@ -4,17 +4,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from geometry_helpers import exact_batch
+from geometry_helpers import LOSS_TERMS, exact_batch
 
 from jaxpose import losses
 from jaxpose.losses import LossWeights, total_loss
 
-LOSS_FUNCTIONS = {
-    "input_triangulation": losses.input_triangulation_loss,
-    "reprojection": losses.reprojection_loss,
-    "consistency": losses.consistency_loss,
-    "output_triangulation": losses.output_triangulation_loss,
-}
 
 
 def _perturbation(rng, shape, scale_mm):
@@ -22,11 +16,11 @@ def _perturbation(rng, shape, scale_mm):
     return noise.at[..., 0, :].set(0.0)  # the lifter output keeps its root at zero
 
 
-@pytest.mark.parametrize("name", sorted(LOSS_FUNCTIONS))
+@pytest.mark.parametrize("name", sorted(LOSS_TERMS))
 def test_loss_vanishes_at_truth_and_grows_under_perturbation(name):
     rng = np.random.default_rng(0)
     batch, truth = exact_batch(rng, 6, 4, 17)
-    loss_fn = jax.jit(LOSS_FUNCTIONS[name])
+    loss_fn = jax.jit(LOSS_TERMS[name])
     at_truth = float(loss_fn(truth, batch))
     perturbed = [float(loss_fn(truth + _perturbation(rng, truth.shape, s), batch)) for s in (10.0, 40.0)]
     assert at_truth < 1e-3 * perturbed[0], (at_truth, perturbed)
@@ -61,7 +55,7 @@ def test_total_loss_is_the_weighted_sum_of_terms():
     expected = 2.0 * terms["input_triangulation"] + 0.5 * terms["reprojection"] + 0.3 * terms["consistency"]
     expected += 0.7 * terms["output_triangulation"]
     np.testing.assert_allclose(loss, expected, rtol=1e-6)
-    for name, fn in LOSS_FUNCTIONS.items():
+    for name, fn in LOSS_TERMS.items():
         np.testing.assert_allclose(terms[name], fn(pred, batch), rtol=1e-5)
 
 

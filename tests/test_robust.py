@@ -7,12 +7,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from geometry_helpers import exact_batch, look_at, random_poses
+from geometry_helpers import LOSS_TERMS, exact_batch, look_at, random_poses
 
 from jaxpose import robust
 from jaxpose.camera import Cameras, normalize_keypoints, project, projection_matrices
 from jaxpose.data.batch import MultiViewBatch, validate_batch
 from jaxpose.data.dataset import MultiViewDataset
+from jaxpose import losses
 from jaxpose.losses import LossWeights, total_loss
 from jaxpose.skeleton import H36M_17
 
@@ -233,6 +234,65 @@ def test_zero_weight_labels_teach_nothing_through_any_loss(scene):
         np.testing.assert_allclose(terms_g[name], terms[name], rtol=1e-6, err_msg=name)
     np.testing.assert_allclose(grad_g, grad, rtol=1e-5, atol=1e-9)
     assert np.isfinite(grad).all() and float(loss) > 0
+
+
+def test_robust_labels_mark_the_outlying_detections_and_the_batch_carries_them(scene):
+    batch, _ = scene
+    keypoints = batch.keypoints2d.at[:, 1, 5].add(jnp.array([80.0, -60.0]))  # one gross outlier per sample
+    data = _dataset(batch.replace(keypoints2d=keypoints))
+    assert data.with_pseudo_labels("svd").detection_weight is None  # the plain DLT rejects nothing
+    for method in ROBUST:
+        labelled = data.with_pseudo_labels(method, threshold_px=25.0)
+        expected = np.ones((B, C, J), np.float32)
+        expected[:, 1, 5] = 0.0
+        np.testing.assert_array_equal(labelled.detection_weight, expected, err_msg=method)
+        np.testing.assert_array_equal(labelled.subset(np.array([2, 0])).detection_weight, expected[[2, 0]])
+        labelled_batch = labelled.batch(np.arange(B))
+        np.testing.assert_array_equal(labelled_batch.detection_weight, expected)
+        validate_batch(labelled_batch)
+
+
+def test_an_outlier_detection_is_no_target_of_any_loss(scene):
+    """A detection with detection_weight 0 may hold anything: no loss term and no gradient changes
+    (the lifter output is given here; in training the detection is still an input)."""
+    batch, _ = scene
+    in_camera = jnp.einsum("bcij,bnj->bcni", batch.cameras.R, batch.target3d)
+    truth = in_camera - in_camera[:, :, :1]
+    pred = truth + jnp.asarray(np.random.default_rng(5).normal(0.0, 30.0, truth.shape), jnp.float32)
+    detection_weight = jnp.ones((B, C, J)).at[:, 1, 5].set(0.0).at[:, 3, 9].set(0.0)
+    weights = LossWeights(output_triangulation=0.01)
+
+    @jax.jit
+    def loss_and_grad(keypoints, pred):
+        marked = batch.replace(keypoints2d=keypoints, detection_weight=detection_weight)
+        return jax.value_and_grad(lambda p: total_loss(p, marked, weights), has_aux=True)(pred)
+
+    # View 3's prediction of joint 9 is far off too, so it would drag L_out's target if it voted.
+    outlying_pred = pred.at[:, 3, 9].add(jnp.array([400.0, -300.0, 200.0]))
+    garbage = batch.keypoints2d.at[:, 1, 5].add(jnp.array([3e3, -2e3])).at[:, 3, 9].set(-1e4)
+    for predicted in (pred, outlying_pred):
+        (_, terms), grad = loss_and_grad(batch.keypoints2d, predicted)
+        (_, terms_g), grad_g = loss_and_grad(garbage, predicted)
+        for name in terms:
+            np.testing.assert_allclose(terms_g[name], terms[name], rtol=1e-6, err_msg=name)
+        np.testing.assert_allclose(grad_g, grad, rtol=1e-5, atol=1e-9)
+    marked = batch.replace(detection_weight=detection_weight)
+    target = jax.jit(losses.output_triangulation)(truth.at[:, 3, 9].add(jnp.array([400.0, -300.0, 200.0])), marked)
+    assert _error(target, batch.target3d)[:, 9].max() < 1.0  # the outlying view had no vote on joint 9
+    unmarked = jax.jit(losses.output_triangulation)(truth.at[:, 3, 9].add(jnp.array([400.0, -300.0, 200.0])), batch)
+    assert _error(unmarked, batch.target3d)[:, 9].min() > 10.0
+
+
+def test_an_untrusted_joint_gets_no_gradient_from_any_loss(scene):
+    batch, _ = scene
+    in_camera = jnp.einsum("bcij,bnj->bcni", batch.cameras.R, batch.target3d)
+    pred = in_camera - in_camera[:, :, :1] + jnp.asarray(np.random.default_rng(6).normal(0.0, 30.0, in_camera.shape))
+    pred = pred.at[:, :, 0].set(0.0)
+    untrusted = batch.replace(pseudo3d_weight=jnp.ones((B, J)).at[:, 6].set(0.0))
+    for name, term in LOSS_TERMS.items():
+        gradient = np.asarray(jax.grad(term)(pred, untrusted))
+        assert np.abs(gradient[..., 6, :]).max() == 0.0, name
+        assert np.abs(gradient[..., 7, :]).max() > 0.0, name
 
 
 def test_config_fields_are_the_keyword_arguments_of_with_pseudo_labels(scene):

@@ -25,6 +25,11 @@ class MultiViewBatch:
                      consistent views) and teaches nothing.  None means all ones.
     target3d:        f32[B, J, 3] world mm ground truth, for evaluation and the supervised baseline
                      only; self-supervised training never reads it.
+    detection_weight: f32[B, C, J] in [0, 1]; 0 = this detection must not serve as a training
+                     target (L_proj's 2D target, L_con's reference view, a view of L_out's
+                     triangulation): it disagrees with its joint's pseudo-label, as the robust
+                     pseudo-label methods find outliers.  The lifter still sees it as input.
+                     None means every detection with confidence > 0.
     """
 
     keypoints2d: jax.Array
@@ -33,6 +38,7 @@ class MultiViewBatch:
     pseudo3d: jax.Array
     pseudo3d_weight: jax.Array | None = None
     target3d: jax.Array | None = None
+    detection_weight: jax.Array | None = None
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -107,8 +113,8 @@ def validate_cameras(cameras: Cameras, batch_shape: tuple[int, ...], name: str =
 def validate_batch(batch: MultiViewBatch, min_views: int = 2) -> None:
     """Reject what would silently poison training; raises `BatchValidationError`.
 
-    Checks: shapes and float dtypes of every field; no NaN/inf anywhere; confidence and
-    pseudo3d_weight in [0, 1]; at least `min_views` usable views (root and one more joint with
+    Checks: shapes and float dtypes of every field; no NaN/inf anywhere; confidence,
+    pseudo3d_weight and detection_weight in [0, 1]; at least `min_views` usable views (root and one more joint with
     confidence > 0) in every sample; cameras (see `validate_cameras`); no camera with most of a
     sample's joints behind it; every pseudo-label of positive weight in front of every camera that
     sees it.
@@ -133,13 +139,14 @@ def validate_batch(batch: MultiViewBatch, min_views: int = 2) -> None:
     if out_of_range.any():
         index = _first_index(out_of_range)
         raise BatchValidationError(f"confidence: values must lie in [0, 1]; {confidence[index]} at index {index}")
-    if batch.pseudo3d_weight is not None:
-        weight = _check_shape("pseudo3d_weight", batch.pseudo3d_weight, (B, J))
-        _check_finite("pseudo3d_weight", weight)
-        outside = (weight < 0) | (weight > 1)
-        if outside.any():
-            index = _first_index(outside)
-            raise BatchValidationError(f"pseudo3d_weight: values must lie in [0, 1]; {weight[index]} at index {index}")
+    for name, shape in (("pseudo3d_weight", (B, J)), ("detection_weight", (B, C, J))):
+        if getattr(batch, name) is not None:
+            weight = _check_shape(name, getattr(batch, name), shape)
+            _check_finite(name, weight)
+            outside = (weight < 0) | (weight > 1)
+            if outside.any():
+                index = _first_index(outside)
+                raise BatchValidationError(f"{name}: values must lie in [0, 1]; {weight[index]} at index {index}")
     if batch.target3d is not None:
         target = _check_shape("target3d", batch.target3d, (B, J, 3))
         _check_finite("target3d", target)

@@ -23,9 +23,18 @@ from jaxpose.robust import PseudoLabelMethod
 from jaxpose.skeleton import Skeleton
 
 
+def _labels_and_agreeing_views(P, points2d, confidence, method, threshold_px, **options):
+    """`robust.pseudo_labels` and, for the outlier-rejecting methods, the views that agree with them."""
+    points, weight = robust.pseudo_labels(P, points2d, confidence, method, threshold_px=threshold_px, **options)
+    if method not in robust.OUTLIER_REJECTING_METHODS:
+        return points, weight, None
+    return points, weight, robust.agreeing_views(P, points2d, confidence, points, threshold_px)
+
+
 # Module-level, so that every data set (train and test splits, repeated calls) shares its compilations.
 _pseudo_labels = jax.jit(
-    robust.pseudo_labels, static_argnames=("method", "min_views", "threshold_px", "irls_iterations", "irls_scale_px")
+    _labels_and_agreeing_views,
+    static_argnames=("method", "min_views", "threshold_px", "irls_iterations", "irls_scale_px"),
 )
 
 
@@ -35,7 +44,8 @@ class MultiViewDataset:
 
     keypoints2d f32[N, C, J, 2] pixels; confidence f32[N, C, J]; rigs: `Cameras` of numpy arrays
     with leading [R, C]; rig_index i32[N]; target3d f32[N, J, 3] world mm or None; pseudo3d and
-    pseudo3d_weight (f32[N, J, 3], f32[N, J]) once `with_pseudo_labels` has run; labels: per-sample
+    pseudo3d_weight (f32[N, J, 3], f32[N, J]) once `with_pseudo_labels` has run, and detection_weight
+    f32[N, C, J] when its method rejects outlying views (see `MultiViewBatch`); labels: per-sample
     string/int arrays such as "subject", "action", "frame" used to group evaluation results.
     """
 
@@ -47,6 +57,7 @@ class MultiViewDataset:
     target3d: np.ndarray | None = None
     pseudo3d: np.ndarray | None = None
     pseudo3d_weight: np.ndarray | None = None
+    detection_weight: np.ndarray | None = None
     labels: Mapping[str, np.ndarray] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
@@ -62,6 +73,7 @@ class MultiViewDataset:
             "target3d": (self.target3d, (N, J, 3)),
             "pseudo3d": (self.pseudo3d, (N, J, 3)),
             "pseudo3d_weight": (self.pseudo3d_weight, (N, J)),
+            "detection_weight": (self.detection_weight, (N, C, J)),
         }
         for name, (array, shape) in expected.items():
             if array is not None and array.shape != shape:
@@ -93,6 +105,7 @@ class MultiViewDataset:
             target3d=take(self.target3d),
             pseudo3d=take(self.pseudo3d),
             pseudo3d_weight=take(self.pseudo3d_weight),
+            detection_weight=take(self.detection_weight),
             labels={name: values[indices] for name, values in self.labels.items()},
         )
 
@@ -120,6 +133,7 @@ class MultiViewDataset:
             cameras=self.cameras_for(indices),
             pseudo3d=self.pseudo3d[indices],
             pseudo3d_weight=self.pseudo3d_weight[indices],
+            detection_weight=None if self.detection_weight is None else self.detection_weight[indices],
             target3d=None if self.target3d is None else self.target3d[indices],
         )
 
@@ -152,6 +166,8 @@ class MultiViewDataset:
         "irls" and "ransac" also reject views that disagree with the others.  A joint without
         `min_views` (agreeing) views gets pseudo3d_weight 0.  So does every joint of a sample whose
         root gets 0: the pseudo-label is used root-relative, so a bad root spoils every joint.
+        "irls" and "ransac" also set `detection_weight`: 0 for a detection that does not agree with
+        its joint's label, so that the losses do not take an outlier as a target either.
         """
         dataset = self.undistorted()
         solve = functools.partial(
@@ -165,17 +181,20 @@ class MultiViewDataset:
         count, joints = len(dataset), dataset.skeleton.num_joints
         pseudo3d = np.empty((count, joints, 3), np.float32)
         weight = np.empty((count, joints), np.float32)
+        agreeing = np.empty(dataset.confidence.shape, np.float32) if method in robust.OUTLIER_REJECTING_METHODS else None
         chunk_size = max(1, min(chunk_size, count))
         for start in range(0, count, chunk_size):
             # Fixed-size chunks (the last one padded by repeating a row): one compilation.
             rows = np.minimum(np.arange(start, start + chunk_size), count - 1)
             stop = min(start + chunk_size, count)
             P = projection_matrices(dataset.cameras_for(rows))
-            points, valid = solve(P, jnp.asarray(dataset.keypoints2d[rows]), jnp.asarray(dataset.confidence[rows]))
+            points, valid, views = solve(P, jnp.asarray(dataset.keypoints2d[rows]), jnp.asarray(dataset.confidence[rows]))
             pseudo3d[start:stop] = np.asarray(points)[: stop - start]
             weight[start:stop] = np.asarray(valid)[: stop - start]
+            if agreeing is not None:
+                agreeing[start:stop] = np.asarray(views)[: stop - start]
         weight *= weight[:, :1]
-        return dataclasses.replace(dataset, pseudo3d=pseudo3d, pseudo3d_weight=weight)
+        return dataclasses.replace(dataset, pseudo3d=pseudo3d, pseudo3d_weight=weight, detection_weight=agreeing)
 
 
 def concatenate(datasets: list[MultiViewDataset]) -> MultiViewDataset:
@@ -207,6 +226,7 @@ def concatenate(datasets: list[MultiViewDataset]) -> MultiViewDataset:
         target3d=join("target3d"),
         pseudo3d=join("pseudo3d"),
         pseudo3d_weight=join("pseudo3d_weight"),
+        detection_weight=join("detection_weight"),
         labels={name: np.concatenate([d.labels[name] for d in datasets]) for name in sorted(label_names)},
     )
 
