@@ -12,6 +12,8 @@ so that its peak RSS (`resource.getrusage`) is its own.  Per configuration:
 - the efficiency ratio: the time of a jitted program of only the step's matrix products (for
   every Dense layer the forward x @ W, and the backward dX = dY @ W^T and dW = X^T @ dY; no dX
   for the first layer, whose input gradient the step does not compute) over the step's time;
+- the geometry share: the time of a jitted program of the step's geometry alone (the four losses,
+  the output triangulation, their gradient with respect to the lifter output) over the step's time;
 - with PyTorch (the paper configuration, or every one with `--torch-all`): the same step in
   eager PyTorch and under `torch.compile` (`benchmarks.torch_reference`), and the speed ratios.
 
@@ -27,6 +29,7 @@ what was used.  `--untuned-paper` adds a row for the paper configuration without
 from __future__ import annotations
 
 import argparse
+import importlib.metadata
 import importlib.util
 import json
 import os
@@ -38,6 +41,16 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
+from jaxpose.data.batch import MultiViewBatch
+from jaxpose.data.synthetic import SyntheticConfig, generate
+from jaxpose.losses import LossWeights, total_loss
+from jaxpose.train import build_model, init_train_state, jit_train_step, make_optimizer, make_train_step
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = (8192, 4)  # (samples per batch, views)
@@ -55,27 +68,21 @@ TUNED_ENV = {
 }
 
 
-def synthetic_batch(batch_size: int, num_views: int, num_joints: int = NUM_JOINTS):
+def synthetic_batch(batch_size: int, num_views: int, num_joints: int = NUM_JOINTS) -> MultiViewBatch:
     """B samples of the synthetic data set (noisy detections, pseudo-labels by triangulation)."""
-    import numpy as np
-
-    from jaxpose.data.synthetic import SyntheticConfig, generate
-
     if num_joints != NUM_JOINTS:
         raise ValueError(f"the synthetic data set has {NUM_JOINTS} joints")
     config = SyntheticConfig(num_train_subjects=1, num_test_subjects=0, samples_per_subject=batch_size, num_views=num_views)
     return generate(config).with_pseudo_labels().batch(np.arange(batch_size))
 
 
+PAPER_LOSS = LossConfig(output_triangulation_start=0.0)  # all four terms on from the first step
+
+
 def paper_step(batch_size: int, num_views: int, model_config=None, loss_config=None):
     """(jitted train step, initial state, device batch, dropout key) at the paper's configuration."""
-    import jax
-
-    from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
-    from jaxpose.train import build_model, init_train_state, jit_train_step, make_optimizer, make_train_step
-
     model_config = model_config or ModelConfig()
-    loss_config = loss_config or LossConfig(output_triangulation_start=0.0)  # L_out on from the first step
+    loss_config = loss_config or PAPER_LOSS
     model = build_model(model_config, NUM_JOINTS)
     optimizer = make_optimizer(OptimizerConfig(), 1000)
     state = init_train_state(model, optimizer, jax.random.key(0))
@@ -85,17 +92,12 @@ def paper_step(batch_size: int, num_views: int, model_config=None, loss_config=N
 
 def dense_kernel_shapes(params) -> list[tuple[int, int]]:
     """(fan_in, fan_out) of every Dense layer, input layer first."""
-    import jax
-
     leaves = jax.tree_util.tree_leaves_with_path(params)
     return [tuple(leaf.shape) for path, leaf in leaves if jax.tree_util.keystr(path).endswith("['kernel']")]
 
 
 def matmul_program(kernel_shapes: list[tuple[int, int]], rows: int) -> Callable[[], object]:
     """A jitted program of the matrix products of a train step over `rows` lifter inputs."""
-    import jax
-    import numpy as np
-
     rng = np.random.default_rng(0)
     operands = [
         tuple(jax.device_put(rng.standard_normal(shape, np.float32)) for shape in ((rows, fan_in), (fan_in, fan_out), (rows, fan_out)))
@@ -112,10 +114,20 @@ def matmul_program(kernel_shapes: list[tuple[int, int]], rows: int) -> Callable[
     return lambda: products(operands)
 
 
+def geometry_program(batch: MultiViewBatch, loss_config: LossConfig = PAPER_LOSS) -> Callable[[], object]:
+    """A jitted program of the step's geometry alone: the four losses (output triangulation included)
+    and their gradient with respect to the lifter output, on a lifter output of the batch's shape."""
+    weights = LossWeights(
+        loss_config.input_triangulation, loss_config.reprojection, loss_config.consistency, loss_config.output_triangulation
+    )
+    in_camera = jnp.einsum("bcij,bnj->bcni", batch.cameras.R, batch.pseudo3d)
+    pred = in_camera - in_camera[:, :, :1] + 20.0  # some error, so that every term has a gradient
+    gradient = jax.jit(jax.grad(lambda p, b: total_loss(p, b, weights, loss_config.triangulation)[0]))
+    return lambda: gradient(pred, batch)
+
+
 def timed_rounds(programs: dict[str, Callable[[], object]], rounds: int) -> dict[str, dict[str, list[float]]]:
     """Wall and process-CPU seconds of each program, interleaved: one call of each per round."""
-    import jax
-
     times = {name: {"wall": [], "cpu": []} for name in programs}
     for _ in range(rounds):
         for name, run in programs.items():
@@ -132,9 +144,6 @@ def peak_rss_gib() -> float:
 
 def measure(batch_size: int, num_views: int, rounds: int, torch_modes: tuple[str, ...]) -> dict:
     """One configuration, in this process (the worker)."""
-    import jax
-    import numpy as np
-
     step, state, batch, key = paper_step(batch_size, num_views)
     kernel_shapes = dense_kernel_shapes(state.params)
     compiled = step.lower(state, batch, key).compile()
@@ -150,8 +159,12 @@ def measure(batch_size: int, num_views: int, rounds: int, torch_modes: tuple[str
     for _ in range(2):  # the first run also allocates the donated state's new buffers
         jax.block_until_ready(train_step())
     jax_rss = peak_rss_gib()  # before anything else allocates: the step's own peak
-    programs = {"jax": train_step, "matmul": matmul_program(kernel_shapes, batch_size * num_views)}
-    jax.block_until_ready(programs["matmul"]())
+    programs = {
+        "jax": train_step,
+        "matmul": matmul_program(kernel_shapes, batch_size * num_views),
+        "geometry": geometry_program(batch),
+    }
+    jax.block_until_ready((programs["matmul"](), programs["geometry"]()))
     torch_warmup_s = {}
     if torch_modes:
         from benchmarks import torch_reference
@@ -186,6 +199,8 @@ def measure(batch_size: int, num_views: int, rounds: int, torch_modes: tuple[str
         "matmul_s": median["matmul"]["wall"],
         "efficiency": median["matmul"]["wall"] / step_s,
         "efficiency_cpu": median["matmul"]["cpu"] / median["jax"]["cpu"],
+        "geometry_s": median["geometry"]["wall"],
+        "geometry_share": median["geometry"]["wall"] / step_s,
         "times": times,
     }
     for mode in torch_modes:
@@ -197,17 +212,14 @@ def measure(batch_size: int, num_views: int, rounds: int, torch_modes: tuple[str
     return record
 
 
-def environment() -> dict:
-    import flax
-    import jax
-    import jaxlib
-
+def package_version(name: str) -> str | None:
     try:
-        import torch
+        return importlib.metadata.version(name)
+    except importlib.metadata.PackageNotFoundError:
+        return None
 
-        torch_version = torch.__version__
-    except ImportError:
-        torch_version = None
+
+def environment() -> dict:
     cpu_model = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("model name")), platform.processor())
     return {
         "cpu_count": os.cpu_count(),
@@ -215,10 +227,7 @@ def environment() -> dict:
         "cpu_model": cpu_model,
         "memory_gib": os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30,
         "python": platform.python_version(),
-        "jax": jax.__version__,
-        "jaxlib": jaxlib.__version__,
-        "flax": flax.__version__,
-        "torch": torch_version,
+        **{package: package_version(package) for package in ("jax", "jaxlib", "flax", "optax", "torch")},
         "XLA_FLAGS": os.environ.get("XLA_FLAGS", ""),
         "GLIBC_TUNABLES": os.environ.get("GLIBC_TUNABLES", ""),
         "load_average": os.getloadavg(),
@@ -241,8 +250,8 @@ def runtime_name(env: dict[str, str]) -> str:
 
 def markdown(records: list[dict]) -> str:
     lines = [
-        "| B | C | runtime | step s (wall) | step s (CPU) | samples/s | view-samples/s | GFLOP/s | efficiency (wall / CPU) | peak RSS GiB | vs torch eager (wall / CPU) | vs torch.compile (wall / CPU) |",
-        "|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| B | C | runtime | step s (wall) | step s (CPU) | samples/s | view-samples/s | GFLOP/s | efficiency (wall / CPU) | geometry share | peak RSS GiB | vs torch eager (wall / CPU) | vs torch.compile (wall / CPU) |",
+        "|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in records:
         torch_cells = [
@@ -252,6 +261,7 @@ def markdown(records: list[dict]) -> str:
         lines.append(
             f"| {r['batch']} | {r['views']} | {runtime_name(r.get('runtime_env', {}))} | {r['step_s']:.3f} | {r['step_cpu_s']:.3f} | {r['samples_per_s']:.0f} |"
             f" {r['view_samples_per_s']:.0f} | {r['gflop_per_s']:.0f} | {r['efficiency']:.2f} / {r['efficiency_cpu']:.2f} |"
+            f" {r['geometry_share']:.1%} |"
             f" {r['peak_rss_gib']:.2f} | {torch_cells[0]} | {torch_cells[1]} |"
         )
     return "\n".join(lines)

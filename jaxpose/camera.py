@@ -88,8 +88,12 @@ def _distort(xy: jax.Array, dist: jax.Array, model: str) -> jax.Array:
 
 def _apply_intrinsics(K: jax.Array, xy: jax.Array) -> jax.Array:
     """Normalized coordinates [..., N, 2] -> pixels through K (skew included)."""
-    homogeneous = jnp.concatenate([xy, jnp.ones_like(xy[..., :1])], axis=-1)
-    return jnp.einsum("...ij,...nj->...ni", K[..., :2, :], homogeneous)
+    x, y = xy[..., 0], xy[..., 1]
+    # Written out rather than as an einsum: XLA on CPU runs a contraction of length 3 as many tiny
+    # matrix products, and the losses project [B, C, C', J] points per step.
+    u = K[..., 0, 0, None] * x + K[..., 0, 1, None] * y + K[..., 0, 2, None]
+    v = K[..., 1, 0, None] * x + K[..., 1, 1, None] * y + K[..., 1, 2, None]
+    return jnp.stack([u, v], axis=-1)
 
 
 def _remove_intrinsics(K: jax.Array, pixels: jax.Array) -> jax.Array:

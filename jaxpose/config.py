@@ -45,8 +45,9 @@ class LossConfig:
     """omega_4: output triangulation term, metres^2."""
     output_triangulation_start: float = 0.9
     """Fraction of training after which the output triangulation term is switched on (paper: last 10%)."""
-    triangulation: Literal["svd", "eigh", "normal"] = "svd"
-    """Solver of the output triangulation inside the train step (see jaxpose.triangulation)."""
+    triangulation: Literal["svd", "eigh", "normal"] = "normal"
+    """Solver of the output triangulation inside the train step (see jaxpose.triangulation): the
+    closed-form "normal" is as accurate as the reference "svd" and ~10x faster on CPU."""
     supervision: Annotated[Literal["self", "full"], tyro.conf.arg(aliases=("--supervision",))] = "self"
     """"self": the four geometric losses; "full": L2 to the 3D ground truth (the supervised upper bound)."""
 
