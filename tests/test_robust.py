@@ -311,3 +311,11 @@ def test_the_comparison_command_writes_its_table(tmp_path):
     table = pseudo_labels.main([*argv, "--run-dir", str(tmp_path)])
     assert (tmp_path / "table.md").read_text().strip() == table.strip()
     assert "| harsh-noconf | `ransac` |" in table and "Lifter" not in table
+
+
+def test_the_comparison_command_names_a_training_it_cannot_run(tmp_path):
+    from experiments import pseudo_labels
+
+    argv = ["--train", "--scenarios", "harsh", "--methods", "svd", "--train-runs", "harsh:ransac"]
+    with pytest.raises(SystemExit, match="harsh:ransac"):
+        pseudo_labels.main([*argv, "--run-dir", str(tmp_path)])

@@ -1,0 +1,64 @@
+"""Would bf16 matrix products (f32 accumulation) speed up the train step on this CPU?
+
+    python -m benchmarks.bf16_matmul
+
+Times the step's largest product, 32768 x 1024 @ 1024 x 1024 (batch 8192 x 4 views through one
+hidden layer of the paper's width), in float32 and in bfloat16 with float32 accumulation, with
+the operands cast inside the program (what a mixed-precision step would do) and already in
+bfloat16 (its best case).  Interleaved, medians of `--rounds`.  The CPU's bf16 instruction sets
+are printed with the result: without AVX512-BF16 or AMX, XLA emulates the bf16 product and it
+is no faster than float32, so jaxpose offers no bf16 switch.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+ROWS, FAN_IN, FAN_OUT = 8192 * 4, 1024, 1024
+
+
+def bf16_instruction_sets() -> list[str]:
+    flags = next((line for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("flags")), "")
+    return sorted(flag for flag in flags.split() if "bf16" in flag or flag.startswith("amx"))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--rounds", type=int, default=5, help="timed calls of each program after warm-up")
+    args = parser.parse_args()
+    rng = np.random.default_rng(0)
+    x = jnp.asarray(rng.standard_normal((ROWS, FAN_IN)), jnp.float32)
+    w = jnp.asarray(rng.standard_normal((FAN_IN, FAN_OUT)), jnp.float32)
+    x16, w16 = x.astype(jnp.bfloat16), w.astype(jnp.bfloat16)
+    float32 = jax.jit(lambda a, b: a @ b)
+    mixed = jax.jit(lambda a, b: jnp.matmul(a, b, preferred_element_type=jnp.float32))
+    cast_inside = jax.jit(lambda a, b: mixed(a.astype(jnp.bfloat16), b.astype(jnp.bfloat16)))
+    programs = {
+        "float32": lambda: float32(x, w),
+        "bf16, cast inside": lambda: cast_inside(x, w),
+        "bf16 operands": lambda: mixed(x16, w16),
+    }
+    times: dict[str, list[float]] = {name: [] for name in programs}
+    for run in programs.values():
+        jax.block_until_ready(run())
+    for _ in range(args.rounds):
+        for name, run in programs.items():
+            start = time.perf_counter()
+            jax.block_until_ready(run())
+            times[name].append(time.perf_counter() - start)
+    median = {name: statistics.median(values) for name, values in times.items()}
+    print(f"{ROWS} x {FAN_IN} @ {FAN_IN} x {FAN_OUT}, {os.cpu_count()} cores, bf16 instructions: {bf16_instruction_sets() or 'none'}")
+    for name, seconds in median.items():
+        print(f"{name:18s} {seconds * 1e3:7.0f} ms   float32 time / this = {median['float32'] / seconds:.2f}")
+
+
+if __name__ == "__main__":
+    main()
