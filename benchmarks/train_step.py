@@ -29,6 +29,7 @@ what was used.  `--untuned-paper` adds a row for the paper configuration without
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib.metadata
 import importlib.util
 import json
@@ -142,9 +143,10 @@ def peak_rss_gib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # KiB on Linux
 
 
-def measure(batch_size: int, num_views: int, rounds: int, torch_modes: tuple[str, ...]) -> dict:
-    """One configuration, in this process (the worker)."""
-    step, state, batch, key = paper_step(batch_size, num_views)
+def measure(batch_size: int, num_views: int, rounds: int, torch_modes: tuple[str, ...], solver: str = "normal") -> dict:
+    """One configuration, in this process (the worker); `solver` of the output triangulation."""
+    loss_config = dataclasses.replace(PAPER_LOSS, triangulation=solver)
+    step, state, batch, key = paper_step(batch_size, num_views, loss_config=loss_config)
     kernel_shapes = dense_kernel_shapes(state.params)
     compiled = step.lower(state, batch, key).compile()
     flops = compiled.cost_analysis()["flops"]
@@ -162,7 +164,7 @@ def measure(batch_size: int, num_views: int, rounds: int, torch_modes: tuple[str
     programs = {
         "jax": train_step,
         "matmul": matmul_program(kernel_shapes, batch_size * num_views),
-        "geometry": geometry_program(batch),
+        "geometry": geometry_program(batch, loss_config),
     }
     jax.block_until_ready((programs["matmul"](), programs["geometry"]()))
     torch_warmup_s = {}
@@ -186,6 +188,7 @@ def measure(batch_size: int, num_views: int, rounds: int, torch_modes: tuple[str
     record = {
         "batch": batch_size,
         "views": num_views,
+        "output_triangulation": solver,
         "rows": batch_size * num_views,
         "rounds": rounds,
         "step_s": step_s,
@@ -234,8 +237,11 @@ def environment() -> dict:
     }
 
 
-def run_worker(batch_size: int, num_views: int, rounds: int, torch_modes: tuple[str, ...], env: dict[str, str]) -> dict:
+def run_worker(
+    batch_size: int, num_views: int, rounds: int, torch_modes: tuple[str, ...], env: dict[str, str], solver: str
+) -> dict:
     command = [sys.executable, "-m", "benchmarks.train_step", "--worker", f"{batch_size},{num_views}", "--rounds", str(rounds)]
+    command += ["--solver", solver]
     if torch_modes:
         command += ["--worker-torch", ",".join(torch_modes)]
     result = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True)
@@ -270,19 +276,27 @@ def markdown(records: list[dict]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="smaller sweep, PyTorch eager only, at B=256 (under 2 minutes)")
-    parser.add_argument("--out", type=Path, default=ROOT / "runs" / "benchmarks" / "train_step.json")
+    parser.add_argument(
+        "--out", type=Path, default=ROOT / "runs" / "benchmarks" / "train_step.json",
+        help="JSON results (a markdown table is written beside it)",
+    )  # fmt: skip
     parser.add_argument("--rounds", type=int, default=5, help="timed steps per program after warm-up")
     parser.add_argument("--no-torch", action="store_true", help="skip the PyTorch reference")
     parser.add_argument("--torch-all", action="store_true", help="time PyTorch at every configuration")
     parser.add_argument("--untuned", action="store_true", help="run the workers without TUNED_ENV")
     parser.add_argument("--untuned-paper", action="store_true", help="add the paper configuration without TUNED_ENV")
+    parser.add_argument(
+        "--solver", default=LossConfig.triangulation, choices=("svd", "eigh", "normal"),
+        help="solver of the output triangulation in the step (the training default: normal)",
+    )  # fmt: skip
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     parser.add_argument("--worker-torch", default="", help=argparse.SUPPRESS)
     args = parser.parse_args()
 
     if args.worker:
         batch_size, num_views = (int(v) for v in args.worker.split(","))
-        print(json.dumps(measure(batch_size, num_views, args.rounds, tuple(filter(None, args.worker_torch.split(","))))))
+        torch_modes = tuple(filter(None, args.worker_torch.split(",")))
+        print(json.dumps(measure(batch_size, num_views, args.rounds, torch_modes, args.solver)))
         return
 
     torch_modes = () if args.no_torch else ("eager",) if args.quick else ("eager", "compile")
@@ -298,7 +312,7 @@ def main() -> None:
     records = []
     for (batch_size, num_views), env in runs:
         timed_torch = env is tuned and (args.torch_all or (batch_size, num_views) == torch_at)
-        record = run_worker(batch_size, num_views, args.rounds, torch_modes if timed_torch else (), env)
+        record = run_worker(batch_size, num_views, args.rounds, torch_modes if timed_torch else (), env, args.solver)
         record["runtime_env"] = {name: env.get(name, "") for name in TUNED_ENV}
         records.append(record)
         print(markdown([record]).splitlines()[-1], flush=True)
