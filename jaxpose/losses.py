@@ -102,10 +102,9 @@ def _world_pose_in_views(cameras: Cameras, pose_world: jax.Array) -> jax.Array:
     return _root_relative(world_to_camera(cameras, pose_world[:, None]))
 
 
-def _place_at_root(cameras: Cameras, pred: jax.Array, root_world: jax.Array) -> jax.Array:
-    """Camera-frame absolute poses: each view's prediction translated to the root's position."""
-    root_camera = world_to_camera(cameras, root_world[:, None, None, :])  # [B, C, 1, 3]
-    return pred + root_camera
+def _root_in_cameras(batch: MultiViewBatch) -> jax.Array:
+    """[B, C, 1, 3]: the triangulated root in every camera's frame, where the predictions are placed."""
+    return world_to_camera(batch.cameras, batch.pseudo3d[:, None, ROOT : ROOT + 1, :])
 
 
 def _in_every_camera(cameras: Cameras, pred: jax.Array) -> jax.Array:
@@ -130,9 +129,8 @@ def reprojection_loss(pred: jax.Array, batch: MultiViewBatch) -> jax.Array:
     # View c' placed at the root and taken to camera c is its pose rotated into camera c's axes plus
     # the root's position in camera c: one 3x3 rotation per view pair, no round trip through world.
     rotated = _in_every_camera(cameras, pred)  # [B, C, C', J, 3]
-    root_camera = world_to_camera(cameras, batch.pseudo3d[:, None, ROOT : ROOT + 1, :])  # [B, C, 1, 3]
     target_cameras = jax.tree.map(lambda field: field[:, :, None], cameras)  # [B, C, 1]
-    projected = project_from_camera(target_cameras, rotated + root_camera[:, :, None])  # [B, C, C', J, 2]
+    projected = project_from_camera(target_cameras, rotated + _root_in_cameras(batch)[:, :, None])  # [B,C,C',J,2]
     projected = projected - projected[..., ROOT : ROOT + 1, :]
     detected = batch.keypoints2d - batch.keypoints2d[..., ROOT : ROOT + 1, :]  # [B, C, J, 2]
     focal = jnp.stack([cameras.K[..., 0, 0], cameras.K[..., 1, 1]], axis=-1)[:, :, None, None, :]  # [B,C,1,1,2]
@@ -160,8 +158,7 @@ def consistency_loss(pred: jax.Array, batch: MultiViewBatch) -> jax.Array:
 def output_triangulation(pred: jax.Array, batch: MultiViewBatch, method: Method = "svd") -> jax.Array:
     """Y_out (Sec. III-C): triangulation of the C predictions' projections, world mm [B, J, 3]."""
     cameras = batch.cameras.without_distortion()
-    absolute = _place_at_root(cameras, pred, batch.pseudo3d[:, ROOT])
-    projected = project_from_camera(cameras, absolute)  # [B, C, J, 2]
+    projected = project_from_camera(cameras, pred + _root_in_cameras(batch))  # [B, C, J, 2]
     views = jnp.broadcast_to(usable_views(batch)[..., None], projected.shape[:-1])
     # Views whose detection of a joint is missing or an outlier do not vote on it, unless fewer
     # than two views would remain: then all usable views do, so the system stays determined.
