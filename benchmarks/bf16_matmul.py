@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
-import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from benchmarks.train_step import medians, timed_rounds
 
 ROWS, FAN_IN, FAN_OUT = 8192 * 4, 1024, 1024
 
@@ -46,15 +46,9 @@ def main() -> None:
         "bf16, cast inside": lambda: cast_inside(x, w),
         "bf16 operands": lambda: mixed(x16, w16),
     }
-    times: dict[str, list[float]] = {name: [] for name in programs}
     for run in programs.values():
         jax.block_until_ready(run())
-    for _ in range(args.rounds):
-        for name, run in programs.items():
-            start = time.perf_counter()
-            jax.block_until_ready(run())
-            times[name].append(time.perf_counter() - start)
-    median = {name: statistics.median(values) for name, values in times.items()}
+    median = {name: times["wall"] for name, times in medians(timed_rounds(programs, args.rounds)).items()}
     print(f"{ROWS} x {FAN_IN} @ {FAN_IN} x {FAN_OUT}, {os.cpu_count()} cores, bf16 instructions: {bf16_instruction_sets() or 'none'}")
     for name, seconds in median.items():
         print(f"{name:18s} {seconds * 1e3:7.0f} ms   float32 time / this = {median['float32'] / seconds:.2f}")

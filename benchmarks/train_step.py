@@ -139,6 +139,11 @@ def timed_rounds(programs: dict[str, Callable[[], object]], rounds: int) -> dict
     return times
 
 
+def medians(times: dict[str, dict[str, list[float]]]) -> dict[str, dict[str, float]]:
+    """The median wall and CPU seconds of each program of `timed_rounds`."""
+    return {name: {kind: statistics.median(values) for kind, values in t.items()} for name, t in times.items()}
+
+
 def peak_rss_gib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # KiB on Linux
 
@@ -183,7 +188,7 @@ def measure(batch_size: int, num_views: int, rounds: int, torch_modes: tuple[str
                 programs[f"torch_{mode}"]()
             torch_warmup_s[mode] = time.perf_counter() - start
     times = timed_rounds(programs, rounds)
-    median = {name: {kind: statistics.median(values) for kind, values in t.items()} for name, t in times.items()}
+    median = medians(times)
     step_s = median["jax"]["wall"]
     record = {
         "batch": batch_size,

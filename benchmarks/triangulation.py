@@ -1,4 +1,4 @@
-"""The DLT solvers of `jaxpose.triangulation` compared, and the geometry's share of the train step.
+"""The DLT solvers of `jaxpose.triangulation` compared.
 
     python -m benchmarks.triangulation [--quick] [--out runs/benchmarks/triangulation.json]
 
@@ -7,9 +7,9 @@
    and forward + backward (the gradient with respect to the 2D points).
 2. Accuracy under detection noise: exact projections of the synthetic data set's poses (4 rigs)
    plus isotropic Gaussian noise of 0, 2, 5 and 10 px per axis; mean 3D error to the truth (mm).
-3. The geometry's share of the step: `total_loss` forward + backward alone (with the output
-   triangulation by "svd", the default, and by "normal") against the full train step at the
-   paper configuration, both solvers' steps timed too.  Target: <= 5%.
+
+The geometry's share of the train step (losses and output triangulation, per solver) is measured
+by `python -m benchmarks.train_step [--solver svd|eigh|normal]`.
 
 All timings are medians of `--rounds` interleaved calls after warm-up, wall and process CPU time.
 """
@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
 import time
 from pathlib import Path
 
@@ -26,11 +25,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks.train_step import PAPER, environment, paper_step, timed_rounds
-from jaxpose.camera import projection_matrices, world_to_camera
-from jaxpose.config import LossConfig
+from benchmarks.train_step import PAPER, environment, medians, timed_rounds
+from jaxpose.camera import projection_matrices
 from jaxpose.data.synthetic import SyntheticConfig, generate
-from jaxpose.losses import LossWeights, total_loss
 from jaxpose.triangulation import triangulate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -47,10 +44,6 @@ def exact_views(num_samples: int, num_views: int, subjects: int = 4) -> tuple[np
     data = generate(clean)
     P = np.asarray(projection_matrices(data.rigs))[data.rig_index]
     return P.astype(np.float32), data.keypoints2d, data.target3d
-
-
-def medians(times: dict) -> dict:
-    return {name: {kind: statistics.median(values) for kind, values in t.items()} for name, t in times.items()}
 
 
 def solver_speed(P: jax.Array, points: jax.Array, rounds: int) -> dict:
@@ -80,33 +73,6 @@ def solver_accuracy(P: np.ndarray, pixels: np.ndarray, truth: np.ndarray) -> dic
     return errors
 
 
-def geometry_share(rounds: int) -> dict:
-    """total_loss forward + backward (per solver) against the whole step, at the paper configuration."""
-    batch_size, num_views = PAPER
-    programs = {}
-    for method in ("svd", "normal"):
-        step, state, batch, key = paper_step(batch_size, num_views, loss_config=LossConfig(output_triangulation_start=0.0, triangulation=method))
-        holder = {"state": state}
-
-        def train_step(step=step, holder=holder, batch=batch, key=key):
-            holder["state"], metrics = step(holder["state"], batch, key)
-            return holder["state"], metrics
-
-        loss_grad = jax.jit(jax.value_and_grad(lambda pred, batch, method=method: total_loss(pred, batch, LossWeights(), method)[0]))
-        # The prediction of a well-trained lifter: the pseudo-label, root-relative in every view.
-        in_views = world_to_camera(batch.cameras, batch.pseudo3d[:, None])
-        pred = in_views - in_views[..., :1, :]
-        programs[f"step/{method}"] = train_step
-        programs[f"loss/{method}"] = lambda f=loss_grad, pred=pred, batch=batch: f(pred, batch)
-    for run in programs.values():
-        for _ in range(2):
-            jax.block_until_ready(run())
-    result = medians(timed_rounds(programs, rounds))
-    for method in ("svd", "normal"):
-        result[f"share/{method}"] = {kind: result[f"loss/{method}"][kind] / result[f"step/{method}"][kind] for kind in ("wall", "cpu")}
-    return result
-
-
 def markdown(result: dict) -> str:
     lines = ["| method | forward ms | forward+backward ms | " + " | ".join(f"error {k} (mm)" for k in result["accuracy"]) + " |"]
     lines.append("|---|---:|---:|" + "---:|" * len(result["accuracy"]))
@@ -117,21 +83,12 @@ def markdown(result: dict) -> str:
             versus = f" (vs svd {errors[f'{method}_vs_svd']:.3f})" if method != "svd" else ""
             cells.append(f"{errors[method]:.3f}{versus}")
         lines.append(f"| {method} | " + " | ".join(cells) + " |")
-    share = result.get("share")
-    if share:
-        lines += ["", "| output triangulation | step s (wall / CPU) | total_loss fwd+bwd ms (wall / CPU) | share (wall / CPU) |", "|---|---:|---:|---:|"]
-        for method in ("svd", "normal"):
-            step, loss, ratio = share[f"step/{method}"], share[f"loss/{method}"], share[f"share/{method}"]
-            lines.append(
-                f"| {method} | {step['wall']:.2f} / {step['cpu']:.2f} | {1e3 * loss['wall']:.0f} / {1e3 * loss['cpu']:.0f} |"
-                f" {100 * ratio['wall']:.1f}% / {100 * ratio['cpu']:.1f}% |"
-            )
     return "\n".join(lines)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--quick", action="store_true", help="1024 samples, no geometry share")
+    parser.add_argument("--quick", action="store_true", help="1024 samples instead of the paper's 8192")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "benchmarks" / "triangulation.json")
     parser.add_argument("--rounds", type=int, default=7)
     args = parser.parse_args()
@@ -145,8 +102,6 @@ def main() -> None:
         "speed": solver_speed(jnp.asarray(P), jnp.asarray(pixels), args.rounds),
         "accuracy": solver_accuracy(P, pixels, truth),
     }
-    if not args.quick:
-        result["share"] = geometry_share(max(args.rounds - 2, 5))
     result["environment"] = environment()
     result["total_s"] = time.perf_counter() - start
     args.out.parent.mkdir(parents=True, exist_ok=True)
