@@ -42,7 +42,6 @@ def write_tree(root: Path, frames_per_sequence: int) -> dict:
         sequences=SEQUENCES,
         num_frames=frames_per_sequence,
         missing_views={("S11", "Directions"): ("54138969",)},  # as in the real data
-        sh_dtype="float64",
     )
     frames = sum(len(points) for points in fixture.mocap.values())
     size = sum(path.stat().st_size for path in root.rglob("*") if path.is_file())

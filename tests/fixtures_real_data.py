@@ -118,14 +118,16 @@ def h36m_cameras(rng: np.random.Generator) -> list[dict]:
 
 
 def write_h36m_cameras_h5(path: Path, cameras: dict[str, list[dict]]) -> None:
-    """cameras.h5: subject{n}/camera{i}/{R, T, f, c, k, p, Name}; Name as uint8 character codes."""
+    """cameras.h5: subject{n}/camera{i}/{R, T, f, c, k, p, Name}, all float64 as in the real file
+    (Name: the camera name's character codes as float64 [8, 1])."""
     with h5py.File(path, "w") as file:
         for subject, subject_cameras in cameras.items():
             for index, camera in enumerate(subject_cameras, start=1):
                 group = file.create_group(f"subject{subject[1:]}/camera{index}")
                 for field in ("R", "T", "f", "c", "k", "p"):
                     group.create_dataset(field, data=camera[field])
-                group.create_dataset("Name", data=np.frombuffer(camera["name"].encode(), np.uint8).reshape(-1, 1))
+                codes = np.frombuffer(camera["name"].encode(), np.uint8).astype(np.float64).reshape(-1, 1)
+                group.create_dataset("Name", data=codes)
 
 
 @dataclasses.dataclass
@@ -149,7 +151,6 @@ def write_h36m_martinez_tree(
     missing_views: dict[tuple[str, str], tuple[str, ...]] | None = None,
     orphan_2d: tuple[tuple[str, str], ...] = (),
     seed: int = 0,
-    sh_dtype=np.float32,
 ) -> H36MFixture:
     """h36m.zip layout: S*/MyPoses/3D_positions/<seq>.h5 (3D_positions f64[96, N]),
     S*/StackedHourglass/<seq with _>.<camera>.h5 (poses [N, 16, 2], here the exact projection of
@@ -179,17 +180,18 @@ def write_h36m_martinez_tree(
             for camera in cameras[subject]:
                 if camera["name"] not in left_out:
                     pixels = h36m_project(camera, points[:, H36M_SH_FILE_MOCAP])
-                    _write_sh(sh_dir / f"{sequence.replace(' ', '_')}.{camera['name']}.h5", pixels, sh_dtype)
+                    _write_sh(sh_dir / f"{sequence.replace(' ', '_')}.{camera['name']}.h5", pixels)
     for subject, sequence in orphan_2d:
         for camera in cameras[subject]:
             pixels = h36m_project(camera, synthetic_motion(rng, num_frames, 32)[:, H36M_SH_FILE_MOCAP])
-            _write_sh(root / subject / "StackedHourglass" / f"{sequence}.{camera['name']}.h5", pixels, sh_dtype)
+            _write_sh(root / subject / "StackedHourglass" / f"{sequence}.{camera['name']}.h5", pixels)
     return H36MFixture(root=root, cameras=cameras, mocap=mocap)
 
 
-def _write_sh(path: Path, pixels: np.ndarray, dtype) -> None:
+def _write_sh(path: Path, pixels: np.ndarray) -> None:
+    """A Stacked Hourglass file: poses float64 [N, 16, 2], as the real files."""
     with h5py.File(path, "w") as file:
-        file.create_dataset("poses", data=pixels.astype(dtype))
+        file.create_dataset("poses", data=pixels.astype(np.float64))
 
 
 def h36m_canonical_name(sequence: str) -> str:

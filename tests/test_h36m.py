@@ -54,27 +54,36 @@ def _check_against_fixture(dataset, fixture, mocap_joints, strides):
             expected3d = mocap[frames][:, mocap_joints]
             np.testing.assert_allclose(dataset.target3d[rows], expected3d, atol=2e-3)
             for view, camera in enumerate(fixture.cameras[subject]):
-                reference = h36m_project(camera, expected3d)
-                np.testing.assert_allclose(dataset.keypoints2d[rows, view], reference, atol=1e-3)
+                present = dataset.confidence[rows, view, 0] > 0  # a missing view's file was not written
+                reference = h36m_project(camera, expected3d[present])
+                np.testing.assert_allclose(dataset.keypoints2d[rows[present], view], reference, atol=1e-3)
     # The loaded cameras reproduce the 2D from the 3D through jaxpose.camera.project.
     cameras = dataset.cameras_for(np.arange(len(dataset)))
     projected = np.asarray(project(cameras, dataset.target3d[:, None]))
-    np.testing.assert_allclose(projected, dataset.keypoints2d, atol=1e-3)
+    present = dataset.confidence > 0
+    np.testing.assert_allclose(projected[present], dataset.keypoints2d[present], atol=1e-3)
 
 
 def test_martinez_stacked_hourglass(tree):
-    with pytest.warns(UserWarning, match="skipped 2 sequences") as record:
+    with pytest.warns(UserWarning) as record:
         dataset = _load(tree.root, train_stride=5, test_stride=2)
-    message = str(record[0].message)
-    assert "S9 'Walking 1' (no 2D for cameras ['54138969'])" in message
-    assert "S9 'Eating_2' (2D without 3D)" in message
+    messages = [str(warning.message) for warning in record]
+    assert any("1 sequences miss some views" in m and "S9 'Walking 1' (no 2D for cameras ['54138969'])" in m for m in messages)
+    assert any("skipped 1 sequences" in m and "S9 'Eating_2' (2D without 3D)" in m for m in messages)
     assert dataset.skeleton == H36M_16 and dataset.num_views == 4
     assert dataset.keypoints2d.dtype == np.float32 and dataset.target3d.dtype == np.float32
-    np.testing.assert_array_equal(dataset.confidence, 1.0)
     assert set(dataset.labels) == {"subject", "action", "sequence", "frame"}
     assert set(dataset.labels["action"]) == {"Directions", "Photo", "WalkDog", "Walking"}
-    assert set(dataset.where(subject="S9").labels["sequence"]) == {"Directions 1", "TakingPhoto", "WalkingDog 1"}
+    s9_sequences = {"Directions 1", "TakingPhoto", "WalkingDog 1", "Walking 1"}
+    assert set(dataset.where(subject="S9").labels["sequence"]) == s9_sequences
     assert "TakingPhoto" in set(dataset.labels["sequence"])
+    # The sequence without camera 54138969's file keeps its three other views; the missing one has
+    # confidence 0 (and coordinates 0), every other view confidence 1.
+    partial = (dataset.labels["subject"] == "S9") & (dataset.labels["sequence"] == "Walking 1")
+    np.testing.assert_array_equal(dataset.confidence[partial, 0], 0.0)
+    np.testing.assert_array_equal(dataset.keypoints2d[partial, 0], 0.0)
+    np.testing.assert_array_equal(dataset.confidence[partial, 1:], 1.0)
+    np.testing.assert_array_equal(dataset.confidence[~partial], 1.0)
     _check_against_fixture(dataset, tree, MOCAP_16, {"S1": 5, "S9": 2})
     assert dataset.rigs.K.shape == (2, 4, 3, 3) and dataset.rigs.distortion_model == "h36m"
 
@@ -91,9 +100,11 @@ def test_ground_truth_2d_projects_with_distortion(tree):
 def test_videopose3d_layout_with_json_cameras(tree, tmp_path):
     write_h36m_videopose3d_files(tmp_path, tree, extra_2d_frames=3, drop_views={("S1", "Walking 1"): 1})
     convert_h36m_cameras(tree.root / "cameras.h5", tmp_path / "cameras.json")
-    with pytest.warns(UserWarning, match=r"S1 'Walking 1' \(no 2D for cameras \['60457274'\]\)"):
+    with pytest.warns(UserWarning, match=r"miss some views.*S1 'Walking 1' \(no 2D for cameras \['60457274'\]\)"):
         dataset = _load(tmp_path, detections="cpn", cameras_path=tmp_path / "cameras.json", test_stride=4)
     assert dataset.skeleton == H36M_17
+    walking = dataset.labels["sequence"] == "Walking 1"
+    assert walking.any() and (dataset.confidence[walking & (dataset.labels["subject"] == "S1"), 3] == 0).all()
     # Sequence labels are the 3D file's names, here VideoPose3D's ("Photo", "WalkDog 1").
     assert set(dataset.labels["sequence"]) == {"Directions 1", "Photo", "WalkDog 1", "Walking 1"}
     renamed_mocap = {(subject, h36m_canonical_name(name)): m for (subject, name), m in tree.mocap.items()}

@@ -63,19 +63,23 @@ def test_test_split_walk_and_jog_only_ground_truth_2d(files):
     np.testing.assert_allclose(from_file.keypoints2d, dataset.keypoints2d, atol=1e-3)
 
 
-def test_missing_views_and_orphans_are_skipped_with_a_warning(files, tmp_path):
+def test_missing_views_get_confidence_zero_and_orphans_are_skipped(files, tmp_path):
     root = tmp_path / "copy"
     shutil.copytree(files.root, root)
     positions = np.load(root / "data_2d_humaneva15_detectron_pt_coco.npz", allow_pickle=True)["positions_2d"].item()
     positions["Train/S1"]["Walk 1 chunk0"] = positions["Train/S1"]["Walk 1 chunk0"][:2]
     positions["Train/S1"]["ThrowCatch 1 chunk0"] = positions["Train/S1"]["Box 1 chunk0"]
     np.savez(root / "data_2d_humaneva15_mine.npz", positions_2d=positions)
-    with pytest.warns(UserWarning, match="skipped 2 sequences") as record:
+    with pytest.warns(UserWarning) as record:
         dataset = load_humaneva(root, "train", detections="mine", subjects=("Train/S1",), progress=False)
-    message = str(record[0].message)
-    assert "Train/S1 'Walk 1 chunk0' (no 2D for cameras ['C3'])" in message
-    assert "Train/S1 'ThrowCatch 1 chunk0' (2D without 3D)" in message
-    assert "Walk 1 chunk0" not in set(dataset.labels["sequence"])
+    messages = [str(warning.message) for warning in record]
+    assert any("1 sequences miss some views" in m and "Train/S1 'Walk 1 chunk0' (no 2D for cameras ['C3'])" in m for m in messages)
+    assert any("skipped 1 sequences" in m and "Train/S1 'ThrowCatch 1 chunk0' (2D without 3D)" in m for m in messages)
+    walk = dataset.labels["sequence"] == "Walk 1 chunk0"
+    assert walk.any()
+    np.testing.assert_array_equal(dataset.confidence[walk, 2], 0.0)
+    np.testing.assert_array_equal(dataset.confidence[walk, :2], 1.0)
+    np.testing.assert_array_equal(dataset.confidence[~walk], 1.0)
 
 
 def test_errors(files, tmp_path):

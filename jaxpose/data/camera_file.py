@@ -174,12 +174,7 @@ def _read_h36m(path: Path) -> dict[str, SubjectCameras]:
                             f"shape {value.shape} with values {value[:9].tolist()}",
                         )
                     values[field] = value
-                codes = np.asarray(h5_dataset(group, "Name", path, what)).reshape(-1)
-                if codes.dtype.kind not in "iu":
-                    raise DataFormatError(
-                        f"{path}:/{subject_key}/{camera_key}/Name", "character codes (integers)", f"dtype {codes.dtype}"
-                    )
-                names.append("".join(map(chr, codes.tolist())))
+                names.append(_camera_name(h5_dataset(group, "Name", path, what), f"{path}:/{subject_key}/{camera_key}/Name"))
                 rotation = values["R"].reshape(3, 3)
                 (fx, fy), (cx, cy) = values["f"], values["c"]
                 K.append([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
@@ -192,6 +187,21 @@ def _read_h36m(path: Path) -> dict[str, SubjectCameras]:
                 Cameras(K=np.array(K), R=np.array(R), t=np.array(t), dist=np.array(dist), distortion_model="h36m"),
             )
     return rigs
+
+
+def _camera_name(codes, where: str) -> str:
+    """A camera name stored as character codes.  The real cameras.h5 stores them as float64 [8, 1]
+    (e.g. 53., 52., ... for "54138969"); any numeric dtype is accepted as long as every code is a
+    whole number that is a valid character."""
+    codes = np.asarray(codes).reshape(-1)
+    if codes.dtype.kind not in "biuf" or codes.size == 0:
+        raise DataFormatError(where, "a camera name as character codes (numbers)", f"dtype {codes.dtype}, shape {codes.shape}")
+    valid = np.isfinite(codes) & (codes == np.round(codes)) & (codes >= 32) & (codes < 0x110000)
+    if not np.all(valid):
+        raise DataFormatError(
+            where, "character codes: whole numbers of printable characters", f"{codes.dtype} values {codes[:8].tolist()}"
+        )
+    return "".join(map(chr, codes.astype(np.int64).tolist()))
 
 
 def _parse(document, path: Path) -> tuple[dict[str, SubjectCameras], dict[str, list[ImageSize]]]:

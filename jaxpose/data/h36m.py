@@ -23,9 +23,10 @@ subject and sequence, so the layouts mix (e.g. Martinez 3D with CPN 2D).
 The views of every rig are in the order `CAMERA_NAMES` (VideoPose3D's order); 2D npz lists must
 use that order.  Sequence names differ between sources ("Walking 1" / "Walking_1", "TakingPhoto" /
 "Photo", "WalkingDog" / "WalkDog"); they are matched by (canonical action, trial number), and the
-labels keep the 3D file's full sequence name.  Sequences that miss a camera's 2D (S11 Directions
-has 3 of the 4 SH files) and 2D sequences with no 3D counterpart are skipped with one warning
-naming them.  Frames are down-sampled from 50 fps by keeping every `train_stride`-th (training
+labels keep the 3D file's full sequence name.  A sequence that misses some cameras' 2D (S11
+Directions has 3 of the 4 SH files) keeps its other views; the missing views get confidence 0, so
+training uses the views that exist and evaluation skips only the missing ones.  Such sequences,
+3D sequences without any 2D and 2D sequences with no 3D counterpart are named in one warning.  Frames are down-sampled from 50 fps by keeping every `train_stride`-th (training
 subjects) or `test_stride`-th (all other subjects) frame, starting at frame 0.
 """
 
@@ -121,7 +122,7 @@ def load_h36m(
         positions = load_positions(path, "positions_2d", "VideoPose3D 2D detections")
         read_2d = functools.partial(_npz_2d, path, positions)
 
-    plan, skipped = [], []
+    plan, skipped, partial = [], [], []
     for subject in subjects:
         sequences3d = read_3d(subject)
         by_key = _index_by_key(sequences3d, f"{data_dir} subject {subject} 3D sequences")
@@ -133,11 +134,18 @@ def load_h36m(
             views = None
             if read_2d is not None:
                 views = sources2d.get(key, (None, {}))[1]
+                if not views:
+                    skipped.append(f"{subject} {name!r} (no 2D)")
+                    continue
                 missing = [camera for camera in CAMERA_NAMES if camera not in views]
                 if missing:
-                    skipped.append(f"{subject} {name!r} (no 2D for cameras {missing})")
-                    continue
+                    partial.append(f"{subject} {name!r} (no 2D for cameras {missing})")
             plan.append((subject, name, sequences3d[name], views, stride))
+    if partial:
+        warnings.warn(
+            f"Human3.6M: {len(partial)} sequences miss some views, which get confidence 0: " + "; ".join(partial),
+            stacklevel=2,
+        )
     if skipped:
         warnings.warn(f"Human3.6M: skipped {len(skipped)} sequences: " + "; ".join(skipped), stacklevel=2)
     if not plan:
@@ -265,10 +273,10 @@ def _read_recording(
     """Read one sequence, keep every `stride`-th frame, and check that its 2D covers its 3D."""
     points = read3d()
     frames = np.arange(0, len(points), stride, dtype=np.int32)
-    keypoints = None
+    keypoints = confidence = None
     if views is not None:
-        read = {camera: views[camera]() for camera in CAMERA_NAMES}
-        keypoints = stack_views(f"Human3.6M {subject} {name!r}", read, len(points), frames)
+        read = {camera: reader() for camera, reader in views.items()}
+        keypoints, confidence = stack_views(f"Human3.6M {subject} {name!r}", read, CAMERA_NAMES, len(points), frames)
     return Recording(
         subject=subject,
         action=sequence_action(name),
@@ -276,4 +284,5 @@ def _read_recording(
         frames=frames,
         points3d=points[frames][:, joints3d].astype(np.float32),
         keypoints2d=keypoints,
+        confidence=confidence,
     )

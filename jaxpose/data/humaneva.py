@@ -76,7 +76,7 @@ def load_humaneva(
         path2d = Path(detections) if is_path else data_dir / f"data_2d_humaneva15_{detections}.npz"
         positions2d = load_positions(path2d, "positions_2d", "VideoPose3D HumanEva-I 2D keypoints")
 
-    plan, skipped = [], []
+    plan, skipped, partial = [], [], []
     for subject in subjects:
         poses = subject_poses3d(path3d, positions3d, subject, HUMANEVA_15.num_joints)
         views = {}
@@ -88,12 +88,19 @@ def load_humaneva(
                 continue
             cameras = None
             if positions2d is not None:
-                missing = [camera for camera in CAMERA_NAMES if camera not in views.get(name, {})]
-                if missing:
-                    skipped.append(f"{subject} {name!r} (no 2D for cameras {missing})")
+                cameras = views.get(name, {})
+                if not cameras:
+                    skipped.append(f"{subject} {name!r} (no 2D)")
                     continue
-                cameras = {camera: views[name][camera] for camera in CAMERA_NAMES}
+                missing = [camera for camera in CAMERA_NAMES if camera not in cameras]
+                if missing:
+                    partial.append(f"{subject} {name!r} (no 2D for cameras {missing})")
             plan.append((subject, name, poses[name], cameras))
+    if partial:
+        warnings.warn(
+            f"HumanEva-I: {len(partial)} sequences miss some views, which get confidence 0: " + "; ".join(partial),
+            stacklevel=2,
+        )
     if skipped:
         warnings.warn(f"HumanEva-I: skipped {len(skipped)} sequences: " + "; ".join(skipped), stacklevel=2)
     if not plan:
@@ -141,11 +148,11 @@ def _read_recording(
     frames = np.arange(0, len(poses), stride, dtype=np.int32)
     points = poses[frames].astype(np.float64) * 1000.0  # metres -> mm
     valid = np.isfinite(points).all((1, 2)) & ~(points == 0).all(-1).any(-1)
-    keypoints = None
+    keypoints = confidence = None
     if cameras is not None:
-        keypoints = stack_views(f"HumanEva-I {subject} {name!r}", cameras, len(poses), frames)
+        keypoints, confidence = stack_views(f"HumanEva-I {subject} {name!r}", cameras, CAMERA_NAMES, len(poses), frames)
         valid &= np.isfinite(keypoints).all((1, 2, 3))
-        keypoints = keypoints[valid]
+        keypoints, confidence = keypoints[valid], confidence[valid]
     recording = Recording(
         subject=subject.split("/")[-1],
         action=_action(name),
@@ -153,5 +160,6 @@ def _read_recording(
         frames=frames[valid],
         points3d=points[valid].astype(np.float32),
         keypoints2d=keypoints,
+        confidence=confidence,
     )
     return recording, int((~valid).sum())

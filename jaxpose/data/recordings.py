@@ -27,7 +27,8 @@ class Recording:
     """n kept frames of one sequence seen by C cameras, J joints.
 
     frames: i32[n] frame numbers in the original recording; points3d: f32[n, J, 3] world mm;
-    keypoints2d: f32[n, C, J, 2] pixels, or None for ground-truth 2D (projected from points3d).
+    keypoints2d: f32[n, C, J, 2] pixels, or None for ground-truth 2D (projected from points3d);
+    confidence: f32[n, C, J], 0 for a camera whose 2D is missing; None = 1 everywhere.
     """
 
     subject: str
@@ -36,13 +37,14 @@ class Recording:
     frames: np.ndarray
     points3d: np.ndarray
     keypoints2d: np.ndarray | None
+    confidence: np.ndarray | None = None
 
 
 def build_dataset(skeleton: Skeleton, recordings: Sequence[Recording], rigs: Mapping[str, Cameras]) -> MultiViewDataset:
     """Stack recordings into a data set; `rigs[subject]` is that subject's `Cameras` [C] (numpy).
 
     Either every recording has keypoints2d or none has (then all 2D are projections of the 3D,
-    with distortion).  Confidence is 1 everywhere: the detection files carry no scores.
+    with distortion).  Confidence is each recording's, else 1: the detection files carry no scores.
     """
     if not recordings:
         raise ValueError("build_dataset: no recordings")
@@ -57,6 +59,10 @@ def build_dataset(skeleton: Skeleton, recordings: Sequence[Recording], rigs: Map
         keypoints2d = project_to_views(stacked, rig_index, target3d)
     else:
         keypoints2d = np.concatenate([r.keypoints2d for r in recordings]).astype(np.float32, copy=False)
+    views_and_joints = keypoints2d.shape[1:3]
+    confidence = np.concatenate(
+        [np.ones((len(r.frames), *views_and_joints), np.float32) if r.confidence is None else r.confidence for r in recordings]
+    ).astype(np.float32, copy=False)
 
     def label(field):
         return np.concatenate([np.full(len(r.frames), getattr(r, field)) for r in recordings])
@@ -64,7 +70,7 @@ def build_dataset(skeleton: Skeleton, recordings: Sequence[Recording], rigs: Map
     return MultiViewDataset(
         skeleton=skeleton,
         keypoints2d=keypoints2d,
-        confidence=np.ones(keypoints2d.shape[:3], np.float32),
+        confidence=confidence,
         rigs=stacked,
         rig_index=rig_index,
         target3d=target3d,
@@ -95,16 +101,32 @@ def project_to_views(rigs: Cameras, rig_index: np.ndarray, points3d: np.ndarray,
     return projected
 
 
-def stack_views(where: str, views: Mapping[str, np.ndarray], count: int, frames: np.ndarray) -> np.ndarray:
-    """The kept `frames` of each camera's 2D (camera name -> f[N_c, J, 2], in view order) -> f32[n, C, J, 2].
+def stack_views(
+    where: str, views: Mapping[str, np.ndarray], camera_names: Sequence[str], count: int, frames: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The kept `frames` of each camera's 2D (camera name -> f[N_c, J, 2]) in the order `camera_names`
+    -> (keypoints f32[n, C, J, 2], confidence f32[n, C, J]).
 
-    Each camera's 2D must cover the `count` frames of the 3D sequence; frames past its end are
-    ignored (some published detection files run longer than the mocap).
+    A camera absent from `views` (e.g. S11 "Directions" has no Stacked Hourglass file for camera
+    54138969) keeps its place in the rig with coordinates 0 and confidence 0: its view is missing,
+    the other views of the sequence stay usable.  Each camera's 2D must cover the `count` frames of
+    the 3D sequence; frames past its end are ignored (some published detection files run longer than
+    the mocap).
     """
-    for camera, view in views.items():
+    if not views:
+        raise ValueError(f"{where}: no camera has 2D")
+    joints = next(iter(views.values())).shape[1]
+    keypoints = np.zeros((len(frames), len(camera_names), joints, 2), np.float32)
+    confidence = np.zeros((len(frames), len(camera_names), joints), np.float32)
+    for index, camera in enumerate(camera_names):
+        if camera not in views:
+            continue
+        view = views[camera]
         if len(view) < count:
             expected = f"2D for all {count} frames of the 3D sequence"
             raise DataFormatError(f"{where}, camera {camera}", expected, f"{len(view)} frames")
         if len(view) > count:
             logger.info("%s, camera %s: ignoring %d 2D frames past the end of the 3D", where, camera, len(view) - count)
-    return np.stack([view[frames] for view in views.values()], axis=1).astype(np.float32)
+        keypoints[:, index] = view[frames]
+        confidence[:, index] = 1.0
+    return keypoints, confidence
