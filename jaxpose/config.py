@@ -45,6 +45,10 @@ class LossConfig:
     """omega_4: output triangulation term, metres^2."""
     output_triangulation_start: float = 0.9
     """Fraction of training after which the output triangulation term is switched on (paper: last 10%)."""
+    label_robust_scale_mm: float = 0.0
+    """0: L_in and L_out are squared distances (the paper's L2).  > 0: a pseudo-Huber of this scale
+    (mm): squared below it, linear above, so that gross pseudo-label errors pull no harder than
+    moderate ones."""
     triangulation: Literal["svd", "eigh", "normal"] = "normal"
     """Solver of the output triangulation inside the train step (see jaxpose.triangulation): the
     closed-form "normal" is as accurate as the reference "svd" and ~10x faster on CPU."""

@@ -114,12 +114,25 @@ def _in_every_camera(cameras: Cameras, pred: jax.Array) -> jax.Array:
     return rotate_between_cameras(source, target, pred[:, None])
 
 
-def input_triangulation_loss(pred: jax.Array, batch: MultiViewBatch) -> jax.Array:
+def _label_penalty(target: jax.Array, pred: jax.Array, robust_scale_mm: float | jax.Array) -> jax.Array:
+    """The "L2" of L_in and L_out per joint, m^2: the squared distance (the paper) when
+    `robust_scale_mm` is 0, else the pseudo-Huber 2 d^2 (sqrt(1 + (r / d)^2) - 1) with d that scale:
+    the squared distance for residuals well below d, growing linearly (like an L1) above it, so that
+    a label that is hundreds of millimetres off (a left/right swap in two views) pulls no harder
+    than one a few centimetres off."""
+    squared = jnp.sum(((target - pred) / MM_PER_M) ** 2, axis=-1)
+    scale = jnp.asarray(robust_scale_mm, squared.dtype) / MM_PER_M
+    safe_scale = jnp.where(scale > 0, scale, 1.0)
+    huber = 2.0 * safe_scale**2 * (jnp.sqrt(1.0 + squared / safe_scale**2) - 1.0)
+    return jnp.where(scale > 0, huber, squared)
+
+
+def input_triangulation_loss(pred: jax.Array, batch: MultiViewBatch, robust_scale_mm: float | jax.Array = 0.0) -> jax.Array:
     """L_in (Eq. 2): L2 between each view's prediction and the pseudo-label in that camera."""
     target = _world_pose_in_views(batch.cameras, batch.pseudo3d)
-    squared = jnp.sum(((target - pred) / MM_PER_M) ** 2, axis=-1)  # [B, C, J]
+    penalty = _label_penalty(target, pred, robust_scale_mm)  # [B, C, J]
     mask = usable_views(batch)[..., None] * _label_weight(batch)[:, None, :]
-    return _masked_mean(squared, _without_root(mask))
+    return _masked_mean(penalty, _without_root(mask))
 
 
 def reprojection_loss(pred: jax.Array, batch: MultiViewBatch) -> jax.Array:
@@ -167,35 +180,73 @@ def output_triangulation(pred: jax.Array, batch: MultiViewBatch, method: Method 
     return triangulate(projection_matrices(cameras), projected, weights, method)
 
 
-def output_triangulation_loss(pred: jax.Array, batch: MultiViewBatch, method: Method = "svd") -> jax.Array:
+def output_triangulation_loss(
+    pred: jax.Array, batch: MultiViewBatch, method: Method = "svd", robust_scale_mm: float | jax.Array = 0.0
+) -> jax.Array:
     """L_out (Eq. 5): L2 between each view's prediction and the output triangulation (a constant)."""
     target_world = jax.lax.stop_gradient(output_triangulation(pred, batch, method))
     target = _world_pose_in_views(batch.cameras, target_world)
-    squared = jnp.sum(((target - pred) / MM_PER_M) ** 2, axis=-1)
+    penalty = _label_penalty(target, pred, robust_scale_mm)
     mask = usable_views(batch)[..., None] * _label_weight(batch)[:, None, :]
-    return _masked_mean(squared, _without_root(jnp.broadcast_to(mask, squared.shape)))
+    return _masked_mean(penalty, _without_root(jnp.broadcast_to(mask, penalty.shape)))
+
+
+TERMS = ("input_triangulation", "reprojection", "consistency", "output_triangulation")
+
+
+def loss_terms(
+    pred: jax.Array, batch: MultiViewBatch, triangulation: Method = "svd", robust_scale_mm: float | jax.Array = 0.0
+) -> dict[str, jax.Array]:
+    """The four unweighted terms L_i, by name (`TERMS`).  `robust_scale_mm` > 0 makes the "L2" of
+    L_in and L_out a pseudo-Huber of that scale (see `_label_penalty`)."""
+    return {
+        "input_triangulation": input_triangulation_loss(pred, batch, robust_scale_mm),
+        "reprojection": reprojection_loss(pred, batch),
+        "consistency": consistency_loss(pred, batch),
+        "output_triangulation": output_triangulation_loss(pred, batch, triangulation, robust_scale_mm),
+    }
+
+
+def gradient_shares(
+    pred: jax.Array,
+    batch: MultiViewBatch,
+    weights: LossWeights = LossWeights(),
+    triangulation: Method = "svd",
+    robust_scale_mm: float | jax.Array = 0.0,
+) -> dict[str, jax.Array]:
+    """Each term's share of the gradient with respect to the lifter output: the norm of
+    d(omega_i L_i)/d pred over the sum of the four norms (0 for a term whose weight is 0).
+
+    This is what a term does to the model: a term whose share stays near 0 changes nothing,
+    whatever its value.  One backward pass through the losses (not the network) per term.
+    """
+
+    def stacked(p):
+        terms = loss_terms(p, batch, triangulation, robust_scale_mm)
+        return jnp.stack([getattr(weights, name) * terms[name] for name in TERMS])
+
+    _, pullback = jax.vjp(stacked, pred)
+    (grads,) = jax.vmap(pullback)(jnp.eye(len(TERMS), dtype=pred.dtype))
+    norms = jnp.sqrt(jnp.sum(jnp.square(grads).reshape(len(TERMS), -1), axis=-1))
+    shares = norms / jnp.maximum(jnp.sum(norms), 1e-30)
+    return dict(zip(TERMS, shares))
 
 
 def total_loss(
-    pred: jax.Array, batch: MultiViewBatch, weights: LossWeights = LossWeights(), triangulation: Method = "svd"
+    pred: jax.Array,
+    batch: MultiViewBatch,
+    weights: LossWeights = LossWeights(),
+    triangulation: Method = "svd",
+    robust_scale_mm: float | jax.Array = 0.0,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """omega_1 L_in + omega_2 L_proj + omega_3 L_con + omega_4 L_out (Eq. 1) and the four terms.
 
     `triangulation` picks the solver of the output triangulation ("svd" is the reference DLT,
-    "normal" the closed-form least squares that is faster on CPU; see `jaxpose.triangulation`).
+    "normal" the closed-form least squares that is faster on CPU; see `jaxpose.triangulation`);
+    `robust_scale_mm` > 0 turns the squared distances of L_in and L_out into a pseudo-Huber.
     """
     if pred.shape != batch.keypoints2d.shape[:-1] + (3,):
         raise ValueError(f"total_loss: pred must be [B, C, J, 3] = {batch.keypoints2d.shape[:-1] + (3,)}, got {pred.shape}")
-    terms = {
-        "input_triangulation": input_triangulation_loss(pred, batch),
-        "reprojection": reprojection_loss(pred, batch),
-        "consistency": consistency_loss(pred, batch),
-        "output_triangulation": output_triangulation_loss(pred, batch, triangulation),
-    }
-    loss = (
-        weights.input_triangulation * terms["input_triangulation"]
-        + weights.reprojection * terms["reprojection"]
-        + weights.consistency * terms["consistency"]
-        + weights.output_triangulation * terms["output_triangulation"]
-    )
+    terms = loss_terms(pred, batch, triangulation, robust_scale_mm)
+    loss = sum(getattr(weights, name) * terms[name] for name in TERMS)
     return loss, terms

@@ -21,8 +21,12 @@ from flax import struct
 from jaxpose.camera import normalize_keypoints
 from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.data.batch import MultiViewBatch
-from jaxpose.losses import LossWeights, input_triangulation_loss, total_loss
+from jaxpose.losses import LossWeights, gradient_shares, input_triangulation_loss, total_loss
 from jaxpose.model import Lifter
+
+
+# Metric-name prefix of each term's share of the gradient w.r.t. the lifter output (`gradient_shares`).
+GRADIENT_SHARE_PREFIX = "grad_share_"
 
 
 @struct.dataclass
@@ -117,8 +121,10 @@ def make_loss_fn(
                 consistency=loss.consistency,
                 output_triangulation=output_weight,
             )
-            value, metrics = total_loss(pred, batch, weights, loss.triangulation)
+            value, metrics = total_loss(pred, batch, weights, loss.triangulation, loss.label_robust_scale_mm)
+            shares = gradient_shares(jax.lax.stop_gradient(pred), batch, weights, loss.triangulation, loss.label_robust_scale_mm)
             metrics = dict(metrics, output_triangulation_weight=output_weight)
+            metrics.update({f"{GRADIENT_SHARE_PREFIX}{name}": share for name, share in shares.items()})
         return value, (metrics, updates.get("batch_stats", batch_stats))
 
     return loss_fn

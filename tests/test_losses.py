@@ -111,3 +111,39 @@ def test_total_loss_accepts_a_numpy_batch_outside_jit():
     numpy_batch = jax.tree.map(np.asarray, batch)
     loss, _ = total_loss(np.asarray(truth), numpy_batch)
     assert float(loss) < 1e-3
+
+
+def test_gradient_shares_match_the_norms_of_each_weighted_terms_gradient():
+    rng = np.random.default_rng(5)
+    batch, truth = exact_batch(rng, 5, 4, 17)
+    pred = truth + _perturbation(rng, truth.shape, 30.0)
+    weights = LossWeights(input_triangulation=1.0, reprojection=0.5, consistency=0.2, output_triangulation=0.0)
+    shares = jax.jit(losses.gradient_shares)(pred, batch, weights)
+    # Oracle: one jax.grad per term, then the norms normalised to sum to one.
+    norms = {}
+    for name in losses.TERMS:
+        gradient = jax.grad(lambda p, n=name: getattr(weights, n) * losses.loss_terms(p, batch)[n])(pred)
+        norms[name] = float(jnp.linalg.norm(gradient))
+    total = sum(norms.values())
+    for name in losses.TERMS:
+        np.testing.assert_allclose(float(shares[name]), norms[name] / total, rtol=1e-4, atol=1e-7)
+    assert float(shares["output_triangulation"]) == 0.0  # weight 0: no share
+    assert all(float(shares[name]) > 0.01 for name in losses.TERMS[:3])
+
+
+def test_robust_label_penalty_is_squared_for_small_residuals_and_linear_for_gross_ones():
+    rng = np.random.default_rng(6)
+    batch, truth = exact_batch(rng, 4, 3, 16)
+    small = truth + _perturbation(rng, truth.shape, 2.0)  # ~3 mm residuals, far below the 50 mm scale
+    np.testing.assert_allclose(
+        losses.input_triangulation_loss(small, batch, 50.0), losses.input_triangulation_loss(small, batch), rtol=2e-3
+    )
+    # One joint 1 m off in every view: the squared penalty grows with its square, the robust one
+    # linearly, so a gross label error dominates the squared loss but not the robust one.
+    gross = truth.at[:, :, 3, 0].add(1000.0)
+    squared, robust = losses.input_triangulation_loss(gross, batch), losses.input_triangulation_loss(gross, batch, 50.0)
+    per_joint_count = 15  # the root is excluded from the mean
+    np.testing.assert_allclose(float(squared), 1.0 / per_joint_count, rtol=1e-4)  # (1 m)^2 on one joint of 15
+    expected = 2 * 0.05**2 * (np.sqrt(1 + (1.0 / 0.05) ** 2) - 1) / per_joint_count
+    np.testing.assert_allclose(float(robust), expected, rtol=1e-4)
+    assert float(robust) < 0.15 * float(squared)
