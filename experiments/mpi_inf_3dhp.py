@@ -62,7 +62,7 @@ def evaluate(settings: Mpi3dhpEvaluation) -> dict:
         expected = f"{settings.data_dir}/<sequence>/annot_data.mat for sequences {' '.join(settings.sequences)}"
         raise SystemExit(f"error: {error}\nThis evaluation reads the MPI-INF-3DHP test set: {expected}") from None
     predictions = lifter.predict(test.keypoints2d, intrinsics=test.K)
-    per_pose = evaluation.compute_metrics(predictions, test.univ3d)
+    per_pose, per_joint = evaluation.compute_metrics(predictions, test.univ3d)
     report = {
         "run_dir": str(settings.run_dir),
         "checkpoint_step": lifter.step,
@@ -70,7 +70,7 @@ def evaluate(settings: Mpi3dhpEvaluation) -> dict:
         "sequences": list(settings.sequences),
         "frames": len(test),
         "protocol": "single view, annot2 + published intrinsics, root-relative univ_annot3, no alignment, 17 joints",
-        "by_activity": evaluation.summarize(per_pose, test.activity_name),
+        "by_activity": evaluation.summarize(per_pose, test.activity_name, per_joint=per_joint),
         "by_sequence": evaluation.summarize(per_pose, test.sequence),
         "paper": PAPER_RESULT,
     }

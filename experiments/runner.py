@@ -30,7 +30,9 @@ from experiments.config import ExperimentConfig, dumps, to_json_dict
 from jaxpose import checkpoint, evaluation, parallel, viz
 from jaxpose.data.batch import validate_batch
 from jaxpose.data.dataset import MultiViewDataset, steps_per_epoch
+from jaxpose.losses import TERMS
 from jaxpose.train import (
+    GRADIENT_SHARE_PREFIX,
     TrainState,
     build_model,
     init_train_state,
@@ -50,6 +52,10 @@ class Splits:
     test: MultiViewDataset
     group_label: str
     """The label that groups test results (e.g. "action", "motion")."""
+    detector_specific_joints: tuple[str, ...] = ()
+    """Joints that the 2D source defines differently from the 3D ground truth (e.g. Stacked
+    Hourglass's MPII "Spine" and "Head" on Human3.6M).  The report adds every metric over the other
+    joints (Procrustes-aligned on those joints alone), where the definitions agree."""
 
 
 class Interrupted(Exception):
@@ -216,14 +222,26 @@ def evaluate_and_report(
     test_triangulated = test.with_pseudo_labels(**dataclasses.asdict(config.pseudo_labels))
     triangulation = evaluation.poses_in_views(test, test_triangulated.pseudo3d)
     mean_pose = np.broadcast_to(evaluation.mean_pose_prediction(splits.train), pred.shape)
-    rows = {
-        method_name: evaluation.evaluate_poses(pred, target, groups, valid),
-        "Input triangulation (multi-view, reference)": evaluation.evaluate_poses(triangulation, target, groups, valid),
-        "Mean pose (baseline)": evaluation.evaluate_poses(np.ascontiguousarray(mean_pose), target, groups, valid),
+    predictions = {
+        method_name: pred,
+        "Input triangulation (multi-view, reference)": triangulation,
+        "Mean pose (baseline)": np.ascontiguousarray(mean_pose),
     }
+    rows = {name: evaluation.evaluate_poses(poses, target, groups, valid) for name, poses in predictions.items()}
+    excluded = splits.detector_specific_joints
+    agreeing = np.array([i for i, name in enumerate(test.skeleton.joint_names) if name not in excluded])
+    if excluded:
+        for name, poses in predictions.items():
+            subset = evaluation.evaluate_poses(poses[..., agreeing, :], target[..., agreeing, :], groups, valid)
+            rows[name]["agreeing_joints"] = {k: subset[k] for k in ("overall", "group_average") if k in subset}
+    history = _read_jsonl(run_dir / "metrics.jsonl")
+    shares = {k.removeprefix(GRADIENT_SHARE_PREFIX): v for k, v in (history[-1] if history else {}).items() if k.startswith(GRADIENT_SHARE_PREFIX)}
     report = {
         "method": method_name,
         "results": rows,
+        "joint_names": list(test.skeleton.joint_names),
+        "detector_specific_joints": list(excluded),
+        "final_gradient_shares": shares,
         "train_steps": int(state.step),
         "wall_time_s": wall_time,
         "devices": [str(d) for d in jax.devices()],
@@ -235,18 +253,56 @@ def evaluate_and_report(
             evaluation.markdown_table(rows, "p_mpjpe", f"P-MPJPE (mm) per {splits.group_label}"),
             evaluation.markdown_table(rows, "mpjpe", f"MPJPE (mm) per {splits.group_label}"),
             evaluation.markdown_table(rows, "n_mpjpe", f"N-MPJPE (mm) per {splits.group_label}"),
+            *(
+                [agreeing_joints_table(rows, excluded, splits.group_label)] if excluded else []
+            ),
+            evaluation.per_joint_table(rows, "p_mpjpe", test.skeleton.joint_names, "P-MPJPE (mm) per joint"),
+            evaluation.per_joint_table(rows, "mpjpe", test.skeleton.joint_names, "MPJPE (mm) per joint"),
         ]
+        if shares:
+            tables.append(gradient_share_table(shares, int(state.step)))
         (run_dir / "report.md").write_text("\n\n".join(tables) + "\n")
         _plots(config, test, pred, target, run_dir)
     return report
 
 
+def agreeing_joints_table(rows: dict, excluded: tuple[str, ...], group_label: str) -> str:
+    """Markdown: P-MPJPE and MPJPE over the joints whose definitions agree (`detector_specific_joints` left out)."""
+    lines = [
+        f"**Without {', '.join(excluded)} (joints defined differently by the 2D source), averaged over {group_label}s**",
+        "",
+        "| Method | P-MPJPE (mm) | MPJPE (mm) |",
+        "|---|---|---|",
+    ]
+    for method, summary in rows.items():
+        average = summary["agreeing_joints"].get("group_average", summary["agreeing_joints"]["overall"])
+        lines.append(f"| {method} | {average['p_mpjpe']:.1f} | {average['mpjpe']:.1f} |")
+    return "\n".join(lines)
+
+
+def gradient_share_table(shares: dict[str, float], step: int) -> str:
+    """Markdown: each loss term's share of the gradient w.r.t. the lifter output at `step`."""
+    lines = [
+        f"**Share of each term in the gradient w.r.t. the lifter output (step {step})**",
+        "",
+        "| " + " | ".join(shares) + " |",
+        "|" + "---|" * len(shares),
+        "| " + " | ".join(f"{100 * v:.1f}%" for v in shares.values()) + " |",
+    ]
+    return "\n".join(lines)
+
+
 def _plots(config, test: MultiViewDataset, pred, target, run_dir: pathlib.Path) -> None:
     history = _read_jsonl(run_dir / "metrics.jsonl")
-    keys = [k for k in ("loss", "input_triangulation", "reprojection", "consistency", "output_triangulation", "supervised") if history and k in history[-1]]
     if history:
+        keys = [k for k in ("loss", *TERMS, "supervised") if k in history[-1]]
         curves = {k: [(r["step"], r[k]) for r in history if k in r] for k in keys}
         viz.save_figure(viz.figure_loss_curves(curves), run_dir / "plots" / "loss_curves.png")
+        share_keys = [f"{GRADIENT_SHARE_PREFIX}{term}" for term in TERMS if f"{GRADIENT_SHARE_PREFIX}{term}" in history[-1]]
+        if share_keys:
+            shares = {k.removeprefix(GRADIENT_SHARE_PREFIX): [(r["step"], r[k]) for r in history if k in r] for k in share_keys}
+            figure = viz.figure_loss_curves(shares, log_y=False, overlay=True)
+            viz.save_figure(figure, run_dir / "plots" / "gradient_shares.png")
     count = min(config.run.plot_samples, len(test))
     if count:
         picks = np.linspace(0, len(test) - 1, count).astype(int)

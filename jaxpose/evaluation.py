@@ -15,7 +15,7 @@ import numpy as np
 
 from jaxpose.camera import world_to_camera
 from jaxpose.data.dataset import MultiViewDataset
-from jaxpose.metrics import pose_metrics
+from jaxpose.metrics import JOINT_METRICS, per_joint_metrics, pose_metrics
 
 METRIC_NAMES = ("mpjpe", "p_mpjpe", "n_mpjpe", "pck", "auc")
 
@@ -66,28 +66,36 @@ def predict_in_chunks(
     return out
 
 
-def compute_metrics(pred: np.ndarray, target: np.ndarray, chunk: int = 65536) -> dict[str, np.ndarray]:
-    """Per-pose metrics for [M, J, 3] poses, in chunks of fixed size (one compile)."""
-    M = pred.shape[0]
-    results = {name: np.empty(M, np.float32) for name in METRIC_NAMES}
+def compute_metrics(pred: np.ndarray, target: np.ndarray, chunk: int = 65536) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Metrics of [M, J, 3] poses in chunks of fixed size (one compile): per pose ({name: [M]},
+    `METRIC_NAMES`) and per joint ({name: [M, J]}, `metrics.JOINT_METRICS`)."""
+    M, J = pred.shape[:2]
+    per_pose = {name: np.empty(M, np.float32) for name in METRIC_NAMES}
+    per_joint = {name: np.empty((M, J), np.float32) for name in JOINT_METRICS}
     size = min(chunk, M)
     for start in range(0, M, size):
         stop = min(start + size, M)
         pad = size - (stop - start)
-        p = np.concatenate([pred[start:stop], np.repeat(pred[stop - 1 : stop], pad, 0)])
-        t = np.concatenate([target[start:stop], np.repeat(target[stop - 1 : stop], pad, 0)])
-        for name, values in pose_metrics(jnp.asarray(p), jnp.asarray(t)).items():
-            results[name][start:stop] = np.asarray(values)[: stop - start]
-    return results
+        p = jnp.asarray(np.concatenate([pred[start:stop], np.repeat(pred[stop - 1 : stop], pad, 0)]))
+        t = jnp.asarray(np.concatenate([target[start:stop], np.repeat(target[stop - 1 : stop], pad, 0)]))
+        for results, values in ((per_pose, pose_metrics(p, t)), (per_joint, per_joint_metrics(p, t))):
+            for name, value in values.items():
+                results[name][start:stop] = np.asarray(value)[: stop - start]
+    return per_pose, per_joint
 
 
 def summarize(
-    per_pose: Mapping[str, np.ndarray], groups: np.ndarray | None = None, valid: np.ndarray | None = None
+    per_pose: Mapping[str, np.ndarray],
+    groups: np.ndarray | None = None,
+    valid: np.ndarray | None = None,
+    per_joint: Mapping[str, np.ndarray] | None = None,
 ) -> dict:
-    """{"overall": {metric: mean}, "groups": {group: {metric: mean}}, "group_average": {metric: mean}}.
+    """{"overall": {metric: mean}, "groups": {group: {metric: mean}}, "group_average": {metric: mean},
+    "per_joint": {metric: [mean of each joint]}}.
 
     `overall` averages over all poses; `group_average` averages the per-group means (the paper's
-    "Avg." column).  Metrics in mm except pck/auc (percent).
+    "Avg." column); `per_joint` (when `per_joint` [M, J] arrays are given) averages each joint over
+    all valid poses.  Metrics in mm except pck/auc (percent).
     """
     count = len(next(iter(per_pose.values())))
     valid = np.ones(count, bool) if valid is None else valid
@@ -104,6 +112,8 @@ def summarize(
         summary["group_average"] = {
             metric: float(np.mean([summary["groups"][str(n)][metric] for n in names])) for metric in per_pose
         }
+    if per_joint is not None:
+        summary["per_joint"] = {name: values[valid].mean(0).tolist() for name, values in per_joint.items()}
     return summary
 
 
@@ -112,10 +122,10 @@ def evaluate_poses(
 ) -> dict:
     """Evaluate [N, C, J, 3] predictions against [N, C, J, 3] targets; groups: per-sample labels [N]."""
     N, C = pred.shape[:2]
-    per_pose = compute_metrics(pred.reshape(N * C, *pred.shape[2:]), target.reshape(N * C, *target.shape[2:]))
+    per_pose, per_joint = compute_metrics(pred.reshape(N * C, *pred.shape[2:]), target.reshape(N * C, *target.shape[2:]))
     expanded_groups = None if groups is None else np.repeat(np.asarray(groups), C)
     valid = None if view_valid is None else view_valid.reshape(N * C)
-    return summarize(per_pose, expanded_groups, valid)
+    return summarize(per_pose, expanded_groups, valid, per_joint)
 
 
 def mean_pose_prediction(train: MultiViewDataset) -> np.ndarray:
@@ -123,6 +133,17 @@ def mean_pose_prediction(train: MultiViewDataset) -> np.ndarray:
     if train.pseudo3d is None:
         raise ValueError("mean_pose_prediction needs the training pseudo-labels")
     return poses_in_views(train, train.pseudo3d).mean((0, 1))
+
+
+def per_joint_table(rows: Mapping[str, Mapping], metric: str, joint_names: tuple[str, ...], title: str | None = None) -> str:
+    """A table of the per-joint `metric` (mm): one row per method, one column per joint, then "All"."""
+    lines = [] if title is None else [f"**{title}**", ""]
+    lines += ["| " + " | ".join(["Method", *joint_names, "All"]) + " |", "|" + "---|" * (len(joint_names) + 2)]
+    for method, summary in rows.items():
+        values = summary["per_joint"][metric]
+        cells = [f"{v:.1f}" for v in values] + [f"{np.mean(values):.1f}"]
+        lines.append("| " + " | ".join([method, *cells]) + " |")
+    return "\n".join(lines)
 
 
 def markdown_table(rows: Mapping[str, Mapping], metric: str, title: str | None = None, digits: int = 1) -> str:

@@ -67,10 +67,24 @@ def auc(pred: jax.Array, target: jax.Array, thresholds: tuple[float, ...] = AUC_
     return (errors <= jnp.asarray(thresholds)).mean((-2, -1))
 
 
+def aligned_joint_errors(pred: jax.Array, target: jax.Array) -> jax.Array:
+    """Per-joint distances [N, J] after the Procrustes alignment of the whole pose (their mean over
+    the joints is `p_mpjpe`)."""
+    return joint_errors(procrustes_align(pred, target), target)
+
+
 ALL_METRICS = {"mpjpe": mpjpe, "p_mpjpe": p_mpjpe, "n_mpjpe": n_mpjpe, "pck": pck, "auc": auc}
+# Per-joint forms [N, J] of two metrics, for the per-joint tables of the reports.
+JOINT_METRICS = {"mpjpe": joint_errors, "p_mpjpe": aligned_joint_errors}
 
 
 @jax.jit
 def pose_metrics(pred: jax.Array, target: jax.Array) -> dict[str, jax.Array]:
     """All metrics at once, per sample: {"mpjpe": [N], "p_mpjpe": [N], ...}."""
     return {name: metric(pred, target) for name, metric in ALL_METRICS.items()}
+
+
+@jax.jit
+def per_joint_metrics(pred: jax.Array, target: jax.Array) -> dict[str, jax.Array]:
+    """`JOINT_METRICS` per sample and joint: {"mpjpe": [N, J], "p_mpjpe": [N, J]}."""
+    return {name: metric(pred, target) for name, metric in JOINT_METRICS.items()}

@@ -86,7 +86,7 @@ def test_cli_reproduces_experiment_p_mpjpe(trained_run, tmp_path):
     assert (~valid).any() and np.isnan(poses[~valid]).all()
     np.testing.assert_array_equal(image_ids, np.arange(len(K)))
     target = evaluation.poses_in_views(test, test.target3d).reshape(poses.shape)
-    ours = evaluation.summarize(evaluation.compute_metrics(poses[valid], target[valid]))["overall"]["p_mpjpe"]
+    ours = evaluation.summarize(evaluation.compute_metrics(poses[valid], target[valid])[0])["overall"]["p_mpjpe"]
     report = json.loads((run_dir / "report.json").read_text())
     assert ours == pytest.approx(report["results"][METHOD]["overall"]["p_mpjpe"], abs=0.01)
 

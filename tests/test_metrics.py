@@ -74,3 +74,18 @@ def test_pck_and_auc_hand_computed():
     # AUC: thresholds 0..150 by 5 (31 values); joint 0 counts at all 31, joint 1 at 100..150 (11),
     # joint 2 at 150 only (1), joint 3 never: (31 + 11 + 1) / (31 * 4).
     np.testing.assert_allclose(metrics.auc(pred, target), [(31 + 11 + 1) / 124], rtol=1e-6)
+
+
+def test_per_joint_metrics_average_to_the_pose_metrics():
+    rng = np.random.default_rng(3)
+    target = jnp.asarray(rng.normal(0, 300, (20, 17, 3)), jnp.float32)
+    pred = target + jnp.asarray(rng.normal(0, 40, target.shape), jnp.float32)
+    per_pose = metrics.pose_metrics(pred, target)
+    per_joint = metrics.per_joint_metrics(pred, target)
+    assert per_joint["p_mpjpe"].shape == (20, 17)
+    for name in ("mpjpe", "p_mpjpe"):
+        np.testing.assert_allclose(per_joint[name].mean(-1), per_pose[name], rtol=1e-5)
+    # A single displaced joint shows up in its own column of the unaligned per-joint error only.
+    moved = pred.at[:, 5].set(target[:, 5] + jnp.array([100.0, 0.0, 0.0]))
+    errors = metrics.per_joint_metrics(moved, target)["mpjpe"]
+    np.testing.assert_allclose(errors[:, 5], 100.0, rtol=1e-5)
