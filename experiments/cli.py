@@ -1,7 +1,7 @@
 """The command line shared by the real-data entry points (`experiments.h36m`, `experiments.humaneva`).
 
 Presets.  Each entry point defines complete `ExperimentConfig`s by name (`PRESETS`).  `--preset NAME`
-picks one (default "cpu"); every other flag overrides a field of it, and `--help` lists every flag
+picks one (default: the first, "cpu" for the real data sets); every other flag overrides a field of it, and `--help` lists every flag
 with the chosen preset's values as defaults:
 
     python -m experiments.h36m --preset paper --data.data-dir /data/h36m --train.epochs 100
@@ -33,7 +33,6 @@ from experiments.config import ExperimentConfig
 from experiments.runner import Splits, run
 from jaxpose.data.errors import DataFormatError
 
-DEFAULT_PRESET = "cpu"
 SUPERVISED_SUFFIX = "_supervised"
 
 
@@ -52,12 +51,13 @@ def parse(
     """
     argv = list(sys.argv[1:] if argv is None else argv)
     chooser = argparse.ArgumentParser(prog=prog, add_help=False, allow_abbrev=False)
-    chooser.add_argument("--preset", choices=list(presets), default=DEFAULT_PRESET)
+    default_preset = next(iter(presets))
+    chooser.add_argument("--preset", choices=list(presets), default=default_preset)
     chosen, rest = chooser.parse_known_args(argv)
     width = max(len(name) for name in presets)
     listing = "\n".join(f"  {name:<{width}}  {preset_notes[name]}" for name in presets)
     text = (
-        f"{description.rstrip()}\n\nPresets (--preset NAME, default {DEFAULT_PRESET}; the defaults shown"
+        f"{description.rstrip()}\n\nPresets (--preset NAME, default {default_preset}; the defaults shown"
         f" below are those of --preset {chosen.preset}):\n{listing}"
     )
     usage_prog = f"{prog} [--preset {{{','.join(presets)}}}]"
