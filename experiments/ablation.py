@@ -1,14 +1,25 @@
-"""The paper's loss ablation (Table V): five loss configurations trained in sequence, one table.
+"""Several trainings of one experiment side by side, in one report: the supervised twin, or the
+paper's loss ablation (Table V).
 
+    python -m experiments.ablation --dataset h36m --preset dev --data.data-dir DIR --rows twin
+    python -m experiments.ablation --dataset h36m --preset dev --data.data-dir DIR        # Table V
     python -m experiments.ablation --dataset synthetic [config overrides ...]
-    python -m experiments.ablation --dataset h36m --data.data-dir data/h36m
 
-`--dataset` picks the entry point (synthetic, h36m, humaneva); every other flag is that entry
-point's (see `python -m experiments.<dataset> --help`).  Each configuration trains in its own
-sub-directory of --run.run-dir (default runs/ablation_<dataset>), so an interrupted ablation
-resumes where it stopped; the table is written to <run_dir>/ablation.md.  The configurations keep
-the base config's weights for the terms they include and zero the others:
-L_in; L_proj; L_in + L_proj; + L_con; + L_out (all four).
+`--dataset` picks the entry point (synthetic, h36m, humaneva) and `--preset` one of its presets;
+every other flag is that entry point's (see `python -m experiments.<dataset> --help`).  Rows:
+- `twin`: the configuration as given (self-supervised, all four losses) and its supervised twin
+  (`--supervision full`: the same network, data and budget, trained on the 3D ground truth);
+- `paper` (default): the paper's five loss configurations, L_in; L_proj; L_in + L_proj; + L_con;
+  + L_out (all four), each keeping the configuration's weights for the terms it includes and
+  zeroing the others, then the supervised twin.
+Every row trains in its own sub-directory of --run.run-dir (default runs/comparison_<dataset>_<preset>),
+so an interrupted comparison resumes where it stopped, and `--rows twin` then `--rows paper` on the
+same directory train the self-supervised and supervised rows once.  The report, <run_dir>/comparison.md (and
+.json), holds each row's P-MPJPE and MPJPE (average over groups), the same over the joints whose
+detector definition agrees with the mocap (for Stacked Hourglass: all but "Spine" and "Head",
+Procrustes-aligned on those joints alone),
+the input-triangulation reference row, the per-joint P-MPJPE, and each term's final share of the
+gradient with respect to the lifter output.
 """
 
 from __future__ import annotations
@@ -20,11 +31,11 @@ import json
 import pathlib
 import sys
 
-import tyro
-
 from experiments import cli
 from experiments.config import ExperimentConfig
 from experiments.runner import run
+from jaxpose import evaluation
+from jaxpose.losses import TERMS
 
 DATASETS = {"synthetic": "experiments.synthetic", "h36m": "experiments.h36m", "humaneva": "experiments.humaneva"}
 
@@ -34,52 +45,119 @@ CONFIGURATIONS = (
     ("L_proj", ("reprojection",)),
     ("L_in + L_proj", ("input_triangulation", "reprojection")),
     ("L_in + L_proj + L_con", ("input_triangulation", "reprojection", "consistency")),
-    ("L_in + L_proj + L_con + L_out", ("input_triangulation", "reprojection", "consistency", "output_triangulation")),
+    ("L_in + L_proj + L_con + L_out", TERMS),
 )
-TERMS = ("input_triangulation", "reprojection", "consistency", "output_triangulation")
+SELF_LABEL = "Self-supervised (all four losses)"
+SUPERVISED_LABEL = "Supervised twin (3D ground truth)"
+ROW_SETS = ("paper", "twin")
 
 
 def ablation_configs(base: ExperimentConfig) -> list[tuple[str, ExperimentConfig]]:
-    """One config per row, each in its own run sub-directory."""
+    """One config per row of the paper's Table V, each in its own run sub-directory."""
     configs = []
     for index, (label, terms) in enumerate(CONFIGURATIONS):
         loss = dataclasses.replace(
             base.loss, supervision="self", **{term: (getattr(base.loss, term) if term in terms else 0.0) for term in TERMS}
         )
-        run_dir = base.run.run_dir / f"{index + 1}_{'_'.join(t.split('_')[0] for t in terms)}"
+        run_dir = base.run.run_dir / _row_directory(index, terms)
         configs.append((label, dataclasses.replace(base, loss=loss, run=dataclasses.replace(base.run, run_dir=run_dir))))
     return configs
 
 
-def ablation_table(results: list[tuple[str, dict]]) -> str:
-    lines = ["| Loss functions | P-MPJPE (mm) | MPJPE (mm) | N-MPJPE (mm) |", "|---|---|---|---|"]
-    for label, report in results:
-        summary = report["results"][report["method"]]
+def _row_directory(index: int, terms: tuple[str, ...]) -> str:
+    return f"{index + 1}_{'_'.join(t.split('_')[0] for t in terms)}"
+
+
+def supervised_twin(base: ExperimentConfig) -> ExperimentConfig:
+    """The same network, data and budget trained on the 3D ground truth."""
+    run_dir = base.run.run_dir / "supervised"
+    return dataclasses.replace(
+        base, loss=dataclasses.replace(base.loss, supervision="full"), run=dataclasses.replace(base.run, run_dir=run_dir)
+    )
+
+
+def row_configs(base: ExperimentConfig, rows: str) -> list[tuple[str, ExperimentConfig]]:
+    if rows == "twin":
+        # The all-four-terms row of the ablation, in the same directory: a twin comparison and an
+        # ablation on one --run.run-dir share their self-supervised and supervised trainings.
+        _, own = ablation_configs(base)[-1]
+        return [(SELF_LABEL, own), (SUPERVISED_LABEL, supervised_twin(base))]
+    if rows == "paper":
+        return ablation_configs(base) + [(SUPERVISED_LABEL, supervised_twin(base))]
+    raise ValueError(f"unknown --rows {rows!r}; expected one of {ROW_SETS}")
+
+
+def comparison_table(results: list[tuple[str, dict]]) -> str:
+    """One line per row: P-MPJPE / MPJPE / N-MPJPE (group averages), P-MPJPE / MPJPE over the joints
+    whose definitions agree (when the 2D source defines some differently), and each term's final
+    gradient share; then the input-triangulation reference row of the first run."""
+    first = results[0][1]
+    excluded = first.get("detector_specific_joints", [])
+    header = ["Rows", "P-MPJPE (mm)", "MPJPE (mm)", "N-MPJPE (mm)"]
+    if excluded:
+        header += [f"P-MPJPE without {', '.join(excluded)}", f"MPJPE without {', '.join(excluded)}"]
+    header += [f"share {term}" for term in TERMS]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+
+    def cells(summary: dict) -> list[str]:
         average = summary.get("group_average", summary["overall"])
-        lines.append(f"| {label} | {average['p_mpjpe']:.1f} | {average['mpjpe']:.1f} | {average['n_mpjpe']:.1f} |")
+        values = [average["p_mpjpe"], average["mpjpe"], average["n_mpjpe"]]
+        if excluded:
+            agreeing = summary["agreeing_joints"].get("group_average", summary["agreeing_joints"]["overall"])
+            values += [agreeing["p_mpjpe"], agreeing["mpjpe"]]
+        return [f"{v:.1f}" for v in values]
+
+    for label, report in results:
+        shares = report.get("final_gradient_shares", {})
+        share_cells = [f"{100 * shares[term]:.1f}%" if term in shares else "-" for term in TERMS]
+        lines.append("| " + " | ".join([label, *cells(report["results"][report["method"]]), *share_cells]) + " |")
+    reference = next(name for name in first["results"] if name.startswith("Input triangulation"))
+    lines.append("| " + " | ".join([reference, *cells(first["results"][reference]), *["-"] * len(TERMS)]) + " |")
     return "\n".join(lines)
+
+
+def per_joint_rows(results: list[tuple[str, dict]]) -> dict[str, dict]:
+    rows = {label: report["results"][report["method"]] for label, report in results}
+    first = results[0][1]
+    reference = next(name for name in first["results"] if name.startswith("Input triangulation"))
+    return rows | {reference: first["results"][reference]}
 
 
 def main(argv: list[str] | None = None) -> str:
     argv = sys.argv[1:] if argv is None else list(argv)
-    selector = argparse.ArgumentParser(add_help=False)
+    selector = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     selector.add_argument("--dataset", choices=sorted(DATASETS), default="synthetic")
+    selector.add_argument("--rows", choices=ROW_SETS, default="paper")
     chosen, rest = selector.parse_known_args(argv)
     module = importlib.import_module(DATASETS[chosen.dataset])
-    default = module.DEFAULT
-    default = dataclasses.replace(default, run=dataclasses.replace(default.run, run_dir=pathlib.Path(f"runs/ablation_{chosen.dataset}")))
-    description = __doc__ + f"\nFlags below are those of experiments.{chosen.dataset}."
-    base = tyro.cli(ExperimentConfig[type(default.data)], default=default, args=rest, description=description)
+    presets = getattr(module, "PRESETS", {"default": module.DEFAULT})
+    presets = {
+        name: dataclasses.replace(
+            preset, run=dataclasses.replace(preset.run, run_dir=pathlib.Path(f"runs/comparison_{chosen.dataset}_{name}"))
+        )
+        for name, preset in presets.items()
+    }
+    notes = getattr(module, "PRESET_NOTES", {"default": "the entry point's default configuration"})
+    description = f"{__doc__}\n--dataset {chosen.dataset} --rows {chosen.rows}: flags below are those of experiments.{chosen.dataset}."
+    prog = f"python -m experiments.ablation --dataset {chosen.dataset} --rows {chosen.rows}"
+    base = cli.parse(ExperimentConfig[type(module.DEFAULT.data)], presets, notes, rest, description, prog)
     load_splits = module.load_splits
     if hasattr(module, "expected_files"):  # real data: a missing file is one message, not a traceback
         load_splits = cli.guard_data_errors(load_splits, module.expected_files)
-    results = [(label, run(config, load_splits)) for label, config in ablation_configs(base)]
-    table = ablation_table(results)
+    results = [(label, run(config, load_splits)) for label, config in row_configs(base, chosen.rows)]
+    joint_names = tuple(results[0][1]["joint_names"])
+    text = "\n\n".join(
+        [
+            comparison_table(results),
+            evaluation.per_joint_table(per_joint_rows(results), "p_mpjpe", joint_names, "P-MPJPE (mm) per joint"),
+            evaluation.per_joint_table(per_joint_rows(results), "mpjpe", joint_names, "MPJPE (mm) per joint"),
+        ]
+    )
     base.run.run_dir.mkdir(parents=True, exist_ok=True)
-    (base.run.run_dir / "ablation.md").write_text(table + "\n")
-    (base.run.run_dir / "ablation.json").write_text(json.dumps({label: r["results"] for label, r in results}, indent=2))
-    print(table)
-    return table
+    (base.run.run_dir / "comparison.md").write_text(text + "\n")
+    (base.run.run_dir / "comparison.json").write_text(json.dumps({label: r["results"] for label, r in results}, indent=2))
+    print(text)
+    return text
 
 
 if __name__ == "__main__":

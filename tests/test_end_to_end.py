@@ -60,8 +60,17 @@ def test_resumed_training_matches_uninterrupted_training(tmp_path):
 def test_main_job_writes_the_run_directory(tmp_path):
     run_dir = tmp_path / "run"
     report = synthetic.main([*TINY_ARGS, "--run.run-dir", str(run_dir)])
-    for name in ("config.json", "metrics.jsonl", "report.json", "report.md", "plots/loss_curves.png", "plots/gt_vs_prediction.png"):
+    plots = ("plots/loss_curves.png", "plots/gradient_shares.png", "plots/gt_vs_prediction.png")
+    for name in ("config.json", "metrics.jsonl", "report.json", "report.md", *plots):
         assert (run_dir / name).exists(), name
+    # Each term's share of the gradient w.r.t. the lifter output is logged and reported.
+    record = json.loads((run_dir / "metrics.jsonl").read_text().splitlines()[-1])
+    shares = [record[f"grad_share_{term}"] for term in ("input_triangulation", "reprojection", "consistency", "output_triangulation")]
+    assert abs(sum(shares) - 1.0) < 1e-4 and all(share > 0 for share in shares)
+    assert report["final_gradient_shares"] == pytest.approx(dict(zip(("input_triangulation", "reprojection", "consistency", "output_triangulation"), shares)))
+    report_md = (run_dir / "report.md").read_text()
+    assert "P-MPJPE (mm) per joint" in report_md and "Share of each term in the gradient" in report_md
+    assert len(report["results"]["Lifter, self-supervised (ours)"]["per_joint"]["p_mpjpe"]) == 17
     rows = report["results"]
     assert set(rows) == {"Lifter, self-supervised (ours)", "Input triangulation (multi-view, reference)", "Mean pose (baseline)"}
     for summary in rows.values():
@@ -91,6 +100,18 @@ def test_ablation_configurations_switch_the_paper_terms(tmp_path):
     assert len({c.run.run_dir for _, c in configs}) == 5 and all(c.run.run_dir.parent == tmp_path for _, c in configs)
 
 
+def test_twin_comparison_reports_both_rows_and_the_triangulation(tmp_path):
+    from experiments import ablation
+
+    text = ablation.main(["--dataset", "synthetic", "--rows", "twin", *TINY_ARGS, "--train.epochs", "1", "--run.run-dir", str(tmp_path)])
+    labels = [line.split("|")[1].strip() for line in text.splitlines()[:6] if line.startswith("| ") and "---" not in line]
+    assert labels[1:] == [ablation.SELF_LABEL, ablation.SUPERVISED_LABEL, "Input triangulation (multi-view, reference)"]
+    assert json.loads((tmp_path / "supervised" / "config.json").read_text())["loss"]["supervision"] == "full"
+    own = json.loads((tmp_path / "5_input_reprojection_consistency_output" / "config.json").read_text())
+    assert own["loss"]["supervision"] == "self" and own["loss"]["consistency"] > 0
+    assert "P-MPJPE (mm) per joint" in (tmp_path / "comparison.md").read_text()
+
+
 @pytest.mark.slow
 def test_ablation_runs_the_five_loss_configurations(tmp_path):
     from experiments import ablation
@@ -100,4 +121,4 @@ def test_ablation_runs_the_five_loss_configurations(tmp_path):
     assert [row.split("|")[1].strip() for row in rows] == [label for label, _ in ablation.CONFIGURATIONS]
     config = json.loads((tmp_path / "2_reprojection" / "config.json").read_text())
     assert config["loss"]["input_triangulation"] == 0.0 and config["loss"]["reprojection"] == 1.0
-    assert (tmp_path / "ablation.md").exists()
+    assert ablation.SUPERVISED_LABEL in table and (tmp_path / "comparison.md").exists()
