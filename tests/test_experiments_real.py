@@ -190,6 +190,18 @@ def test_presets(module):
     assert (paper.optimizer.learning_rate, paper.optimizer.schedule, paper.optimizer.warmup_steps) == (1e-3, "constant", 0)
     assert (paper.train.batch_size, paper.train.epochs) == ((8192, 500) if module is h36m else (1600, 5000))
     assert paper.model == type(paper.model)() and paper.loss == type(paper.loss)()
+    weights = (paper.loss.input_triangulation, paper.loss.reprojection, paper.loss.consistency, paper.loss.output_triangulation)
+    assert weights == (1.0, 1.0, 0.001, 0.01) and paper.loss.output_triangulation_start == 0.9
     supervised = cli.parse(ExperimentConfig[data_type], module.PRESETS, module.PRESET_NOTES, ["--supervision", "full"], "", "x")
     assert supervised.loss.supervision == "full"
     assert str(supervised.run.run_dir) == f"{module.DEFAULT.run.run_dir}_supervised"
+
+
+def test_h36m_dev_preset_is_the_cpu_recipe_at_a_proportional_budget():
+    dev, cpu = h36m.PRESETS["dev"], h36m.PRESETS["cpu"]
+    assert (dev.model, dev.loss, dev.pseudo_labels, dev.train) == (cpu.model, cpu.loss, cpu.pseudo_labels, cpu.train)
+    assert (dev.data.train_subjects, dev.data.test_subjects, dev.data.split, dev.data.detections) == (("S1",), (), "trials", "sh")
+    # The same share of the steps warms up: S1's first trials are ~1/13 of the five training subjects.
+    assert 0 < dev.optimizer.warmup_steps < cpu.optimizer.warmup_steps / 10
+    # Every term acts: the recipe's L_con and L_out weights are not the paper's near-zero ones.
+    assert cpu.loss.consistency >= 0.01 and cpu.loss.output_triangulation >= 0.1
