@@ -117,7 +117,7 @@ def test_ablation_runs_the_five_loss_configurations(tmp_path):
     from experiments import ablation
 
     table = ablation.main(["--dataset", "synthetic", *TINY_ARGS, "--train.epochs", "1", "--run.run-dir", str(tmp_path)])
-    rows = [line for line in table.splitlines() if line.startswith("| L_")]
+    rows = [line for line in table.split("\n\n")[0].splitlines() if line.startswith("| L_")]  # the summary table
     assert [row.split("|")[1].strip() for row in rows] == [label for label, _ in ablation.CONFIGURATIONS]
     config = json.loads((tmp_path / "2_reprojection" / "config.json").read_text())
     assert config["loss"]["input_triangulation"] == 0.0 and config["loss"]["reprojection"] == 1.0
