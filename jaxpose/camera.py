@@ -1,13 +1,13 @@
 """Calibrated pinhole cameras: the `Cameras` pytree, projection, undistortion, and the lifter input.
 
-Conventions (DESIGN.md section 2): `x_cam = R @ x_world + t`, t in mm, K the 3x3 intrinsics,
+Conventions (docs/conventions.md): `x_cam = R @ x_world + t`, t in mm, K the 3x3 intrinsics,
 optional distortion `dist = (k1, k2, p1, p2, k3)`.  Every field carries the same leading axes
 (usually `[B, C]`: sample, view); functions broadcast those axes against the points' leading axes,
 so points of shape `[..., N, 3]` go with cameras of shape `[...]`.
 
 Two distortion models are supported because the real data need both:
 - "opencv": the Brown-Conrady model as OpenCV implements it.
-- "h36m": the variant Human3.6M's calibration was fitted with (DESIGN.md section 6), whose tangential
+- "h36m": the variant Human3.6M's calibration was fitted with (docs/conventions.md), whose tangential
   terms differ from OpenCV's; its `dist` holds (k1, k2, p[0], p[1], k3) in the file's order.
 """
 
@@ -20,6 +20,9 @@ import jax.numpy as jnp
 from flax import struct
 
 DistortionModel = Literal["opencv", "h36m"]
+
+# World and camera coordinates are millimetres; the losses work in metres (see jaxpose.losses).
+MM_PER_M = 1000.0
 
 
 @struct.dataclass

@@ -14,7 +14,7 @@ tell J (the network maps 2J numbers to 3J), and J names the skeleton among the l
 train on (`SKELETONS_BY_JOINTS`); the synthetic main job trains on H36M_17.  Detections in COCO-17 or
 OpenPose BODY_25 layout are converted to H36M_17 with `jaxpose.keypoint_formats` first.
 
-Inputs, in the conventions of DESIGN.md section 2: keypoints in pixels of the image the intrinsics
+Inputs, in the conventions of docs/conventions.md: keypoints in pixels of the image the intrinsics
 describe; confidence 0 marks a missing joint (its coordinates are ignored, NaN allowed).  The root
 (joint 0, the pelvis) must be detected: a pose whose root has confidence 0 cannot be placed
 root-relative, and its output row is NaN (the experiments' evaluation skips those views too).
@@ -37,14 +37,13 @@ from jaxpose import checkpoint
 from jaxpose.camera import Cameras, undistort_points
 from jaxpose.config import ModelConfig, OptimizerConfig
 from jaxpose.evaluation import predict_in_chunks
-from jaxpose.skeleton import H36M_16, H36M_17, HUMANEVA_15, Skeleton
+from jaxpose.skeleton import H36M_16, H36M_17, HUMANEVA_15, ROOT, Skeleton
 from jaxpose.train import build_model, init_train_state, make_optimizer, make_predict_fn
 
 # The skeletons a lifter is trained on, by joint count.  Their counts differ; MPI-INF-3DHP-17 is
 # left out on purpose: it is a test set only, evaluated with H36M-trained lifters in H36M_17 order.
 SKELETONS_BY_JOINTS: dict[int, Skeleton] = {s.num_joints: s for s in (H36M_17, H36M_16, HUMANEVA_15)}
 
-ROOT = 0
 DEFAULT_BATCH_SIZE = 1024
 
 

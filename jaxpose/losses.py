@@ -36,6 +36,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from jaxpose.camera import (
+    MM_PER_M,
     Cameras,
     project_from_camera,
     projection_matrices,
@@ -43,10 +44,8 @@ from jaxpose.camera import (
     world_to_camera,
 )
 from jaxpose.data.batch import MultiViewBatch
+from jaxpose.skeleton import ROOT
 from jaxpose.triangulation import Method, triangulate
-
-MM_PER_M = 1000.0
-ROOT = 0
 
 
 @struct.dataclass

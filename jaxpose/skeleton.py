@@ -12,6 +12,8 @@ import dataclasses
 
 import numpy as np
 
+ROOT = 0  # the root joint (the pelvis) of every lifting skeleton
+
 
 @dataclasses.dataclass(frozen=True)
 class Skeleton:
@@ -71,7 +73,7 @@ H36M_17 = Skeleton(
     left_right_pairs=((4, 1), (5, 2), (6, 3), (11, 14), (12, 15), (13, 16)),
 )
 
-# Indices of H36M_17's joints in the 32-joint Human3.6M mocap layout (DESIGN.md section 6).
+# Indices of H36M_17's joints in the 32-joint Human3.6M mocap layout (docs/conventions.md).
 H36M_32_TO_17 = (0, 1, 2, 3, 6, 7, 8, 12, 13, 14, 15, 17, 18, 19, 25, 26, 27)
 
 # The Stacked Hourglass detections of Martinez et al. in our order: H36M_17 without the nose.
