@@ -8,7 +8,7 @@ leading batch axes.
 Missing keypoints.  A source keypoint is missing when its score is not > 0 (score 0 is the detectors'
 "not found") or when its coordinates are not finite.  An output joint with any missing source gets
 confidence 0 and coordinates (0, 0), never NaN, so downstream code can rely on the confidence alone.
-Confidences are clipped to [0, 1] (DESIGN.md section 2); `scores=None` means every finite keypoint
+Confidences are clipped to [0, 1] (docs/conventions.md); `scores=None` means every finite keypoint
 has confidence 1.
 
 Correspondences and approximations (H36M_17 joint <- source), with the reasons:

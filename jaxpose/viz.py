@@ -3,7 +3,7 @@
 Figures are built with `matplotlib.figure.Figure`, not pyplot: no global state, no display needed,
 nothing is ever shown; the caller saves them (`save_figure`) or lets a notebook render them.
 
-Conventions (DESIGN.md section 2): 2D keypoints in pixels, image y pointing down; 3D poses in mm in
+Conventions (docs/conventions.md): 2D keypoints in pixels, image y pointing down; 3D poses in mm in
 a camera frame (x right, y down, z forward).  3D panels plot (x, z, -y), so the person stands
 upright and depth goes into the screen, with equal scale on all axes.  Bones are coloured by the
 side of their child joint, read from the skeleton's (left, right) pairs: left LEFT_COLOR, right

@@ -1,6 +1,6 @@
 """Writers of small (or, for the benchmark, full-size) data trees in the real data sets' file formats.
 
-Everything here follows DESIGN.md section 6 and is implemented independently of the loaders (own
+Everything here follows docs/conventions.md and is implemented independently of the loaders (own
 camera conventions, own projection formulas), so that loading a fixture and comparing it with the
 values returned here checks the loaders against the documented formats.
 
@@ -19,7 +19,7 @@ import numpy as np
 import scipy.io
 
 H36M_CAMERA_NAMES = ("54138969", "55011271", "58860488", "60457274")
-# 32-joint mocap indices of the H36M_17 joints (DESIGN.md section 6), written out independently.
+# 32-joint mocap indices of the H36M_17 joints (docs/conventions.md), written out independently.
 H36M_MOCAP_17 = (0, 1, 2, 3, 6, 7, 8, 12, 13, 14, 15, 17, 18, 19, 25, 26, 27)
 # The Stacked Hourglass files' joint order, as mocap indices: RFoot, RKnee, RHip, LHip, LKnee,
 # LFoot, Hip, Spine, Thorax, Head, RWrist, RElbow, RShoulder, LShoulder, LElbow, LWrist.
@@ -68,8 +68,8 @@ def ring_of_cameras(rng: np.random.Generator, count: int, radius: float, target=
 
 
 def h36m_project(camera: dict, points: np.ndarray) -> np.ndarray:
-    """DESIGN.md's cameras.h5 projection, in float64: x_cam = R^T (X - T) with R, T as h5py reads
-    them, the file's radial/tangential distortion, then pixel = f * x_d + c."""
+    """The cameras.h5 projection of docs/conventions.md, in float64: x_cam = R^T (X - T) with R, T
+    as h5py reads them, the file's radial/tangential distortion, then pixel = f * x_d + c."""
     cam = (points - camera["T"].reshape(3)) @ camera["R"]  # (R^T (X - T))^T = (X - T)^T R
     x, y = cam[..., 0] / cam[..., 2], cam[..., 1] / cam[..., 2]
     k, p = camera["k"].reshape(3), camera["p"].reshape(2)

@@ -119,7 +119,7 @@ def read_h36m_cameras(path: str | Path) -> dict[str, SubjectCameras]:
     """Human3.6M's `cameras.h5` as subject ('S1') -> (camera names, float32 numpy `Cameras` [4]).
 
     The file stores, per `subject{S}/camera{i}`, a rotation R and the camera centre T with
-    `x_cam = R^T (X - T)` as h5py reads them (DESIGN.md section 6), so our world-to-camera rotation
+    `x_cam = R^T (X - T)` as h5py reads them (docs/conventions.md), so our world-to-camera rotation
     is R^T and our translation -R^T T.  Distortion uses the "h36m" model, dist = (k1, k2, p[0],
     p[1], k3).  Cameras are in the file's camera-number order.
     """

@@ -1,6 +1,6 @@
 """Human3.6M: the 4-camera multi-view training and test data of the paper.
 
-Two file layouts are read (DESIGN.md section 6 has the checked facts):
+Two file layouts are read (docs/conventions.md has the checked facts):
 
 - "martinez", the h36m.zip of Martinez et al.::
 

@@ -1,6 +1,6 @@
 """HumanEva-I in VideoPose3D's layout: 3 views, 15 joints (`HUMANEVA_15`), 60 fps.
 
-Files in `data_dir` (DESIGN.md section 6)::
+Files in `data_dir` (docs/conventions.md)::
 
     data_3d_humaneva15.npz            positions_3d: "Train/S1" -> "Walk 1 chunk0" -> f32[N, 15, 3] world m
     data_2d_humaneva15_<source>.npz   positions_2d: same keys -> 3 x f32[N, 15, 2] pixels (C1, C2, C3)

@@ -9,7 +9,7 @@ older format), each with (MATLAB shapes, n frames):
     valid_frame          1 x n            1 = frame used for evaluation
     activity_annotation  1 x n            activity code 1..7 (`ACTIVITY_NAMES`)
 
-Only valid frames are kept (2,935 in all six sequences, DESIGN.md section 6).  Joints are
+Only valid frames are kept (2,935 in all six sequences, docs/conventions.md).  Joints are
 re-ordered from the file's order (`FILE_JOINTS`) to `MPI_INF_3DHP_17`, whose joint k matches
 `H36M_17` joint k.  The format facts of this data set were not checked against real files here.
 

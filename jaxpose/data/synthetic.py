@@ -5,7 +5,7 @@ method relies on: a kinematic skeleton with per-subject bone lengths, joint angl
 limits that move smoothly in several motion families, a calibrated Human3.6M-like camera room, and a
 2D detector with joint-dependent noise, gross outliers, left/right swaps and missing joints.
 
-Conventions (DESIGN.md section 2): world z up, floor at z = 0, millimetres; cameras
+Conventions (docs/conventions.md): world z up, floor at z = 0, millimetres; cameras
 `x_cam = R @ x_world + t` with the image y axis pointing down; detections in pixels.  The body frame
 has x forward, y to the subject's left, z up.  Joint angles are in degrees, columns `ANGLE_NAMES`;
 left and right limbs use the same anatomical angle (the right side is mirrored in the kinematics),
