@@ -50,7 +50,7 @@ import numpy as np
 from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.data.synthetic import SyntheticConfig, generate
-from jaxpose.losses import LossWeights, total_loss
+from jaxpose.losses import total_loss
 from jaxpose.train import build_model, init_train_state, jit_train_step, make_optimizer, make_train_step
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -118,9 +118,7 @@ def matmul_program(kernel_shapes: list[tuple[int, int]], rows: int) -> Callable[
 def geometry_program(batch: MultiViewBatch, loss_config: LossConfig = PAPER_LOSS) -> Callable[[], object]:
     """A jitted program of the step's geometry alone: the four losses (output triangulation included)
     and their gradient with respect to the lifter output, on a lifter output of the batch's shape."""
-    weights = LossWeights(
-        loss_config.input_triangulation, loss_config.reprojection, loss_config.consistency, loss_config.output_triangulation
-    )
+    weights = loss_config.weights()
     in_camera = jnp.einsum("bcij,bnj->bcni", batch.cameras.R, batch.pseudo3d)
     pred = in_camera - in_camera[:, :, :1] + 20.0  # some error, so that every term has a gradient
     gradient = jax.jit(jax.grad(lambda p, b: total_loss(p, b, weights, loss_config.triangulation)[0]))

@@ -10,7 +10,11 @@ from __future__ import annotations
 import dataclasses
 from typing import Annotated, Literal
 
+import jax
+import jax.numpy as jnp
 import tyro
+
+from jaxpose.losses import LossWeights
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,6 +59,16 @@ class LossConfig:
     closed-form "normal" is as accurate as the reference "svd" and ~10x faster on CPU."""
     supervision: Annotated[Literal["self", "full"], tyro.conf.arg(aliases=("--supervision",))] = "self"
     """"self": the four geometric losses; "full": L2 to the 3D ground truth (the supervised upper bound)."""
+
+    def weights(self, output_triangulation_on: bool | jax.Array = True) -> LossWeights:
+        """omega_1..omega_4 as the losses take them; omega_4 is 0 until `output_triangulation_on`
+        (a traced bool inside the train step, so switching L_out on does not recompile it)."""
+        return LossWeights(
+            input_triangulation=self.input_triangulation,
+            reprojection=self.reprojection,
+            consistency=self.consistency,
+            output_triangulation=jnp.where(output_triangulation_on, self.output_triangulation, 0.0),
+        )
 
 
 # The paper's weights rescaled to this library's units.  The terms are means over views and joints

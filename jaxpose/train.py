@@ -21,7 +21,7 @@ from flax import struct
 from jaxpose.camera import normalize_keypoints
 from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.data.batch import MultiViewBatch
-from jaxpose.losses import LossWeights, gradient_shares, input_triangulation_loss, total_loss
+from jaxpose.losses import gradient_shares, input_triangulation_loss, total_loss
 from jaxpose.model import Lifter
 
 
@@ -114,16 +114,10 @@ def make_loss_fn(
             value = input_triangulation_loss(pred, supervised)
             metrics = {"supervised": value}
         else:
-            output_weight = jnp.where(step >= output_start_step, loss.output_triangulation, 0.0)
-            weights = LossWeights(
-                input_triangulation=loss.input_triangulation,
-                reprojection=loss.reprojection,
-                consistency=loss.consistency,
-                output_triangulation=output_weight,
-            )
+            weights = loss.weights(output_triangulation_on=step >= output_start_step)
             value, metrics = total_loss(pred, batch, weights, loss.triangulation, loss.label_robust_scale_mm)
             shares = gradient_shares(jax.lax.stop_gradient(pred), batch, weights, loss.triangulation, loss.label_robust_scale_mm)
-            metrics = dict(metrics, output_triangulation_weight=output_weight)
+            metrics = dict(metrics, output_triangulation_weight=weights.output_triangulation)
             metrics.update({f"{GRADIENT_SHARE_PREFIX}{name}": share for name, share in shares.items()})
         return value, (metrics, updates.get("batch_stats", batch_stats))
 

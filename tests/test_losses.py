@@ -7,6 +7,7 @@ import pytest
 from geometry_helpers import LOSS_TERMS, exact_batch
 
 from jaxpose import losses
+from jaxpose.config import LossConfig
 from jaxpose.losses import LossWeights, total_loss
 
 
@@ -147,3 +148,10 @@ def test_robust_label_penalty_is_squared_for_small_residuals_and_linear_for_gros
     expected = 2 * 0.05**2 * (np.sqrt(1 + (1.0 / 0.05) ** 2) - 1) / per_joint_count
     np.testing.assert_allclose(float(robust), expected, rtol=1e-4)
     assert float(robust) < 0.15 * float(squared)
+
+
+def test_loss_config_builds_the_weights_and_switches_l_out_on():
+    config = LossConfig(input_triangulation=2.0, reprojection=0.5, consistency=0.25, output_triangulation=0.125)
+    on, off = config.weights(True), config.weights(jnp.asarray(False))
+    assert (on.input_triangulation, on.reprojection, on.consistency, float(on.output_triangulation)) == (2.0, 0.5, 0.25, 0.125)
+    assert (off.input_triangulation, off.reprojection, off.consistency, float(off.output_triangulation)) == (2.0, 0.5, 0.25, 0.0)
