@@ -139,7 +139,7 @@ def process_batches(
 ) -> Iterator[tuple[int, MultiViewBatch]]:
     """Endless (step, global batch) stream from `start_step` on, gathering only this process's samples.
 
-    The global batches are those of `jaxpose.data.dataset.training_batches` (the same epoch order
+    The global batches are those of `jaxpose.data.dataset.training_indices` (the same epoch order
     of (seed, epoch) on every process), so a run's data do not depend on its device count.
     """
     rows = local_rows(mesh, batch_size)

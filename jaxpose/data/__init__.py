@@ -3,10 +3,8 @@
 from jaxpose.data.batch import BatchValidationError, MultiViewBatch, validate_batch, validate_cameras
 from jaxpose.data.dataset import (
     MultiViewDataset,
-    concatenate,
     epoch_order,
     steps_per_epoch,
-    training_batches,
     training_indices,
 )
 
@@ -14,10 +12,8 @@ __all__ = [
     "BatchValidationError",
     "MultiViewBatch",
     "MultiViewDataset",
-    "concatenate",
     "epoch_order",
     "steps_per_epoch",
-    "training_batches",
     "training_indices",
     "validate_batch",
     "validate_cameras",

@@ -197,40 +197,6 @@ class MultiViewDataset:
         return dataclasses.replace(dataset, pseudo3d=pseudo3d, pseudo3d_weight=weight, detection_weight=agreeing)
 
 
-def concatenate(datasets: list[MultiViewDataset]) -> MultiViewDataset:
-    """Join data sets of one skeleton and view count; their rigs are stacked and re-indexed."""
-    if not datasets:
-        raise ValueError("concatenate: no data sets given")
-    first = datasets[0]
-    for other in datasets[1:]:
-        if other.skeleton != first.skeleton or other.num_views != first.num_views:
-            raise ValueError("concatenate: data sets differ in skeleton or number of views")
-        if (other.rigs.dist is None) != (first.rigs.dist is None) or (
-            other.rigs.distortion_model != first.rigs.distortion_model
-        ):
-            raise ValueError("concatenate: data sets differ in their distortion model")
-
-    def join(name):
-        arrays = [getattr(d, name) for d in datasets]
-        return None if any(a is None for a in arrays) else np.concatenate(arrays)
-
-    offsets = np.cumsum([0] + [d.rigs.K.shape[0] for d in datasets[:-1]])
-    rigs = jax.tree.map(lambda *fields: np.concatenate(fields), *[d.rigs for d in datasets])
-    label_names = set.intersection(*(set(d.labels) for d in datasets))
-    return MultiViewDataset(
-        skeleton=first.skeleton,
-        keypoints2d=join("keypoints2d"),
-        confidence=join("confidence"),
-        rigs=rigs,
-        rig_index=np.concatenate([d.rig_index + o for d, o in zip(datasets, offsets)]).astype(np.int32),
-        target3d=join("target3d"),
-        pseudo3d=join("pseudo3d"),
-        pseudo3d_weight=join("pseudo3d_weight"),
-        detection_weight=join("detection_weight"),
-        labels={name: np.concatenate([d.labels[name] for d in datasets]) for name in sorted(label_names)},
-    )
-
-
 def epoch_order(num_samples: int, seed: int, epoch: int) -> np.ndarray:
     """The sample order of one epoch: a pure function of (seed, epoch), so a resumed run replays it."""
     return np.random.default_rng([seed, epoch]).permutation(num_samples)
@@ -257,11 +223,3 @@ def training_indices(num_samples: int, batch_size: int, seed: int, start_step: i
         for position in range(offset, per_epoch):
             yield step, order[position * batch_size : (position + 1) * batch_size]
             step += 1
-
-
-def training_batches(
-    dataset: MultiViewDataset, batch_size: int, seed: int, start_step: int = 0
-) -> Iterator[tuple[int, MultiViewBatch]]:
-    """Endless (step, batch) stream from `start_step` on; shuffles whole samples every epoch."""
-    for step, indices in training_indices(len(dataset), batch_size, seed, start_step):
-        yield step, dataset.batch(indices)
