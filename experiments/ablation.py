@@ -130,14 +130,14 @@ def main(argv: list[str] | None = None) -> str:
     selector.add_argument("--rows", choices=ROW_SETS, default="paper")
     chosen, rest = selector.parse_known_args(argv)
     module = importlib.import_module(DATASETS[chosen.dataset])
-    presets = getattr(module, "PRESETS", {"default": module.DEFAULT})
+    presets = module.PRESETS
     presets = {
         name: dataclasses.replace(
             preset, run=dataclasses.replace(preset.run, run_dir=pathlib.Path(f"runs/comparison_{chosen.dataset}_{name}"))
         )
         for name, preset in presets.items()
     }
-    notes = getattr(module, "PRESET_NOTES", {"default": "the entry point's default configuration"})
+    notes = module.PRESET_NOTES
     description = f"{__doc__}\n--dataset {chosen.dataset} --rows {chosen.rows}: flags below are those of experiments.{chosen.dataset}."
     prog = f"python -m experiments.ablation --dataset {chosen.dataset} --rows {chosen.rows}"
     base = cli.parse(ExperimentConfig[type(module.DEFAULT.data)], presets, notes, rest, description, prog)

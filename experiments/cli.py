@@ -1,8 +1,9 @@
-"""The command line shared by the real-data entry points (`experiments.h36m`, `experiments.humaneva`).
+"""The command line shared by the experiment entry points (`experiments.synthetic`, `h36m`, `humaneva`).
 
 Presets.  Each entry point defines complete `ExperimentConfig`s by name (`PRESETS`).  `--preset NAME`
-picks one (default: the first, "cpu" for the real data sets); every other flag overrides a field of it, and `--help` lists every flag
-with the chosen preset's values as defaults:
+picks one (default: the first, "main" for synthetic and "cpu" for the real data sets); every other
+flag overrides a field of it, and `--help` lists every flag with the chosen preset's values as
+defaults:
 
     python -m experiments.h36m --preset paper --data.data-dir /data/h36m --train.epochs 100
     python -m experiments.h36m --preset paper --help

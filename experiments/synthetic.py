@@ -11,8 +11,7 @@ from __future__ import annotations
 import dataclasses
 import pathlib
 
-import tyro
-
+from experiments import cli
 from experiments.config import ExperimentConfig, RunConfig, TrainConfig
 from experiments.runner import Splits, run
 from jaxpose.config import ModelConfig, OptimizerConfig
@@ -44,10 +43,12 @@ DEFAULT = ExperimentConfig(
 )
 
 
+PRESETS: dict[str, ExperimentConfig] = {"main": DEFAULT}
+PRESET_NOTES = {"main": "the main job: width-512 lifter, batch 256, 8 epochs, cosine schedule: ~3 min on 2 CPU cores (runs/synthetic)"}
+
+
 def main(argv: list[str] | None = None) -> dict:
-    config = tyro.cli(ExperimentConfig[SyntheticData], default=DEFAULT, args=argv, description=__doc__)
-    if config.loss.supervision == "full" and config.run.run_dir == DEFAULT.run.run_dir:
-        config = dataclasses.replace(config, run=dataclasses.replace(config.run, run_dir=pathlib.Path("runs/synthetic_supervised")))
+    config = cli.parse(ExperimentConfig[SyntheticData], PRESETS, PRESET_NOTES, argv, __doc__, "python -m experiments.synthetic")
     return run(config, load_splits)
 
 
