@@ -7,6 +7,7 @@ family) and averaged over groups, as the paper's tables average over actions.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Mapping
 
 import jax
@@ -14,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpose.camera import world_to_camera
+from jaxpose.chunks import map_in_chunks
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.metrics import JOINT_METRICS, per_joint_metrics, pose_metrics
 
@@ -53,35 +55,17 @@ def predict_in_chunks(
 ) -> np.ndarray:
     """Single-view predictions [M, J, 3] mm for keypoints2d [M, J, 2], K [M, 3, 3], confidence [M, J].
 
-    Every call of `predict_fn` gets exactly `chunk_size` rows (the last chunk is padded by
-    repeating its last row), so it compiles once per chunk size.
+    Every call of `predict_fn` gets exactly `chunk_size` rows (`jaxpose.chunks.map_in_chunks`), so
+    it compiles once per chunk size.
     """
-    M, J, _ = keypoints2d.shape
-    out = np.empty((M, J, 3), np.float32)
-    for start in range(0, M, chunk_size):
-        stop = min(start + chunk_size, M)
-        pad = chunk_size - (stop - start)
-        chunk = [np.concatenate([a[start:stop], np.repeat(a[stop - 1 : stop], pad, 0)]) for a in (keypoints2d, K, confidence)]
-        out[start:stop] = np.asarray(predict_fn(variables, *chunk))[: stop - start]
-    return out
+    return map_in_chunks(functools.partial(predict_fn, variables), (keypoints2d, K, confidence), chunk_size)
 
 
 def compute_metrics(pred: np.ndarray, target: np.ndarray, chunk: int = 65536) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Metrics of [M, J, 3] poses in chunks of fixed size (one compile): per pose ({name: [M]},
     `METRIC_NAMES`) and per joint ({name: [M, J]}, `metrics.JOINT_METRICS`)."""
-    M, J = pred.shape[:2]
-    per_pose = {name: np.empty(M, np.float32) for name in METRIC_NAMES}
-    per_joint = {name: np.empty((M, J), np.float32) for name in JOINT_METRICS}
-    size = min(chunk, M)
-    for start in range(0, M, size):
-        stop = min(start + size, M)
-        pad = size - (stop - start)
-        p = jnp.asarray(np.concatenate([pred[start:stop], np.repeat(pred[stop - 1 : stop], pad, 0)]))
-        t = jnp.asarray(np.concatenate([target[start:stop], np.repeat(target[stop - 1 : stop], pad, 0)]))
-        for results, values in ((per_pose, pose_metrics(p, t)), (per_joint, per_joint_metrics(p, t))):
-            for name, value in values.items():
-                results[name][start:stop] = np.asarray(value)[: stop - start]
-    return per_pose, per_joint
+    per_pose, per_joint = map_in_chunks(lambda p, t: (pose_metrics(p, t), per_joint_metrics(p, t)), (pred, target), chunk)
+    return {name: per_pose[name] for name in METRIC_NAMES}, {name: per_joint[name] for name in JOINT_METRICS}
 
 
 def summarize(

@@ -18,6 +18,7 @@ import numpy as np
 
 from jaxpose import robust
 from jaxpose.camera import Cameras, projection_matrices, undistort_points
+from jaxpose.chunks import map_in_chunks
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.robust import PseudoLabelMethod
 from jaxpose.skeleton import Skeleton
@@ -178,22 +179,15 @@ class MultiViewDataset:
             irls_iterations=irls_iterations,
             irls_scale_px=irls_scale_px,
         )
-        count, joints = len(dataset), dataset.skeleton.num_joints
-        pseudo3d = np.empty((count, joints, 3), np.float32)
-        weight = np.empty((count, joints), np.float32)
-        agreeing = np.empty(dataset.confidence.shape, np.float32) if method in robust.OUTLIER_REJECTING_METHODS else None
-        chunk_size = max(1, min(chunk_size, count))
-        for start in range(0, count, chunk_size):
-            # Fixed-size chunks (the last one padded by repeating a row): one compilation.
-            rows = np.minimum(np.arange(start, start + chunk_size), count - 1)
-            stop = min(start + chunk_size, count)
-            P = projection_matrices(dataset.cameras_for(rows))
-            points, valid, views = solve(P, jnp.asarray(dataset.keypoints2d[rows]), jnp.asarray(dataset.confidence[rows]))
-            pseudo3d[start:stop] = np.asarray(points)[: stop - start]
-            weight[start:stop] = np.asarray(valid)[: stop - start]
-            if agreeing is not None:
-                agreeing[start:stop] = np.asarray(views)[: stop - start]
-        weight *= weight[:, :1]
+
+        def solve_rows(rows, keypoints2d, confidence):
+            return solve(projection_matrices(dataset.cameras_for(rows)), jnp.asarray(keypoints2d), jnp.asarray(confidence))
+
+        # Fixed-size chunks: one compilation, bounded memory.
+        rows = np.arange(len(dataset))
+        pseudo3d, weight, views = map_in_chunks(solve_rows, (rows, dataset.keypoints2d, dataset.confidence), chunk_size)
+        agreeing = views.astype(np.float32) if method in robust.OUTLIER_REJECTING_METHODS else None
+        weight = weight.astype(np.float32) * weight[:, :1]
         return dataclasses.replace(dataset, pseudo3d=pseudo3d, pseudo3d_weight=weight, detection_weight=agreeing)
 
 

@@ -15,6 +15,7 @@ import jax
 import numpy as np
 
 from jaxpose.camera import Cameras, project
+from jaxpose.chunks import map_in_chunks
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.data.errors import DataFormatError
 from jaxpose.skeleton import Skeleton
@@ -86,19 +87,14 @@ def build_dataset(skeleton: Skeleton, recordings: Sequence[Recording], rigs: Map
 def project_to_views(rigs: Cameras, rig_index: np.ndarray, points3d: np.ndarray, chunk_size: int = 65536) -> np.ndarray:
     """Ground-truth 2D: world points f32[N, J, 3] through every camera of their rig -> f32[N, C, J, 2].
 
-    Runs in fixed-size chunks (the last one padded) so that the projection compiles once.
+    Runs in fixed-size chunks (`jaxpose.chunks.map_in_chunks`) so that the projection compiles once.
     """
-    count, joints = points3d.shape[:2]
-    views = rigs.K.shape[1]
-    chunk_size = max(1, min(chunk_size, count))
-    projected = np.empty((count, views, joints, 2), np.float32)
     project_chunk = jax.jit(lambda cameras, points: project(cameras, points[:, None]))
-    for start in range(0, count, chunk_size):
-        rows = np.minimum(np.arange(start, start + chunk_size), count - 1)
-        cameras = jax.tree.map(lambda field: field[rig_index[rows]], rigs)
-        stop = min(start + chunk_size, count)
-        projected[start:stop] = np.asarray(project_chunk(cameras, points3d[rows]))[: stop - start]
-    return projected
+
+    def project_rows(rig_rows, points):
+        return project_chunk(jax.tree.map(lambda field: field[rig_rows], rigs), points)
+
+    return map_in_chunks(project_rows, (rig_index, points3d), chunk_size)
 
 
 def stack_views(
