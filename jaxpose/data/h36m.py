@@ -26,15 +26,15 @@ use that order.  Sequence names differ between sources ("Walking 1" / "Walking_1
 labels keep the 3D file's full sequence name.  A sequence that misses some cameras' 2D (S11
 Directions has 3 of the 4 SH files) keeps its other views; the missing views get confidence 0, so
 training uses the views that exist and evaluation skips only the missing ones.  Such sequences,
-3D sequences without any 2D and 2D sequences with no 3D counterpart are named in one warning.  Frames are down-sampled from 50 fps by keeping every `train_stride`-th (training
-subjects) or `test_stride`-th (all other subjects) frame, starting at frame 0.
+3D sequences without any 2D and 2D sequences with no 3D counterpart are named in warnings.  Frames
+are down-sampled from 50 fps by keeping every `train_stride`-th (training subjects) or
+`test_stride`-th (all other subjects) frame, starting at frame 0.
 """
 
 from __future__ import annotations
 
 import functools
 import re
-import warnings
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
@@ -46,7 +46,7 @@ from jaxpose.data.camera_file import SubjectCameras, load_cameras, read_h36m_cam
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.data.errors import DataFormatError
 from jaxpose.data.files import read_h5_dataset
-from jaxpose.data.recordings import Recording, build_dataset, stack_views
+from jaxpose.data.recordings import Recording, build_dataset, stack_views, warn_incomplete
 from jaxpose.data.videopose3d import load_positions, subject_poses3d, subject_views2d
 from jaxpose.skeleton import H36M_16, H36M_17, H36M_32_TO_17
 
@@ -141,13 +141,7 @@ def load_h36m(
                 if missing:
                     partial.append(f"{subject} {name!r} (no 2D for cameras {missing})")
             plan.append((subject, name, sequences3d[name], views, stride))
-    if partial:
-        warnings.warn(
-            f"Human3.6M: {len(partial)} sequences miss some views, which get confidence 0: " + "; ".join(partial),
-            stacklevel=2,
-        )
-    if skipped:
-        warnings.warn(f"Human3.6M: skipped {len(skipped)} sequences: " + "; ".join(skipped), stacklevel=2)
+    warn_incomplete("Human3.6M", partial, skipped)
     if not plan:
         raise DataFormatError(
             data_dir, f"Human3.6M sequences of subjects {list(subjects)}", "none with both 3D and 2D"

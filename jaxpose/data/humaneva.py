@@ -16,7 +16,6 @@ joint, or whose 2D has a NaN, are dropped (their count is logged).  Labels: "sub
 from __future__ import annotations
 
 import logging
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +24,7 @@ from tqdm.auto import tqdm
 from jaxpose.data.camera_file import load_cameras, select_views
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.data.errors import DataFormatError
-from jaxpose.data.recordings import Recording, build_dataset, stack_views
+from jaxpose.data.recordings import Recording, build_dataset, stack_views, warn_incomplete
 from jaxpose.data.videopose3d import load_positions, subject_poses3d, subject_views2d
 from jaxpose.skeleton import HUMANEVA_15
 
@@ -96,13 +95,7 @@ def load_humaneva(
                 if missing:
                     partial.append(f"{subject} {name!r} (no 2D for cameras {missing})")
             plan.append((subject, name, poses[name], cameras))
-    if partial:
-        warnings.warn(
-            f"HumanEva-I: {len(partial)} sequences miss some views, which get confidence 0: " + "; ".join(partial),
-            stacklevel=2,
-        )
-    if skipped:
-        warnings.warn(f"HumanEva-I: skipped {len(skipped)} sequences: " + "; ".join(skipped), stacklevel=2)
+    warn_incomplete("HumanEva-I", partial, skipped)
     if not plan:
         raise DataFormatError(data_dir, f"HumanEva-I {split} sequences of {list(subjects)}", "none with both 3D and 2D")
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import warnings
 from collections.abc import Mapping, Sequence
 
 import jax
@@ -126,3 +127,13 @@ def stack_views(
         keypoints[:, index] = view[frames]
         confidence[:, index] = 1.0
     return keypoints, confidence
+
+
+def warn_incomplete(dataset: str, partial: Sequence[str], skipped: Sequence[str]) -> None:
+    """One warning naming the sequences kept with some views missing, one naming those skipped;
+    attributed to the caller of the loader that calls this."""
+    if partial:
+        message = f"{dataset}: {len(partial)} sequences miss some views, which get confidence 0: " + "; ".join(partial)
+        warnings.warn(message, stacklevel=3)
+    if skipped:
+        warnings.warn(f"{dataset}: skipped {len(skipped)} sequences: " + "; ".join(skipped), stacklevel=3)
