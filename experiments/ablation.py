@@ -24,20 +24,20 @@ gradient with respect to the lifter output.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
-import importlib
 import json
 import pathlib
 import sys
 
-from experiments import cli
+from experiments import cli, h36m, humaneva, synthetic
 from experiments.config import ExperimentConfig
 from experiments.runner import run
 from jaxpose import evaluation
 from jaxpose.losses import TERMS
 
-DATASETS = {"synthetic": "experiments.synthetic", "h36m": "experiments.h36m", "humaneva": "experiments.humaneva"}
+# The entry points an ablation can run, by their --dataset name.
+EXPERIMENTS = {experiment.name: experiment for experiment in (synthetic.EXPERIMENT, h36m.EXPERIMENT, humaneva.EXPERIMENT)}
+PROG = "python -m experiments.ablation"
 
 # (row label, terms switched on) in the order of the paper's Table V.
 CONFIGURATIONS = (
@@ -125,26 +125,20 @@ def per_joint_rows(results: list[tuple[str, dict]]) -> dict[str, dict]:
 
 def main(argv: list[str] | None = None) -> str:
     argv = sys.argv[1:] if argv is None else list(argv)
-    selector = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
-    selector.add_argument("--dataset", choices=sorted(DATASETS), default="synthetic")
-    selector.add_argument("--rows", choices=ROW_SETS, default="paper")
-    chosen, rest = selector.parse_known_args(argv)
-    module = importlib.import_module(DATASETS[chosen.dataset])
-    presets = module.PRESETS
+    dataset, argv = cli.choose(argv, "--dataset", list(EXPERIMENTS), "synthetic", PROG)
+    rows, argv = cli.choose(argv, "--rows", ROW_SETS, "paper", PROG)
+    experiment = EXPERIMENTS[dataset]
     presets = {
         name: dataclasses.replace(
-            preset, run=dataclasses.replace(preset.run, run_dir=pathlib.Path(f"runs/comparison_{chosen.dataset}_{name}"))
+            preset, run=dataclasses.replace(preset.run, run_dir=pathlib.Path(f"runs/comparison_{dataset}_{name}"))
         )
-        for name, preset in presets.items()
+        for name, preset in experiment.presets.items()
     }
-    notes = module.PRESET_NOTES
-    description = f"{__doc__}\n--dataset {chosen.dataset} --rows {chosen.rows}: flags below are those of experiments.{chosen.dataset}."
-    prog = f"python -m experiments.ablation --dataset {chosen.dataset} --rows {chosen.rows}"
-    base = cli.parse(ExperimentConfig[type(module.DEFAULT.data)], presets, notes, rest, description, prog)
-    load_splits = module.load_splits
-    if hasattr(module, "expected_files"):  # real data: a missing file is one message, not a traceback
-        load_splits = cli.guard_data_errors(load_splits, module.expected_files)
-    results = [(label, run(config, load_splits)) for label, config in row_configs(base, chosen.rows)]
+    description = f"{__doc__}\n--dataset {dataset} --rows {rows}: flags below are those of {experiment.prog}."
+    prog = f"{PROG} --dataset {dataset} --rows {rows}"
+    base = cli.parse(experiment, argv, description, prog, presets)
+    load_splits = experiment.loader()
+    results = [(label, run(config, load_splits)) for label, config in row_configs(base, rows)]
     joint_names = tuple(results[0][1]["joint_names"])
     text = "\n\n".join(
         [

@@ -1,6 +1,8 @@
-"""The command line shared by the experiment entry points (`experiments.synthetic`, `h36m`, `humaneva`).
+"""The one command-line mechanism of the experiment entry points (`experiments.synthetic`, `h36m`,
+`humaneva`, and `ablation` over them): tyro over a typed config, with presets.
 
-Presets.  Each entry point defines complete `ExperimentConfig`s by name (`PRESETS`).  `--preset NAME`
+Presets.  Each entry point is an `Experiment` holding complete `ExperimentConfig`s by name (its
+`PRESETS`, the registry in the style of a named-config table).  `--preset NAME`
 picks one (default: the first, "main" for synthetic and "cpu" for the real data sets); every other
 flag overrides a field of it, and `--help` lists every flag with the chosen preset's values as
 defaults:
@@ -37,62 +39,101 @@ from jaxpose.data.errors import DataFormatError
 SUPERVISED_SUFFIX = "_supervised"
 
 
+@dataclasses.dataclass(frozen=True)
+class Experiment:
+    """One entry point of `experiments/`: its presets, its data loader and its paper table.
+
+    Each entry module defines one (`EXPERIMENT`) and runs it with `main`; `experiments.ablation` finds
+    them by name in its registry.  The first preset is the default.
+    """
+
+    name: str
+    """The module name under `experiments.` ("synthetic", "h36m", "humaneva")."""
+    presets: Mapping[str, ExperimentConfig]
+    """Complete configurations by name: `--preset NAME` picks one."""
+    preset_notes: Mapping[str, str]
+    """One line per preset for `--help`."""
+    load_splits: Callable[[Any], Splits]
+    """The data config -> train and test splits."""
+    expected_files: Callable[[Any], str] | None = None
+    """Real data: the files a data config reads, for the message when one is missing or malformed."""
+    paper_table: paper_tables.PaperTable | None = None
+    """The paper's table this experiment fills in (written as table_paper_layout.md)."""
+
+    @property
+    def prog(self) -> str:
+        return f"python -m experiments.{self.name}"
+
+    @property
+    def config_type(self) -> type:
+        """`ExperimentConfig[<this experiment's data config>]`, the type tyro parses."""
+        return ExperimentConfig[type(next(iter(self.presets.values())).data)]
+
+    def loader(self) -> Callable[[Any], Splits]:
+        """`load_splits`; for real data, its data errors end the program with one message and exit status 1."""
+        if self.expected_files is None:
+            return self.load_splits
+        load_splits, expected_files = self.load_splits, self.expected_files
+
+        def guarded_load(data) -> Splits:
+            try:
+                return load_splits(data)
+            # ValueError: the loaders' argument checks (an unknown --data.detections, a bad stride).
+            except (DataFormatError, ValueError) as error:
+                raise SystemExit(f"error: {error}\n{expected_files(data)}") from None
+
+        return guarded_load
+
+
+def choose(argv: Sequence[str], flag: str, choices: Sequence[str], default: str, prog: str) -> tuple[str, list[str]]:
+    """(the value of `flag` among `choices`, the other arguments): a selector read before tyro parses
+    the rest, because it decides what the rest means (which preset supplies the defaults, which
+    experiment's flags apply)."""
+    chooser = argparse.ArgumentParser(prog=prog, add_help=False, allow_abbrev=False)
+    chooser.add_argument(flag, choices=list(choices), default=default)
+    chosen, rest = chooser.parse_known_args(list(argv))
+    return getattr(chosen, flag.lstrip("-").replace("-", "_")), rest
+
+
 def parse(
-    config_type: type,
-    presets: Mapping[str, ExperimentConfig],
-    preset_notes: Mapping[str, str],
+    experiment: Experiment,
     argv: Sequence[str] | None,
     description: str,
-    prog: str,
+    prog: str | None = None,
+    presets: Mapping[str, ExperimentConfig] | None = None,
 ) -> ExperimentConfig:
     """`--preset NAME` plus tyro flags over that preset -> the config.
 
-    A full-supervision run (`--supervision full`) left on the preset's run directory gets its own
+    `presets` replaces the experiment's own (`experiments.ablation` moves their run directories).  A
+    full-supervision run (`--supervision full`) left on the preset's run directory gets its own
     directory, `<run_dir>_supervised`, so that it neither resumes nor overwrites the self-supervised run.
     """
     argv = list(sys.argv[1:] if argv is None else argv)
-    chooser = argparse.ArgumentParser(prog=prog, add_help=False, allow_abbrev=False)
+    presets = experiment.presets if presets is None else presets
+    prog = experiment.prog if prog is None else prog
     default_preset = next(iter(presets))
-    chooser.add_argument("--preset", choices=list(presets), default=default_preset)
-    chosen, rest = chooser.parse_known_args(argv)
+    name, rest = choose(argv, "--preset", list(presets), default_preset, prog)
     width = max(len(name) for name in presets)
-    listing = "\n".join(f"  {name:<{width}}  {preset_notes[name]}" for name in presets)
+    listing = "\n".join(f"  {preset:<{width}}  {experiment.preset_notes[preset]}" for preset in presets)
     text = (
         f"{description.rstrip()}\n\nPresets (--preset NAME, default {default_preset}; the defaults shown"
-        f" below are those of --preset {chosen.preset}):\n{listing}"
+        f" below are those of --preset {name}):\n{listing}"
     )
     usage_prog = f"{prog} [--preset {{{','.join(presets)}}}]"
-    preset = presets[chosen.preset]
-    config = tyro.cli(config_type, default=preset, args=rest, description=text, prog=usage_prog)
+    preset = presets[name]
+    config = tyro.cli(experiment.config_type, default=preset, args=rest, description=text, prog=usage_prog)
     if config.loss.supervision == "full" and config.run.run_dir == preset.run.run_dir:
         supervised_dir = pathlib.Path(f"{preset.run.run_dir}{SUPERVISED_SUFFIX}")
         config = dataclasses.replace(config, run=dataclasses.replace(config.run, run_dir=supervised_dir))
     return config
 
 
-def guard_data_errors(load_splits: Callable[[Any], Splits], expected_files: Callable[[Any], str]) -> Callable[[Any], Splits]:
-    """`load_splits` whose data errors end the program with one message and exit status 1."""
-
-    def guarded_load(data) -> Splits:
-        try:
-            return load_splits(data)
-        # ValueError: the loaders' argument checks (an unknown --data.detections, a bad stride).
-        except (DataFormatError, ValueError) as error:
-            raise SystemExit(f"error: {error}\n{expected_files(data)}") from None
-
-    return guarded_load
-
-
-def run_experiment(
-    config: ExperimentConfig,
-    load_splits: Callable[[Any], Splits],
-    expected_files: Callable[[Any], str],
-    table: paper_tables.PaperTable,
-) -> dict:
-    """`experiments.runner.run` with data errors as one message (`guard_data_errors`), then the
-    paper-layout table written into (and printed from) the run directory."""
-    report = run(config, guard_data_errors(load_splits, expected_files))
-    if jax.process_index() == 0:
-        path = paper_tables.write(table, report["results"], config.run.run_dir)
+def main(experiment: Experiment, argv: Sequence[str] | None, description: str) -> dict:
+    """An entry point's whole command: parse, `experiments.runner.run`, then the paper-layout table
+    (when the experiment has one) written into, and printed from, the run directory."""
+    config = parse(experiment, argv, description)
+    report = run(config, experiment.loader())
+    if experiment.paper_table is not None and jax.process_index() == 0:
+        path = paper_tables.write(experiment.paper_table, report["results"], config.run.run_dir)
         print(path.read_text())
     return report

@@ -190,12 +190,18 @@ PRESET_NOTES = {
     "dev": "development protocol: S1 only, first trial of each action trains, the other tests; SH 2D; cpu recipe (runs/h36m_dev)",
 }
 DEFAULT = CPU
-PAPER_TABLE = paper_tables.H36M_TABLE_II
+EXPERIMENT = cli.Experiment(
+    name="h36m",
+    presets=PRESETS,
+    preset_notes=PRESET_NOTES,
+    load_splits=load_splits,
+    expected_files=expected_files,
+    paper_table=paper_tables.H36M_TABLE_II,
+)
 
 
 def main(argv: list[str] | None = None) -> dict:
-    config = cli.parse(ExperimentConfig[H36MData], PRESETS, PRESET_NOTES, argv, __doc__, "python -m experiments.h36m")
-    return cli.run_experiment(config, load_splits, expected_files, PAPER_TABLE)
+    return cli.main(EXPERIMENT, argv, __doc__)
 
 
 if __name__ == "__main__":

@@ -126,14 +126,18 @@ PRESET_NOTES = {
     "paper": "the paper: authors' network, Adam 1e-3 constant, batch 1600, 5000 epochs (runs/humaneva_paper)",
 }
 DEFAULT = CPU
-PAPER_TABLE = paper_tables.HUMANEVA_TABLE_III
+EXPERIMENT = cli.Experiment(
+    name="humaneva",
+    presets=PRESETS,
+    preset_notes=PRESET_NOTES,
+    load_splits=load_splits,
+    expected_files=expected_files,
+    paper_table=paper_tables.HUMANEVA_TABLE_III,
+)
 
 
 def main(argv: list[str] | None = None) -> dict:
-    config = cli.parse(
-        ExperimentConfig[HumanEvaData], PRESETS, PRESET_NOTES, argv, __doc__, "python -m experiments.humaneva"
-    )
-    return cli.run_experiment(config, load_splits, expected_files, PAPER_TABLE)
+    return cli.main(EXPERIMENT, argv, __doc__)
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ import pathlib
 
 from experiments import cli
 from experiments.config import ExperimentConfig, RunConfig, TrainConfig
-from experiments.runner import Splits, run
+from experiments.runner import Splits
 from jaxpose.config import ModelConfig, OptimizerConfig
 from jaxpose.data.synthetic import SyntheticConfig, generate
 
@@ -47,9 +47,11 @@ PRESETS: dict[str, ExperimentConfig] = {"main": DEFAULT}
 PRESET_NOTES = {"main": "the main job: width-512 lifter, batch 256, 8 epochs, cosine schedule: ~3 min on 2 CPU cores (runs/synthetic)"}
 
 
+EXPERIMENT = cli.Experiment(name="synthetic", presets=PRESETS, preset_notes=PRESET_NOTES, load_splits=load_splits)
+
+
 def main(argv: list[str] | None = None) -> dict:
-    config = cli.parse(ExperimentConfig[SyntheticData], PRESETS, PRESET_NOTES, argv, __doc__, "python -m experiments.synthetic")
-    return run(config, load_splits)
+    return cli.main(EXPERIMENT, argv, __doc__)
 
 
 if __name__ == "__main__":

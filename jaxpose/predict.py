@@ -23,15 +23,15 @@ lifted: null / NaN.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import pathlib
 import sys
 from collections.abc import Sequence
-from typing import Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
+import tyro
 from tqdm.auto import tqdm
 
 from jaxpose import inference, viz
@@ -207,52 +207,34 @@ def save_plots(
     return saved
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m jaxpose.predict", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument(
-        "--checkpoint", required=True, type=pathlib.Path, metavar="RUN",
-        help="run directory (config.json + checkpoints/) or its checkpoints/ folder; the newest readable step is used",
-    )
-    parser.add_argument(
-        "--input", required=True, type=pathlib.Path, metavar="FILE",
-        help="COCO keypoint-results .json, OpenPose folder of *_keypoints.json, or .npz (keypoints, confidence,"
-        " image_id, K)",
-    )
-    parser.add_argument(
-        "--output", required=True, type=pathlib.Path, metavar="FILE",
-        help="output .json (list of {image_id, pose3d_mm, joint_names}) or .npz (pose3d_mm, valid, image_id,"
-        " joint_names)",
-    )
-    parser.add_argument(
-        "--format", choices=sorted(FORMATS), default=None,
-        help="joint layout of the input keypoints (default: coco17 for COCO .json, openpose25 for OpenPose, the"
-        " checkpoint's own layout for .npz)",
-    )
-    parser.add_argument(
-        "--intrinsics", nargs="+", metavar="VALUE", default=None,
-        help="camera intrinsics in pixels: four values fx fy cx cy, or one JSON camera file {K, dist, image_size}"
-        " (dist: OpenCV k1 k2 p1 p2 k3, undistorted before lifting); default: focal length max(W, H) and the"
-        " image centre of --image-size",
-    )
-    parser.add_argument(
-        "--image-size", nargs=2, type=float, metavar=("W", "H"), default=None,
-        help="image width and height in pixels: the default intrinsics, and the frame of the plots",
-    )
-    parser.add_argument(
-        "--plot", type=pathlib.Path, default=None, metavar="DIR",
-        help="save 2D-detection / 3D-pose figures (PNG) of the first lifted poses into DIR",
-    )
-    parser.add_argument("--plot-count", type=int, default=4, metavar="N", help="poses --plot draws (default 4)")
-    parser.add_argument(
-        "--batch-size", type=int, default=inference.DEFAULT_BATCH_SIZE, metavar="N",
-        help="most poses per jitted lifter call (default %(default)s)",
-    )
-    return parser  # fmt: skip
+@dataclasses.dataclass(frozen=True)
+class PredictArgs:
+    """The command's flags."""
+
+    checkpoint: Annotated[pathlib.Path, tyro.conf.arg(metavar="RUN")]
+    """Run directory (config.json + checkpoints/) or its checkpoints/ folder; the newest readable step is used."""
+    input: Annotated[pathlib.Path, tyro.conf.arg(metavar="FILE")]
+    """COCO keypoint-results .json, OpenPose folder of *_keypoints.json, or .npz (keypoints, confidence, image_id, K)."""
+    output: Annotated[pathlib.Path, tyro.conf.arg(metavar="FILE")]
+    """Output .json (list of {image_id, pose3d_mm, joint_names}) or .npz (pose3d_mm, valid, image_id, joint_names)."""
+    format: Literal[tuple(sorted(FORMATS))] | None = None  # type: ignore[valid-type]
+    """Joint layout of the input keypoints (default: coco17 for COCO .json, openpose25 for OpenPose, the
+    checkpoint's own layout for .npz)."""
+    intrinsics: Annotated[tuple[str, ...] | None, tyro.conf.arg(metavar="VALUE [VALUE ...]")] = None
+    """Camera intrinsics in pixels: four values fx fy cx cy, or one JSON camera file {K, dist, image_size}
+    (dist: OpenCV k1 k2 p1 p2 k3, undistorted before lifting); default: focal length max(W, H) and the
+    image centre of --image-size."""
+    image_size: Annotated[tuple[float, float] | None, tyro.conf.arg(metavar="W H")] = None
+    """Image width and height in pixels: the default intrinsics, and the frame of the plots."""
+    plot: Annotated[pathlib.Path | None, tyro.conf.arg(metavar="DIR")] = None
+    """Save 2D-detection / 3D-pose figures (PNG) of the first lifted poses into DIR."""
+    plot_count: int = 4
+    """Poses --plot draws."""
+    batch_size: int = inference.DEFAULT_BATCH_SIZE
+    """Most poses per jitted lifter call."""
 
 
-def run(args: argparse.Namespace) -> np.ndarray:
+def run(args: PredictArgs) -> np.ndarray:
     """The whole command: read, convert, lift, write, plot.  Returns the poses f32[N, J, 3]."""
     if args.output.suffix not in OUTPUT_SUFFIXES:
         raise ValueError(f"--output {args.output}: the suffix must be one of {OUTPUT_SUFFIXES}")
@@ -297,7 +279,7 @@ def run(args: argparse.Namespace) -> np.ndarray:
 
 def main(argv: Sequence[str] | None = None) -> np.ndarray:
     """Entry point; input, checkpoint and shape errors end the process with a one-line message."""
-    args = build_parser().parse_args(argv)
+    args = tyro.cli(PredictArgs, args=argv, description=__doc__, prog="python -m jaxpose.predict")
     try:
         return run(args)
     except (ValueError, FileNotFoundError, CheckpointError) as error:

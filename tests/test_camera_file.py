@@ -10,6 +10,7 @@ import pytest
 
 from fixtures_real_data import h36m_cameras, h36m_project, humaneva_cameras, opencv_project, write_h36m_cameras_h5
 from jaxpose.camera import Cameras, project
+from help_text import assert_every_flag_documented
 from jaxpose.data.camera_file import (
     H36M_IMAGE_SIZES,
     convert_h36m_cameras,
@@ -92,10 +93,11 @@ def test_cli_convert_and_check(tmp_path, capsys):
         main(["check", str(tmp_path / "missing.json")])
 
 
-def test_cli_help_runs_as_a_module():
-    command = [sys.executable, "-m", "jaxpose.data.camera_file", "convert", "--help"]
+@pytest.mark.parametrize("subcommand, arguments", [("convert", ["CAMERAS_H5", "OUT_JSON"]), ("check", ["CAMERAS_JSON"])])
+def test_cli_help_runs_as_a_module_and_documents_every_argument(subcommand, arguments):
+    command = [sys.executable, "-m", "jaxpose.data.camera_file", subcommand, "--help"]
     result = subprocess.run(command, capture_output=True, text=True, check=True)
-    assert "cameras_h5" in result.stdout and "out_json" in result.stdout
+    assert_every_flag_documented(result.stdout.split("positional arguments")[1], arguments)
 
 
 def _camera(**changes):

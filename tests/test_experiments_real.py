@@ -8,8 +8,8 @@ import re
 
 import pytest
 
-from experiments import cli, h36m, humaneva, mpi_inf_3dhp, paper_tables
-from experiments.config import ExperimentConfig
+from experiments import ablation, cli, h36m, humaneva, mpi_inf_3dhp, paper_tables
+from help_text import assert_every_flag_documented
 from fixtures_real_data import write_h36m_martinez_tree, write_h36m_videopose3d_files, write_humaneva_files
 from fixtures_real_data import write_mpi_inf_3dhp_test_set
 from jaxpose.data.mpi_inf_3dhp import camera_intrinsics
@@ -148,21 +148,6 @@ def test_missing_data_is_one_message_and_leaves_no_run_dir(module, data_dir, tmp
     assert not (tmp_path / "runs").exists()
 
 
-def _assert_every_flag_documented(help_text: str, flags: list[str]) -> None:
-    """Each flag's entry in tyro's help has words besides its metavar and default: a field without a
-    docstring shows only "(default: ...)".  Works with and without the box-drawing characters."""
-    lines = [re.sub("[│╭╮╰╯─]", " ", line).strip() for line in help_text.splitlines()]
-    for flag in flags:
-        first = next(i for i, line in enumerate(lines) if re.match(rf"{re.escape(flag)}([ ,]|$)", line))
-        entry = [lines[first][len(flag) :]]
-        for line in lines[first + 1 :]:
-            if not line or line.startswith("-"):
-                break
-            entry.append(line)
-        text = re.sub(r"\{[^}]*\}|\[[^\]]*\]", " ", " ".join(entry)).split("(default:")[0]
-        assert len(re.findall(r"\b[a-z]{2,}\b", text)) >= 2, f"{flag} has no help text: {text!r}"
-
-
 @pytest.mark.parametrize("module, data_type", [(h36m, h36m.H36MData), (humaneva, humaneva.HumanEvaData)])
 def test_help_lists_presets_and_documents_every_data_flag(module, data_type, capsys):
     with pytest.raises(SystemExit) as stop:
@@ -170,7 +155,20 @@ def test_help_lists_presets_and_documents_every_data_flag(module, data_type, cap
     assert stop.value.code == 0
     text = capsys.readouterr().out
     assert "--preset {" + ",".join(module.PRESETS) + "}" in text and "defaults shown below are those of --preset paper" in text
-    _assert_every_flag_documented(text, ["--data." + f.name.replace("_", "-") for f in dataclasses.fields(data_type)])
+    assert_every_flag_documented(text, ["--data." + f.name.replace("_", "-") for f in dataclasses.fields(data_type)])
+
+
+def test_ablation_help_is_the_chosen_experiments_with_its_presets(capsys):
+    with pytest.raises(SystemExit) as stop:
+        ablation.main(["--dataset", "h36m", "--rows", "twin", "--preset", "dev", "--help"])
+    assert stop.value.code == 0
+    text = capsys.readouterr().out
+    assert "--dataset h36m --rows twin [--preset {cpu,paper,dev}]" in text and "those of --preset dev" in text
+    assert "runs/comparison_h36m_dev" in text
+    assert_every_flag_documented(text, ["--data." + f.name.replace("_", "-") for f in dataclasses.fields(h36m.H36MData)])
+    with pytest.raises(SystemExit) as stop:
+        ablation.main(["--dataset", "mpi"])
+    assert stop.value.code == 2 and "invalid choice: 'mpi'" in capsys.readouterr().err
 
 
 def test_mpi_inf_3dhp_help(capsys):
@@ -178,21 +176,20 @@ def test_mpi_inf_3dhp_help(capsys):
         mpi_inf_3dhp.main(["--help"])
     assert stop.value.code == 0
     flags = ["--" + f.name.replace("_", "-") for f in dataclasses.fields(mpi_inf_3dhp.Mpi3dhpEvaluation)]
-    _assert_every_flag_documented(capsys.readouterr().out, flags)
+    assert_every_flag_documented(capsys.readouterr().out, flags)
 
 
 @pytest.mark.parametrize("module", [h36m, humaneva])
 def test_presets(module):
-    data_type = type(module.DEFAULT.data)
-    assert module.DEFAULT is module.PRESETS["cpu"]
-    paper = cli.parse(ExperimentConfig[data_type], module.PRESETS, module.PRESET_NOTES, ["--preset", "paper"], "", "x")
+    assert module.DEFAULT is module.PRESETS["cpu"] and module.EXPERIMENT.presets is module.PRESETS
+    paper = cli.parse(module.EXPERIMENT, ["--preset", "paper"], "")
     assert paper == module.PRESETS["paper"]
     assert (paper.optimizer.learning_rate, paper.optimizer.schedule, paper.optimizer.warmup_steps) == (1e-3, "constant", 0)
     assert (paper.train.batch_size, paper.train.epochs) == ((8192, 500) if module is h36m else (1600, 5000))
     assert paper.model == type(paper.model)() and paper.loss == type(paper.loss)()
     weights = (paper.loss.input_triangulation, paper.loss.reprojection, paper.loss.consistency, paper.loss.output_triangulation)
     assert weights == (1.0, 1.0, 0.001, 0.01) and paper.loss.output_triangulation_start == 0.9
-    supervised = cli.parse(ExperimentConfig[data_type], module.PRESETS, module.PRESET_NOTES, ["--supervision", "full"], "", "x")
+    supervised = cli.parse(module.EXPERIMENT, ["--supervision", "full"], "")
     assert supervised.loss.supervision == "full"
     assert str(supervised.run.run_dir) == f"{module.DEFAULT.run.run_dir}_supervised"
 

@@ -34,13 +34,15 @@ Command line::
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import json
 import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
+import tyro
 
 from jaxpose.camera import Cameras
 from jaxpose.data.errors import DataFormatError
@@ -297,34 +299,6 @@ def _matrix(camera: dict, field: str, shape: tuple[int, ...], where: str) -> np.
     return array
 
 
-def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
-        prog="python -m jaxpose.data.camera_file", description="Convert and check jaxpose camera files."
-    )
-    commands = parser.add_subparsers(dest="command", required=True)
-    convert = commands.add_parser("convert", help="convert Human3.6M's cameras.h5 into a jaxpose camera file")
-    convert.add_argument("cameras_h5", type=Path, help="Human3.6M cameras.h5 (from h36m.zip)")
-    convert.add_argument("out_json", type=Path, help="camera file to write")
-    check = commands.add_parser("check", help="validate a camera file and list its subjects and cameras")
-    check.add_argument("path", type=Path)
-    args = parser.parse_args(argv)
-    try:
-        if args.command == "convert":
-            convert_h36m_cameras(args.cameras_h5, args.out_json)
-            path = args.out_json
-        else:
-            path = args.path
-        for subject, (names, cameras) in load_cameras(path).items():
-            distortion = "none" if cameras.dist is None else cameras.distortion_model
-            print(f"{subject}: {len(names)} cameras {names}, distortion {distortion}")
-    except DataFormatError as error:
-        raise SystemExit(f"error: {error}") from None
-
-
-if __name__ == "__main__":
-    main()
-
-
 def select_views(
     calibration: dict[str, tuple[list[str], Cameras]], path, subject: str, camera_names: tuple[str, ...]
 ) -> Cameras:
@@ -339,3 +313,45 @@ def select_views(
     if not set(camera_names) <= set(names):
         raise DataFormatError(path, f"subject {subject!r}: cameras {list(camera_names)}", f"cameras {names}")
     return cameras[np.array([names.index(camera) for camera in camera_names])]
+
+
+@dataclasses.dataclass(frozen=True)
+class Convert:
+    """Convert Human3.6M's cameras.h5 into a jaxpose camera file."""
+
+    cameras_h5: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="CAMERAS_H5")]
+    """Human3.6M cameras.h5 (from h36m.zip)."""
+    out_json: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="OUT_JSON")]
+    """The camera file to write."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Check:
+    """Validate a camera file and list its subjects and cameras."""
+
+    path: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="CAMERAS_JSON")]
+    """The camera file to check."""
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    command = tyro.cli(
+        Annotated[Convert, tyro.conf.subcommand("convert")] | Annotated[Check, tyro.conf.subcommand("check")],
+        args=argv,
+        prog="python -m jaxpose.data.camera_file",
+        description="Convert and check jaxpose camera files.",
+    )
+    try:
+        if isinstance(command, Convert):
+            convert_h36m_cameras(command.cameras_h5, command.out_json)
+            path = command.out_json
+        else:
+            path = command.path
+        for subject, (names, cameras) in load_cameras(path).items():
+            distortion = "none" if cameras.dist is None else cameras.distortion_model
+            print(f"{subject}: {len(names)} cameras {names}, distortion {distortion}")
+    except DataFormatError as error:
+        raise SystemExit(f"error: {error}") from None
+
+
+if __name__ == "__main__":
+    main()
