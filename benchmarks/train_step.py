@@ -47,11 +47,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxpose import pseudo_labelling
 from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.data.synthetic import SyntheticConfig, generate
 from jaxpose.losses import total_loss
-from jaxpose.train import build_model, init_train_state, jit_train_step, make_optimizer, make_train_step
+from jaxpose.train import init_train_state, jit_train_step, make_train_step
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = (8192, 4)  # (samples per batch, views)
@@ -74,7 +75,7 @@ def synthetic_batch(batch_size: int, num_views: int, num_joints: int = NUM_JOINT
     if num_joints != NUM_JOINTS:
         raise ValueError(f"the synthetic data set has {NUM_JOINTS} joints")
     config = SyntheticConfig(num_train_subjects=1, num_test_subjects=0, samples_per_subject=batch_size, num_views=num_views)
-    return generate(config).with_pseudo_labels().batch(np.arange(batch_size))
+    return pseudo_labelling.label(generate(config)).batch(np.arange(batch_size))
 
 
 PAPER_LOSS = LossConfig(output_triangulation_start=0.0)  # all four terms on from the first step
@@ -84,8 +85,8 @@ def paper_step(batch_size: int, num_views: int, model_config=None, loss_config=N
     """(jitted train step, initial state, device batch, dropout key) at the paper's configuration."""
     model_config = model_config or ModelConfig()
     loss_config = loss_config or PAPER_LOSS
-    model = build_model(model_config, NUM_JOINTS)
-    optimizer = make_optimizer(OptimizerConfig(), 1000)
+    model = model_config.build(NUM_JOINTS)
+    optimizer = OptimizerConfig().build(1000)
     state = init_train_state(model, optimizer, jax.random.key(0))
     step = jit_train_step(make_train_step(model, model_config, optimizer, loss_config, 1000))
     return step, state, jax.device_put(synthetic_batch(batch_size, num_views)), jax.random.key(1)

@@ -12,34 +12,9 @@ import json
 import pathlib
 from typing import Any, Generic, TypeVar
 
-from jaxpose import robust
-from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
-from jaxpose.robust import PseudoLabelMethod
+from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig, PseudoLabelConfig
 
 DataT = TypeVar("DataT")
-
-
-@dataclasses.dataclass(frozen=True)
-class PseudoLabelConfig:
-    """How the input triangulation (the pseudo-labels) is computed, once, before training.
-
-    The field names are the keyword arguments of `MultiViewDataset.with_pseudo_labels`.
-    """
-
-    method: PseudoLabelMethod = "svd"
-    """"svd" (reference), "eigh" or "normal" (closed form): the DLT with views weighted by detector
-    confidence; "unweighted": the paper's DLT, every detected view weight 1; "irls" / "ransac":
-    robust, views that disagree with the others are down-weighted / rejected (see jaxpose.robust),
-    and no loss takes a rejected detection as its target."""
-    min_views: int = 2
-    """A joint seen (confidence > 0) by fewer views (with "irls"/"ransac": fewer agreeing views)
-    gets no pseudo-label (weight 0)."""
-    threshold_px: float = robust.DEFAULT_THRESHOLD_PX
-    """"irls"/"ransac": a view agrees with a joint's 3D point when it reprojects within this many pixels."""
-    irls_iterations: int = robust.DEFAULT_IRLS_ITERATIONS
-    """"irls": re-weighting rounds before the final solve on the agreeing views."""
-    irls_scale_px: float = robust.DEFAULT_IRLS_SCALE_PX
-    """"irls": scale of the Cauchy weight 1 / (1 + (residual / scale)^2), pixels."""
 
 
 @dataclasses.dataclass(frozen=True)

@@ -23,9 +23,9 @@ from typing import Literal
 import numpy as np
 
 from experiments import cli, paper_tables
-from experiments.config import ExperimentConfig, PseudoLabelConfig, RunConfig, TrainConfig
+from experiments.config import ExperimentConfig, RunConfig, TrainConfig
 from experiments.runner import Splits
-from jaxpose.config import RESCALED_LOSS, LossConfig, ModelConfig, OptimizerConfig
+from jaxpose.config import RESCALED_LOSS, LossConfig, ModelConfig, OptimizerConfig, PseudoLabelConfig
 from jaxpose.data.h36m import DETECTION_FILES, POSES_3D_FILE, TEST_SUBJECTS, TRAIN_SUBJECTS, load_h36m
 
 

@@ -26,10 +26,11 @@ import time
 import numpy as np
 import tyro
 
-from experiments.config import PseudoLabelConfig, RunConfig, TrainConfig
+from experiments.config import RunConfig, TrainConfig
 from experiments.runner import Splits, run
 from experiments.synthetic import DEFAULT, SyntheticData, load_splits
-from jaxpose.config import ModelConfig
+from jaxpose import pseudo_labelling
+from jaxpose.config import ModelConfig, PseudoLabelConfig
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.data.synthetic import SyntheticConfig
 from jaxpose.robust import PseudoLabelMethod
@@ -90,7 +91,7 @@ def scenario_splits(scenario: str, data: SyntheticData) -> Splits:
 def label_quality(train: MultiViewDataset, method: str, options: PseudoLabelConfig) -> dict[str, float]:
     """Errors (mm) of the taught pseudo-labels of `train` against its ground truth."""
     begin = time.perf_counter()
-    labelled = train.with_pseudo_labels(**dataclasses.asdict(dataclasses.replace(options, method=method)))
+    labelled = pseudo_labelling.label(train, dataclasses.replace(options, method=method))
     seconds = time.perf_counter() - begin
     error = np.linalg.norm(labelled.pseudo3d - labelled.target3d, axis=-1)
     taught = labelled.pseudo3d_weight > 0

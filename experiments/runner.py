@@ -27,16 +27,14 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from experiments.config import ExperimentConfig, dumps, to_json_dict
-from jaxpose import checkpoint, evaluation, parallel, viz
+from jaxpose import checkpoint, evaluation, parallel, pseudo_labelling, viz
 from jaxpose.data.batch import validate_batch
 from jaxpose.data.dataset import MultiViewDataset, steps_per_epoch
 from jaxpose.losses import TERMS
 from jaxpose.train import (
     GRADIENT_SHARE_PREFIX,
     TrainState,
-    build_model,
     init_train_state,
-    make_optimizer,
     make_predict_fn,
     make_train_step,
 )
@@ -151,8 +149,8 @@ def train(config: ExperimentConfig, train_set: MultiViewDataset, run_dir: pathli
     per_epoch = steps_per_epoch(len(train_set), cfg.batch_size)
     total_steps = per_epoch * cfg.epochs
     stop_step = min(total_steps, cfg.max_steps) if cfg.max_steps > 0 else total_steps
-    model = build_model(config.model, train_set.skeleton.num_joints)
-    optimizer = make_optimizer(config.optimizer, total_steps)
+    model = config.model.build(train_set.skeleton.num_joints)
+    optimizer = config.optimizer.build(total_steps)
     mesh = parallel.data_mesh(config.parallel.data)
     init_key, dropout_key = jax.random.split(jax.random.key(cfg.seed))
     state, dropout_key = parallel.replicate((init_train_state(model, optimizer, init_key), dropout_key), mesh)
@@ -219,7 +217,7 @@ def evaluate_and_report(
     target = evaluation.poses_in_views(test, test.target3d)
     groups = test.labels.get(splits.group_label)
     valid = test.confidence[..., 0] > 0  # a view whose root was not detected cannot be lifted
-    test_triangulated = test.with_pseudo_labels(**dataclasses.asdict(config.pseudo_labels))
+    test_triangulated = pseudo_labelling.label(test, config.pseudo_labels)
     triangulation = evaluation.poses_in_views(test, test_triangulated.pseudo3d)
     mean_pose = np.broadcast_to(evaluation.mean_pose_prediction(splits.train), pred.shape)
     predictions = {
@@ -326,7 +324,7 @@ def run(config: ExperimentConfig, load_data: Callable[[Any], Splits]) -> dict:
     if not usable.all():
         log.warning("dropping %d training samples with fewer than %d usable views", int((~usable).sum()), config.pseudo_labels.min_views)
     train_set = splits.train.subset(np.flatnonzero(usable))
-    train_set = train_set.with_pseudo_labels(**dataclasses.asdict(config.pseudo_labels))
+    train_set = pseudo_labelling.label(train_set, config.pseudo_labels)
     validate_batch(train_set.batch(np.arange(len(train_set))))
     splits = dataclasses.replace(splits, train=train_set)
     try:

@@ -1,8 +1,11 @@
-"""The library's configuration dataclasses: model, losses, optimizer.
+"""The library's configuration dataclasses: model, losses, optimizer, pseudo-labels.
 
-They live in the library, not in `experiments/`, because a checkpoint must be loadable (the model
-rebuilt from its saved config) by code that knows nothing of the experiments.  The experiments'
-config tree (`experiments.config`) composes them with data, run and parallelism settings.
+Each builds what it describes (`ModelConfig.build`, `OptimizerConfig.build`, `LossConfig.weights`;
+`jaxpose.pseudo_labelling.label` takes a `PseudoLabelConfig`), so there is one place that turns
+settings into objects.  They live in the library, not in `experiments/`, because a checkpoint must
+be loadable (the model rebuilt from its saved config) by code that knows nothing of the
+experiments.  The experiments' config tree (`experiments.config`) composes them with data, run and
+parallelism settings.
 """
 
 from __future__ import annotations
@@ -12,9 +15,13 @@ from typing import Annotated, Literal
 
 import jax
 import jax.numpy as jnp
+import optax
 import tyro
 
+from jaxpose import robust
 from jaxpose.losses import LossWeights
+from jaxpose.model import Lifter
+from jaxpose.robust import PseudoLabelMethod
 
 
 @dataclasses.dataclass(frozen=True)
@@ -33,6 +40,17 @@ class ModelConfig:
     """BatchNorm after every hidden Linear layer."""
     input_normalization: Literal["intrinsics", "intrinsics_scale"] = "intrinsics_scale"
     """2D input: through K^-1 and root-relative ("intrinsics"), then scaled to unit RMS ("intrinsics_scale")."""
+
+    def build(self, num_joints: int) -> Lifter:
+        """The network for a skeleton of `num_joints` joints."""
+        return Lifter(
+            num_joints=num_joints,
+            width=self.width,
+            stages=self.stages,
+            blocks_per_stage=self.blocks_per_stage,
+            dropout_rate=self.dropout_rate,
+            use_batchnorm=self.use_batchnorm,
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,3 +117,46 @@ class OptimizerConfig:
     """With "cosine": the final learning rate as a fraction of the peak."""
     gradient_clip_norm: float = 0.0
     """Clip the global gradient norm to this value (0 = no clipping)."""
+
+    def learning_rate_schedule(self, total_steps: int) -> optax.Schedule:
+        """The learning rate at each step of a run of `total_steps` steps."""
+        if self.schedule == "constant":
+            main = optax.constant_schedule(self.learning_rate)
+        elif self.schedule == "cosine":
+            main = optax.cosine_decay_schedule(
+                self.learning_rate, max(total_steps - self.warmup_steps, 1), alpha=self.final_learning_fraction
+            )
+        else:
+            raise ValueError(f"unknown learning-rate schedule {self.schedule!r}")
+        if self.warmup_steps <= 0:
+            return main
+        warmup = optax.linear_schedule(0.0, self.learning_rate, self.warmup_steps)
+        return optax.join_schedules([warmup, main], [self.warmup_steps])
+
+    def build(self, total_steps: int) -> optax.GradientTransformation:
+        """Adam on `learning_rate_schedule(total_steps)`, after gradient clipping when it is set."""
+        adam = optax.adam(self.learning_rate_schedule(total_steps))
+        if self.gradient_clip_norm > 0:
+            return optax.chain(optax.clip_by_global_norm(self.gradient_clip_norm), adam)
+        return adam
+
+
+@dataclasses.dataclass(frozen=True)
+class PseudoLabelConfig:
+    """How the input triangulation (the pseudo-labels) is computed, once, before training
+    (`jaxpose.pseudo_labelling.label`)."""
+
+    method: PseudoLabelMethod = "svd"
+    """"svd" (reference), "eigh" or "normal" (closed form): the DLT with views weighted by detector
+    confidence; "unweighted": the paper's DLT, every detected view weight 1; "irls" / "ransac":
+    robust, views that disagree with the others are down-weighted / rejected (see jaxpose.robust),
+    and no loss takes a rejected detection as its target."""
+    min_views: int = 2
+    """A joint seen (confidence > 0) by fewer views (with "irls"/"ransac": fewer agreeing views)
+    gets no pseudo-label (weight 0)."""
+    threshold_px: float = robust.DEFAULT_THRESHOLD_PX
+    """"irls"/"ransac": a view agrees with a joint's 3D point when it reprojects within this many pixels."""
+    irls_iterations: int = robust.DEFAULT_IRLS_ITERATIONS
+    """"irls": re-weighting rounds before the final solve on the agreeing views."""
+    irls_scale_px: float = robust.DEFAULT_IRLS_SCALE_PX
+    """"irls": scale of the Cauchy weight 1 / (1 + (residual / scale)^2), pixels."""

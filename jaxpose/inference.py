@@ -38,7 +38,7 @@ from jaxpose.camera import Cameras, undistort_points
 from jaxpose.config import ModelConfig, OptimizerConfig
 from jaxpose.evaluation import predict_in_chunks
 from jaxpose.skeleton import H36M_16, H36M_17, HUMANEVA_15, ROOT, Skeleton
-from jaxpose.train import build_model, init_train_state, make_optimizer, make_predict_fn
+from jaxpose.train import init_train_state, make_predict_fn
 
 # The skeletons a lifter is trained on, by joint count.  Their counts differ; MPI-INF-3DHP-17 is
 # left out on purpose: it is a test set only, evaluated with H36M-trained lifters in H36M_17 order.
@@ -247,7 +247,7 @@ def _checkpoint_skeleton(manager: ocp.CheckpointManager, model_config: ModelConf
         except Exception:  # noqa: BLE001 - an unreadable step: try the previous one, as restore_latest does
             continue
         for num_joints, skeleton in SKELETONS_BY_JOINTS.items():
-            model = build_model(model_config, num_joints)
+            model = model_config.build(num_joints)
             dummy = jnp.zeros((1, num_joints, 2), jnp.float32)
             variables = jax.eval_shape(lambda: model.init(jax.random.key(0), dummy, train=False))
             if _param_shapes(variables["params"]) == saved:
@@ -286,11 +286,11 @@ def load(path: str | pathlib.Path, batch_size: int = DEFAULT_BATCH_SIZE) -> Lift
     if not manager.all_steps():
         raise checkpoint.CheckpointError(f"{checkpoints} holds no checkpoint (the run saves its first one later)")
     skeleton = _checkpoint_skeleton(manager, model_config)
-    model = build_model(model_config, skeleton.num_joints)
+    model = model_config.build(skeleton.num_joints)
     # The checkpoint holds the whole TrainState; an abstract template of it (shapes only, nothing
     # computed) restores it, and the optimizer state is dropped.  The schedule length does not
     # change the optimizer state's structure, hence total_steps=1.
-    optimizer = make_optimizer(optimizer_config, total_steps=1)
+    optimizer = optimizer_config.build(1)
     shapes = jax.eval_shape(lambda key: init_train_state(model, optimizer, key), jax.random.key(0))
     device = jax.sharding.SingleDeviceSharding(jax.devices()[0])
     template = jax.tree.map(lambda s: jax.ShapeDtypeStruct(s.shape, s.dtype, sharding=device), shapes)

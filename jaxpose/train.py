@@ -19,7 +19,7 @@ import optax
 from flax import struct
 
 from jaxpose.camera import normalize_keypoints
-from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
+from jaxpose.config import LossConfig, ModelConfig
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.losses import gradient_shares, input_triangulation_loss, total_loss
 from jaxpose.model import Lifter
@@ -39,39 +39,6 @@ class TrainState:
     @property
     def variables(self) -> dict[str, Any]:
         return {"params": self.params, "batch_stats": self.batch_stats}
-
-
-def build_model(config: ModelConfig, num_joints: int) -> Lifter:
-    return Lifter(
-        num_joints=num_joints,
-        width=config.width,
-        stages=config.stages,
-        blocks_per_stage=config.blocks_per_stage,
-        dropout_rate=config.dropout_rate,
-        use_batchnorm=config.use_batchnorm,
-    )
-
-
-def learning_rate_schedule(config: OptimizerConfig, total_steps: int) -> optax.Schedule:
-    if config.schedule == "constant":
-        main = optax.constant_schedule(config.learning_rate)
-    elif config.schedule == "cosine":
-        main = optax.cosine_decay_schedule(
-            config.learning_rate, max(total_steps - config.warmup_steps, 1), alpha=config.final_learning_fraction
-        )
-    else:
-        raise ValueError(f"unknown learning-rate schedule {config.schedule!r}")
-    if config.warmup_steps <= 0:
-        return main
-    warmup = optax.linear_schedule(0.0, config.learning_rate, config.warmup_steps)
-    return optax.join_schedules([warmup, main], [config.warmup_steps])
-
-
-def make_optimizer(config: OptimizerConfig, total_steps: int) -> optax.GradientTransformation:
-    adam = optax.adam(learning_rate_schedule(config, total_steps))
-    if config.gradient_clip_norm > 0:
-        return optax.chain(optax.clip_by_global_norm(config.gradient_clip_norm), adam)
-    return adam
 
 
 def init_train_state(model: Lifter, optimizer: optax.GradientTransformation, key: jax.Array) -> TrainState:

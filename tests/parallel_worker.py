@@ -26,12 +26,12 @@ from geometry_helpers import exact_batch
 from experiments import synthetic
 from experiments.config import ExperimentConfig, ParallelConfig, RunConfig, TrainConfig
 from experiments.runner import prepare_run_dir, train
-from jaxpose import parallel
+from jaxpose import parallel, pseudo_labelling
 from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.data.synthetic import SyntheticConfig
 from jaxpose.model import Lifter
-from jaxpose.train import TrainState, build_model, init_train_state, lifter_inputs, make_optimizer, make_train_step
+from jaxpose.train import TrainState, init_train_state, lifter_inputs, make_train_step
 
 STEPS = 5
 SMALL = ModelConfig(width=64)  # dropout 0.5 and BatchNorm on, as in the paper's network
@@ -52,8 +52,8 @@ class Problem:
 
 
 def reference_problem() -> Problem:
-    model = build_model(SMALL, 17)
-    optimizer = make_optimizer(OptimizerConfig(), STEPS)
+    model = SMALL.build(17)
+    optimizer = OptimizerConfig().build(STEPS)
     train_step = make_train_step(model, SMALL, optimizer, LossConfig(output_triangulation_start=0.4), STEPS)
     batch, _ = exact_batch(np.random.default_rng(0), 16, 4, 17)
     state = init_train_state(model, optimizer, jax.random.key(0))
@@ -128,7 +128,7 @@ def _process(process_id: int, count: int, port: int, run_dir: str, out: str) -> 
     config = process_config(run_dir, cluster)
     joined = parallel.initialize(cluster.coordinator_address, cluster.num_processes, cluster.process_id)
     assert joined and jax.process_count() == count, (joined, jax.process_count())
-    train_set = synthetic.load_splits(config.data).train.with_pseudo_labels()
+    train_set = pseudo_labelling.label(synthetic.load_splits(config.data).train)
     first = dataclasses.replace(config, train=dataclasses.replace(config.train, max_steps=FIRST_STEPS))
     train(first, train_set, prepare_run_dir(first))
     # The same run directory again: every process restores the checkpoint and training goes on.

@@ -10,6 +10,7 @@ import pytest
 from experiments import synthetic
 from experiments.config import ExperimentConfig, RunConfig, TrainConfig
 from experiments.runner import prepare_run_dir, train
+from jaxpose import pseudo_labelling
 from jaxpose.config import ModelConfig
 from jaxpose.data.synthetic import SyntheticConfig
 
@@ -36,7 +37,7 @@ def _tiny_config(run_dir, max_steps=0):
 
 def _train(config):
     splits = synthetic.load_splits(config.data)
-    train_set = splits.train.with_pseudo_labels()
+    train_set = pseudo_labelling.label(splits.train)
     state, _ = train(config, train_set, prepare_run_dir(config))
     return jax.device_get(state)
 

@@ -16,7 +16,9 @@ import numpy as np
 import pytest
 
 from experiments import h36m as h36m_experiment
+from jaxpose import pseudo_labelling
 from jaxpose.camera import project
+from jaxpose.config import PseudoLabelConfig
 from jaxpose.data.camera_file import read_h36m_cameras
 from jaxpose.data.h36m import CAMERA_NAMES, load_h36m
 
@@ -64,7 +66,7 @@ def test_real_s1_loads_and_its_geometry_matches_the_detections(s1_sh):
     # Every view agrees: a wrong camera order or a transposed rotation would put one view hundreds of pixels off.
     assert np.all(np.median(error, axis=(0, 2)) < 15.0)
     # The detections triangulate to within a few centimetres of the mocap for the agreeing joints.
-    labelled = dataset.with_pseudo_labels(method="ransac")
+    labelled = pseudo_labelling.label(dataset, PseudoLabelConfig(method="ransac"))
     label_error = np.median(np.linalg.norm(labelled.pseudo3d - dataset.target3d, axis=-1), axis=0)
     joint = dict(zip(dataset.skeleton.joint_names, label_error))
     assert joint["Thorax"] < 50 and joint["LShoulder"] < 50 and joint["RElbow"] < 60, joint

@@ -30,6 +30,7 @@ from geometry_helpers import exact_batch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from jaxpose import pseudo_labelling
 from jaxpose.data import BatchValidationError, validate_batch
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.data.errors import DataFormatError
@@ -95,7 +96,7 @@ def _load_and_prepare(root, loader: str):
     """Load, then what training does before the first step: pseudo-labels and `validate_batch`."""
     data = _load(root, loader)
     if isinstance(data, MultiViewDataset):
-        labelled = data.with_pseudo_labels()
+        labelled = pseudo_labelling.label(data)
         validate_batch(labelled.batch(np.arange(len(labelled))))
         arrays = [labelled.keypoints2d, labelled.target3d, labelled.pseudo3d, labelled.pseudo3d_weight]
     else:

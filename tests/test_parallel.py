@@ -28,7 +28,7 @@ from parallel_worker import (
 
 from jaxpose import checkpoint, parallel
 from jaxpose.data.dataset import steps_per_epoch
-from jaxpose.train import build_model, init_train_state, jit_train_step, make_optimizer
+from jaxpose.train import init_train_state, jit_train_step
 
 WORKER = pathlib.Path(__file__).with_name("parallel_worker.py")
 REPO = WORKER.parent.parent
@@ -108,8 +108,8 @@ def test_two_processes_train_resume_and_agree(tmp_path):
     assert sorted(int(p.name) for p in (run_dir / "checkpoints").iterdir() if p.name.isdigit())[-1] == TOTAL_STEPS
     # The checkpoint is complete on its own: a single-process restore gives the same parameters.
     config = process_config(str(run_dir))
-    model = build_model(config.model, 17)
-    optimizer = make_optimizer(config.optimizer, steps_per_epoch(SAMPLES, config.train.batch_size) * config.train.epochs)
+    model = config.model.build(17)
+    optimizer = config.optimizer.build(steps_per_epoch(SAMPLES, config.train.batch_size) * config.train.epochs)
     manager = checkpoint.checkpoint_manager(run_dir / "checkpoints", asynchronous=False)
     restored = checkpoint.restore_latest(manager, init_train_state(model, optimizer, jax.random.key(0)))
     assert int(restored.step) == TOTAL_STEPS > FIRST_STEPS

@@ -10,6 +10,8 @@ import pytest
 from geometry_helpers import LOSS_TERMS, exact_batch, look_at, random_poses
 
 from jaxpose import robust
+from jaxpose import pseudo_labelling
+from jaxpose.config import PseudoLabelConfig
 from jaxpose.camera import Cameras, normalize_keypoints, project, projection_matrices
 from jaxpose.data.batch import MultiViewBatch, validate_batch
 from jaxpose.data.dataset import MultiViewDataset
@@ -196,19 +198,19 @@ def _dataset(batch) -> MultiViewDataset:
     )
 
 
-def test_with_pseudo_labels_dispatches_and_a_bad_root_voids_its_sample(scene):
+def test_labelling_dispatches_and_a_bad_root_voids_its_sample(scene):
     batch, P = scene
     keypoints = _off_epipolar(batch, joint=0, pixels=200.0)  # view 1's root: off by 200 px ...
     keypoints = keypoints.at[:, 2:, 0].set(0.0)  # ... and only views 0 and 1 see the root
     confidence = batch.confidence.at[:, 2:, 0].set(0.0)
     data = _dataset(batch.replace(keypoints2d=keypoints, confidence=confidence))
-    plain = data.with_pseudo_labels("svd", chunk_size=4)  # chunks of 4 rows, the last one padded
+    plain = pseudo_labelling.label(data, PseudoLabelConfig("svd"), chunk_size=4)  # chunks of 4 rows, the last one padded
     np.testing.assert_array_equal(plain.pseudo3d_weight, 1.0)
     for method in ROBUST:
-        labelled = data.with_pseudo_labels(method, threshold_px=25.0, chunk_size=4)
+        labelled = pseudo_labelling.label(data, PseudoLabelConfig(method, threshold_px=25.0), chunk_size=4)
         np.testing.assert_array_equal(labelled.pseudo3d_weight, 0.0)  # root rejected -> whole sample
         validate_batch(labelled.batch(np.arange(B)))  # rejected labels need not lie in front of cameras
-    good = _dataset(batch).with_pseudo_labels("ransac", chunk_size=4)
+    good = pseudo_labelling.label(_dataset(batch), PseudoLabelConfig("ransac"), chunk_size=4)
     np.testing.assert_array_equal(good.pseudo3d_weight, 1.0)
     assert _error(good.pseudo3d, batch.target3d).max() < 1.0
 
@@ -240,9 +242,9 @@ def test_robust_labels_mark_the_outlying_detections_and_the_batch_carries_them(s
     batch, _ = scene
     keypoints = batch.keypoints2d.at[:, 1, 5].add(jnp.array([80.0, -60.0]))  # one gross outlier per sample
     data = _dataset(batch.replace(keypoints2d=keypoints))
-    assert data.with_pseudo_labels("svd").detection_weight is None  # the plain DLT rejects nothing
+    assert pseudo_labelling.label(data).detection_weight is None  # the plain DLT rejects nothing
     for method in ROBUST:
-        labelled = data.with_pseudo_labels(method, threshold_px=25.0)
+        labelled = pseudo_labelling.label(data, PseudoLabelConfig(method, threshold_px=25.0))
         expected = np.ones((B, C, J), np.float32)
         expected[:, 1, 5] = 0.0
         np.testing.assert_array_equal(labelled.detection_weight, expected, err_msg=method)
@@ -295,13 +297,20 @@ def test_an_untrusted_joint_gets_no_gradient_from_any_loss(scene):
         assert np.abs(gradient[..., 7, :]).max() > 0.0, name
 
 
-def test_config_fields_are_the_keyword_arguments_of_with_pseudo_labels(scene):
-    from experiments.config import PseudoLabelConfig
-
-    batch, _ = scene
-    config = PseudoLabelConfig(method="irls", threshold_px=30.0, irls_iterations=2, irls_scale_px=8.0)
-    labelled = _dataset(batch).with_pseudo_labels(**dataclasses.asdict(config))
-    np.testing.assert_array_equal(labelled.pseudo3d_weight, 1.0)
+def test_labelling_passes_every_config_field_to_the_solver(scene):
+    batch, P = scene
+    keypoints = batch.keypoints2d.at[:, 1, 5].add(jnp.array([12.0, -9.0]))  # 15 px off: beyond 10, within 25
+    data = _dataset(batch.replace(keypoints2d=keypoints))
+    config = PseudoLabelConfig(method="irls", min_views=3, threshold_px=10.0, irls_iterations=2, irls_scale_px=8.0)
+    labelled = pseudo_labelling.label(data, config)
+    points, weight = robust.pseudo_labels(
+        P, keypoints, batch.confidence, "irls", min_views=3, threshold_px=10.0, irls_iterations=2, irls_scale_px=8.0
+    )
+    np.testing.assert_allclose(labelled.pseudo3d, points, rtol=1e-6, atol=1e-3)
+    np.testing.assert_array_equal(labelled.pseudo3d_weight, weight * weight[:, :1])
+    np.testing.assert_array_equal(labelled.detection_weight[:, 1, 5], 0.0)  # rejected at 10 px ...
+    default = pseudo_labelling.label(data, PseudoLabelConfig(method="irls"))
+    np.testing.assert_array_equal(default.detection_weight[:, 1, 5], 1.0)  # ... kept at the default 25 px
 
 
 def test_the_comparison_command_writes_its_table(tmp_path):

@@ -9,10 +9,8 @@ from geometry_helpers import exact_batch
 
 from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.train import (
-    build_model,
     init_train_state,
     jit_train_step,
-    make_optimizer,
     make_predict_fn,
     make_train_step,
 )
@@ -21,8 +19,8 @@ SMALL = ModelConfig(width=64, dropout_rate=0.5)
 
 
 def _setup(model_config, loss_config, total_steps, num_joints=17):
-    model = build_model(model_config, num_joints)
-    optimizer = make_optimizer(OptimizerConfig(), total_steps)
+    model = model_config.build(num_joints)
+    optimizer = OptimizerConfig().build(total_steps)
     state = init_train_state(model, optimizer, jax.random.key(0))
     step = make_train_step(model, model_config, optimizer, loss_config, total_steps)
     return model, state, step

@@ -9,34 +9,15 @@ Cameras are stored once per rig (a subject's calibration) and gathered per batch
 from __future__ import annotations
 
 import dataclasses
-import functools
 from collections.abc import Iterator, Mapping
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpose import robust
-from jaxpose.camera import Cameras, projection_matrices, undistort_points
-from jaxpose.chunks import map_in_chunks
+from jaxpose.camera import Cameras, undistort_points
 from jaxpose.data.batch import MultiViewBatch
-from jaxpose.robust import PseudoLabelMethod
 from jaxpose.skeleton import Skeleton
-
-
-def _labels_and_agreeing_views(P, points2d, confidence, method, threshold_px, **options):
-    """`robust.pseudo_labels` and, for the outlier-rejecting methods, the views that agree with them."""
-    points, weight = robust.pseudo_labels(P, points2d, confidence, method, threshold_px=threshold_px, **options)
-    if method not in robust.OUTLIER_REJECTING_METHODS:
-        return points, weight, None
-    return points, weight, robust.agreeing_views(P, points2d, confidence, points, threshold_px)
-
-
-# Module-level, so that every data set (train and test splits, repeated calls) shares its compilations.
-_pseudo_labels = jax.jit(
-    _labels_and_agreeing_views,
-    static_argnames=("method", "min_views", "threshold_px", "irls_iterations", "irls_scale_px"),
-)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,7 +26,7 @@ class MultiViewDataset:
 
     keypoints2d f32[N, C, J, 2] pixels; confidence f32[N, C, J]; rigs: `Cameras` of numpy arrays
     with leading [R, C]; rig_index i32[N]; target3d f32[N, J, 3] world mm or None; pseudo3d and
-    pseudo3d_weight (f32[N, J, 3], f32[N, J]) once `with_pseudo_labels` has run, and detection_weight
+    pseudo3d_weight (f32[N, J, 3], f32[N, J]) once `jaxpose.pseudo_labelling.label` has set them, and detection_weight
     f32[N, C, J] when its method rejects outlying views (see `MultiViewBatch`); labels: per-sample
     string/int arrays such as "subject", "action", "frame" used to group evaluation results.
     """
@@ -127,7 +108,7 @@ class MultiViewDataset:
     def batch(self, indices: np.ndarray) -> MultiViewBatch:
         """Gather samples into a `MultiViewBatch` of numpy arrays (vectorized, no per-sample loop)."""
         if self.pseudo3d is None:
-            raise ValueError("dataset has no pseudo-labels yet: call with_pseudo_labels() first")
+            raise ValueError("dataset has no pseudo-labels yet: label it with jaxpose.pseudo_labelling.label first")
         return MultiViewBatch(
             keypoints2d=self.keypoints2d[indices],
             confidence=self.confidence[indices],
@@ -149,46 +130,6 @@ class MultiViewDataset:
         cameras = self.cameras_for(np.arange(len(self)))
         points = np.asarray(jax.jit(undistort_points)(cameras, jnp.asarray(self.keypoints2d)))
         return dataclasses.replace(self, keypoints2d=points.astype(np.float32), rigs=self.rigs.without_distortion())
-
-    def with_pseudo_labels(
-        self,
-        method: PseudoLabelMethod = "svd",
-        min_views: int = 2,
-        *,
-        threshold_px: float = robust.DEFAULT_THRESHOLD_PX,
-        irls_iterations: int = robust.DEFAULT_IRLS_ITERATIONS,
-        irls_scale_px: float = robust.DEFAULT_IRLS_SCALE_PX,
-        chunk_size: int = 16384,
-    ) -> "MultiViewDataset":
-        """Triangulate the detections of all views once (the input triangulation, paper Eq. 2).
-
-        `method` and the thresholds are those of `jaxpose.robust.pseudo_labels`: "svd" (default),
-        "eigh", "normal" weigh views by detector confidence, "unweighted" is the paper's plain DLT,
-        "irls" and "ransac" also reject views that disagree with the others.  A joint without
-        `min_views` (agreeing) views gets pseudo3d_weight 0.  So does every joint of a sample whose
-        root gets 0: the pseudo-label is used root-relative, so a bad root spoils every joint.
-        "irls" and "ransac" also set `detection_weight`: 0 for a detection that does not agree with
-        its joint's label, so that the losses do not take an outlier as a target either.
-        """
-        dataset = self.undistorted()
-        solve = functools.partial(
-            _pseudo_labels,
-            method=method,
-            min_views=min_views,
-            threshold_px=threshold_px,
-            irls_iterations=irls_iterations,
-            irls_scale_px=irls_scale_px,
-        )
-
-        def solve_rows(rows, keypoints2d, confidence):
-            return solve(projection_matrices(dataset.cameras_for(rows)), jnp.asarray(keypoints2d), jnp.asarray(confidence))
-
-        # Fixed-size chunks: one compilation, bounded memory.
-        rows = np.arange(len(dataset))
-        pseudo3d, weight, views = map_in_chunks(solve_rows, (rows, dataset.keypoints2d, dataset.confidence), chunk_size)
-        agreeing = views.astype(np.float32) if method in robust.OUTLIER_REJECTING_METHODS else None
-        weight = weight.astype(np.float32) * weight[:, :1]
-        return dataclasses.replace(dataset, pseudo3d=pseudo3d, pseudo3d_weight=weight, detection_weight=agreeing)
 
 
 def epoch_order(num_samples: int, seed: int, epoch: int) -> np.ndarray:
