@@ -1,8 +1,8 @@
 """The experiment config tree, shared by every data set; each entry point fills in its `data` part.
 
 Frozen dataclasses, turned into a command line by tyro: every field's docstring is its `--help`.
-The resolved tree is written to `<run_dir>/config.json`, which is also how a run directory is
-loaded for inference (`jaxpose.inference`).
+The resolved tree is written to `<run_dir>/config.json`, against which a resume checks that it
+continues the same run.  (Inference needs none of it: each checkpoint records its network.)
 """
 
 from __future__ import annotations

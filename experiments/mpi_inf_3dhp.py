@@ -40,7 +40,7 @@ class Mpi3dhpEvaluation:
     """Evaluate a Human3.6M-trained lifter on the MPI-INF-3DHP test set."""
 
     run_dir: pathlib.Path = pathlib.Path("runs/h36m_cpu")
-    """Run directory of `python -m experiments.h36m` trained with 17 joints (config.json, checkpoints/)."""
+    """Run directory of `python -m experiments.h36m` trained with 17 joints (or its checkpoints/)."""
     data_dir: pathlib.Path = pathlib.Path("data/mpi_inf_3dhp")
     """Folder holding the test set's TS1 ... TS6/annot_data.mat."""
     sequences: tuple[str, ...] = SEQUENCES

@@ -1,9 +1,10 @@
 """Train, checkpoint, resume, evaluate and report: the loop every experiment entry point shares.
 
 A run directory holds:
-  config.json      the resolved config (also what `jaxpose.inference` loads a model from)
+  config.json      the resolved config (what a resume checks it continues)
   metrics.jsonl    one line per `train.log_every` steps (appended across resumes)
-  checkpoints/     Orbax CheckpointManager steps (the newest `train.keep_checkpoints`)
+  checkpoints/     Orbax CheckpointManager steps (the newest `train.keep_checkpoints`); each holds the
+                   train state and, for `jaxpose.inference`, the variables and the network's record
   report.json/.md  the evaluation on the test split, with the reference rows
   plots/           loss curves and GT-vs-prediction skeletons (PNG)
 Ctrl-C or SIGTERM saves a checkpoint before exit; starting again on the same directory resumes.
@@ -35,6 +36,7 @@ from jaxpose.train import (
     GRADIENT_SHARE_PREFIX,
     TrainState,
     init_train_state,
+    jit_train_step,
     make_predict_fn,
     make_train_step,
 )
@@ -155,13 +157,14 @@ def train(config: ExperimentConfig, train_set: MultiViewDataset, run_dir: pathli
     init_key, dropout_key = jax.random.split(jax.random.key(cfg.seed))
     state, dropout_key = parallel.replicate((init_train_state(model, optimizer, init_key), dropout_key), mesh)
     manager = checkpoint.checkpoint_manager(run_dir / "checkpoints", cfg.keep_checkpoints)
+    lifter = checkpoint.LifterRecord(train_set.skeleton, config.model)
     restored = checkpoint.restore_latest(manager, state, discard_unreadable=True)
     metrics_path = run_dir / "metrics.jsonl"
     if restored is not None:
         state = restored
         log.info("resumed from step %d of %d", int(state.step), total_steps)
     _truncate_log(metrics_path, int(jax.device_get(state.step)))
-    step_fn = parallel.shard_train_step(make_train_step(model, config.model, optimizer, config.loss, total_steps), mesh)
+    step_fn = jit_train_step(make_train_step(model, config.model, optimizer, config.loss, total_steps), mesh)
     start = int(state.step)
     views = train_set.num_views
     log.info(
@@ -188,13 +191,13 @@ def train(config: ExperimentConfig, train_set: MultiViewDataset, run_dir: pathli
                 _append_jsonl(metrics_path, record)
                 bar.set_postfix(loss=f"{metrics['loss']:.4g}", samples_s=f"{rate:.0f}")
             if done % cfg.checkpoint_every == 0 or done == stop_step or interrupt.received is not None:
-                checkpoint.save(manager, state)
+                checkpoint.save(manager, state, lifter)
             if interrupt.received is not None:
                 manager.wait_until_finished()
                 bar.close()
                 raise Interrupted(f"stopped by signal {interrupt.received} at step {done}; checkpoint saved in {run_dir}")
     bar.close()
-    checkpoint.save(manager, state)
+    checkpoint.save(manager, state, lifter)
     manager.wait_until_finished()
     return parallel.local_replica(state), model
 

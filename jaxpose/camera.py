@@ -133,6 +133,18 @@ def projection_matrices(cameras: Cameras) -> jax.Array:
     return cameras.K @ extrinsics
 
 
+def project_with_matrices(P: jax.Array, points_world: jax.Array) -> jax.Array:
+    """World points [..., J, 3] through every view's `projection_matrices` P [..., C, 3, 4]:
+    homogeneous pixels [..., C, J, 3], whose last coordinate is the depth in mm.
+
+    The form the triangulation code works in (it holds P, not the cameras); divide by the depth,
+    where it is positive, for undistorted pixels (`project` does that, with distortion, from cameras).
+    """
+    homogeneous = jnp.concatenate([points_world, jnp.ones_like(points_world[..., :1])], axis=-1)  # [..., J, 4]
+    # Broadcast product, not einsum: the leading axes of P and the points may differ in rank (RANSAC).
+    return jnp.sum(P[..., :, None, :, :] * homogeneous[..., None, :, None, :], axis=-1)
+
+
 def undistort_points(cameras: Cameras, pixels: jax.Array, iterations: int = 20) -> jax.Array:
     """Distorted pixels [..., N, 2] -> undistorted pixels, by fixed-point iteration (jittable).
 

@@ -4,15 +4,12 @@
     lifter = inference.load("runs/synthetic")        # the run directory, or its checkpoints/
     poses = lifter.predict(keypoints2d, intrinsics=K, confidence=scores)   # f32[N, J, 3] mm
 
-A run directory (see `experiments.runner`) holds `config.json`, whose `model` and `optimizer`
-sections rebuild the network, and `checkpoints/`, Orbax steps of the `TrainState`.  Loading needs
-no data set and no training: the newest readable step is restored (an unreadable one is reported
-and the previous one used) and only its params and BatchNorm statistics are kept.
-
-Which skeleton a run lifts is not written in the run directory; the checkpoint's parameter shapes
-tell J (the network maps 2J numbers to 3J), and J names the skeleton among the lifting skeletons we
-train on (`SKELETONS_BY_JOINTS`); the synthetic main job trains on H36M_17.  Detections in COCO-17 or
-OpenPose BODY_25 layout are converted to H36M_17 with `jaxpose.keypoint_formats` first.
+A run directory (see `experiments.runner`) holds `checkpoints/`, Orbax steps that each record the
+network's skeleton and `ModelConfig` beside its variables (`jaxpose.checkpoint`).  Loading needs no
+data set, no config file and no training: of the newest readable step (an unreadable one is
+reported and the previous one used) only the record and the params and BatchNorm statistics are
+read.  The synthetic main job trains on H36M_17; detections in COCO-17 or OpenPose BODY_25 layout
+are converted to H36M_17 with `jaxpose.keypoint_formats` first.
 
 Inputs, in the conventions of docs/conventions.md: keypoints in pixels of the image the intrinsics
 describe; confidence 0 marks a missing joint (its coordinates are ignored, NaN allowed).  The root
@@ -23,7 +20,6 @@ root-relative, and its output row is NaN (the experiments' evaluation skips thos
 from __future__ import annotations
 
 import dataclasses
-import json
 import pathlib
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -31,18 +27,13 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-import orbax.checkpoint as ocp
 
 from jaxpose import checkpoint
 from jaxpose.camera import Cameras, undistort_points
-from jaxpose.config import ModelConfig, OptimizerConfig
+from jaxpose.config import ModelConfig
 from jaxpose.evaluation import predict_in_chunks
-from jaxpose.skeleton import H36M_16, H36M_17, HUMANEVA_15, ROOT, Skeleton
-from jaxpose.train import init_train_state, make_predict_fn
-
-# The skeletons a lifter is trained on, by joint count.  Their counts differ; MPI-INF-3DHP-17 is
-# left out on purpose: it is a test set only, evaluated with H36M-trained lifters in H36M_17 order.
-SKELETONS_BY_JOINTS: dict[int, Skeleton] = {s.num_joints: s for s in (H36M_17, H36M_16, HUMANEVA_15)}
+from jaxpose.skeleton import ROOT, Skeleton
+from jaxpose.train import make_predict_fn
 
 DEFAULT_BATCH_SIZE = 1024
 
@@ -208,100 +199,39 @@ def _check_intrinsics(intrinsics, image_size, count: int) -> np.ndarray:
     return K
 
 
-def _locate(path: pathlib.Path) -> tuple[pathlib.Path, pathlib.Path]:
-    """(config.json, checkpoints directory) for a run directory or its checkpoints/ directory."""
+def _checkpoints_directory(path: pathlib.Path) -> pathlib.Path:
+    """The checkpoints directory of a run directory, or `path` itself when it is one."""
     if not path.exists():
-        raise FileNotFoundError(f"{path} does not exist; expected a run directory (config.json, checkpoints/)")
-    for run_dir, checkpoints in ((path, path / "checkpoints"), (path.parent, path)):
-        if (run_dir / "config.json").is_file():
-            if not checkpoints.is_dir():
-                raise FileNotFoundError(f"{run_dir} has no checkpoints/ directory: the run has not saved a checkpoint")
-            return run_dir / "config.json", checkpoints
+        raise FileNotFoundError(f"{path} does not exist; expected a run directory (with checkpoints/) or its checkpoints/")
+    if (path / "checkpoints").is_dir():
+        return path / "checkpoints"
+    if path.name == "checkpoints" and path.is_dir():
+        return path
     raise FileNotFoundError(
-        f"no config.json in {path} or its parent; expected a run directory written by the experiments"
-        " (config.json, checkpoints/) or its checkpoints/ directory"
+        f"{path} has no checkpoints/ directory: expected a run directory written by the experiments, or its"
+        " checkpoints/ directory (a run saves its first checkpoint after `train.checkpoint-every` steps)"
     )
-
-
-def _read_section(config: dict, config_path: pathlib.Path, name: str, cls):
-    try:
-        return cls(**config[name])
-    except (KeyError, TypeError) as error:
-        raise ValueError(f"{config_path}: no valid {name!r} section for {cls.__name__} ({error!r})") from None
-
-
-def _param_shapes(tree) -> Any:
-    """The shape of every leaf (arrays, ShapeDtypeStructs or Orbax array metadata)."""
-    return jax.tree.map(lambda leaf: tuple(leaf.shape), tree)
-
-
-def _checkpoint_skeleton(manager: ocp.CheckpointManager, model_config: ModelConfig) -> Skeleton:
-    """The skeleton whose lifter (built from `model_config`) has exactly the checkpoint's parameter shapes.
-
-    Read from the newest step whose metadata is readable; comparing whole parameter trees, rather
-    than reading J off one layer, relies on nothing but the model's own definition.
-    """
-    for step in sorted(manager.all_steps(), reverse=True):
-        try:
-            saved = _param_shapes(manager.item_metadata(step)["state"]["params"])
-        except Exception:  # noqa: BLE001 - an unreadable step: try the previous one, as restore_latest does
-            continue
-        for num_joints, skeleton in SKELETONS_BY_JOINTS.items():
-            model = model_config.build(num_joints)
-            dummy = jnp.zeros((1, num_joints, 2), jnp.float32)
-            variables = jax.eval_shape(lambda: model.init(jax.random.key(0), dummy, train=False))
-            if _param_shapes(variables["params"]) == saved:
-                return skeleton
-        known = {s.name: j for j, s in SKELETONS_BY_JOINTS.items()}
-        raise ValueError(
-            f"the checkpoint in {manager.directory} does not match the network of config.json ({model_config})"
-            f" for any known skeleton {known}"
-        )
-    raise checkpoint.CheckpointError(f"no checkpoint in {manager.directory} has readable metadata")
 
 
 def load(path: str | pathlib.Path, batch_size: int = DEFAULT_BATCH_SIZE) -> Lifter3D:
     """The lifter of a run: `path` is the run directory or its checkpoints/ directory.
 
     Restores the newest readable checkpoint (on the default device).  Raises FileNotFoundError for a
-    missing run directory, config.json or checkpoints/, ValueError for a config.json without a
-    usable model section, and `jaxpose.checkpoint.CheckpointError` when no step can be read.
+    missing run directory or checkpoints/, and `jaxpose.checkpoint.CheckpointError` when no step
+    can be read.
     """
-    config_path, checkpoints = _locate(pathlib.Path(path))
-    try:
-        config = json.loads(config_path.read_text())
-    except json.JSONDecodeError as error:
-        raise ValueError(f"{config_path} is not valid JSON: {error}") from None
-    model_config = _read_section(config, config_path, "model", ModelConfig)
-    optimizer_config = _read_section(config, config_path, "optimizer", OptimizerConfig)
-    # Nothing is written: no directory is created, and the temporary directory of a save still in
-    # progress (a run that is training right now) is left alone.  (read_only=True would do the same
-    # but logs warnings on every load.)
-    options = ocp.CheckpointManagerOptions(
-        create=False, cleanup_tmp_directories=False, enable_async_checkpointing=False
-    )
-    manager = ocp.CheckpointManager(
-        checkpoints.absolute(), options=options, item_handlers={"state": ocp.StandardCheckpointHandler()}
-    )
-    if not manager.all_steps():
+    checkpoints = _checkpoints_directory(pathlib.Path(path))
+    restored = checkpoint.restore_lifter(checkpoints, jax.sharding.SingleDeviceSharding(jax.devices()[0]))
+    if restored is None:
         raise checkpoint.CheckpointError(f"{checkpoints} holds no checkpoint (the run saves its first one later)")
-    skeleton = _checkpoint_skeleton(manager, model_config)
-    model = model_config.build(skeleton.num_joints)
-    # The checkpoint holds the whole TrainState; an abstract template of it (shapes only, nothing
-    # computed) restores it, and the optimizer state is dropped.  The schedule length does not
-    # change the optimizer state's structure, hence total_steps=1.
-    optimizer = optimizer_config.build(1)
-    shapes = jax.eval_shape(lambda key: init_train_state(model, optimizer, key), jax.random.key(0))
-    device = jax.sharding.SingleDeviceSharding(jax.devices()[0])
-    template = jax.tree.map(lambda s: jax.ShapeDtypeStruct(s.shape, s.dtype, sharding=device), shapes)
-    state = checkpoint.restore_latest(manager, template)
-    manager.close()
+    step, record, variables = restored
+    model = record.model.build(record.skeleton.num_joints)
     return Lifter3D(
-        skeleton=skeleton,
-        model_config=model_config,
-        variables=state.variables,
-        step=int(state.step),
+        skeleton=record.skeleton,
+        model_config=record.model,
+        variables=variables,
+        step=step,
         source=checkpoints,
-        predict_fn=make_predict_fn(model, model_config),
+        predict_fn=make_predict_fn(model, record.model),
         batch_size=batch_size,
     )

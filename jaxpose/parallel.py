@@ -18,7 +18,7 @@ is the one-device mesh of the same code path.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any, TypeVar
 
 import jax
@@ -97,16 +97,6 @@ def replicate(tree: Tree, mesh: Mesh) -> Tree:
         return jax.make_array_from_process_local_data(sharding, np.asarray(leaf))
 
     return jax.tree.map(put, tree)
-
-
-def shard_train_step(train_step: Callable, mesh: Mesh) -> Callable:
-    """The global-view jit of `train_step(state, batch, key) -> (state, metrics)` on `mesh`.
-
-    State and key replicated, batch split by samples, outputs replicated; the state is donated,
-    as in `jaxpose.train.jit_train_step`.
-    """
-    copy, split = replicated(mesh), batch_sharding(mesh)
-    return jax.jit(train_step, in_shardings=(copy, split, copy), out_shardings=(copy, copy), donate_argnums=0)
 
 
 def local_rows(mesh: Mesh, batch_size: int) -> np.ndarray:

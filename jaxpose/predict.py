@@ -212,7 +212,7 @@ class PredictArgs:
     """The command's flags."""
 
     checkpoint: Annotated[pathlib.Path, tyro.conf.arg(metavar="RUN")]
-    """Run directory (config.json + checkpoints/) or its checkpoints/ folder; the newest readable step is used."""
+    """Run directory or its checkpoints/ folder; the newest readable step is used."""
     input: Annotated[pathlib.Path, tyro.conf.arg(metavar="FILE")]
     """COCO keypoint-results .json, OpenPose folder of *_keypoints.json, or .npz (keypoints, confidence, image_id, K)."""
     output: Annotated[pathlib.Path, tyro.conf.arg(metavar="FILE")]

@@ -44,6 +44,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxpose.camera import project_with_matrices
 from jaxpose.triangulation import Method, triangulate
 
 PseudoLabelMethod = Literal["svd", "eigh", "normal", "unweighted", "irls", "ransac"]
@@ -60,16 +61,9 @@ BEHIND_CAMERA_PX = 1e6
 _MIN_DEPTH_MM = 1e-3
 
 
-def _project(P: jax.Array, points3d: jax.Array) -> jax.Array:
-    """Points [..., J, 3] through P [..., C, 3, 4] -> homogeneous pixels [..., C, J, 3] (the last is the depth)."""
-    homogeneous = jnp.concatenate([points3d, jnp.ones_like(points3d[..., :1])], axis=-1)  # [..., J, 4]
-    # Broadcast product, not einsum: the leading axes of P and points3d may differ in rank (RANSAC).
-    return jnp.sum(P[..., :, None, :, :] * homogeneous[..., None, :, None, :], axis=-1)
-
-
 def in_front(P: jax.Array, points3d: jax.Array) -> jax.Array:
     """bool[..., C, J]: the point lies in front of the camera (positive depth)."""
-    return _project(P, points3d)[..., 2] > _MIN_DEPTH_MM
+    return project_with_matrices(P, points3d)[..., 2] > _MIN_DEPTH_MM
 
 
 def reprojection_residuals(P: jax.Array, points2d: jax.Array, points3d: jax.Array) -> jax.Array:
@@ -79,7 +73,7 @@ def reprojection_residuals(P: jax.Array, points2d: jax.Array, points3d: jax.Arra
     Points at or behind a camera get `BEHIND_CAMERA_PX`.  Garbage detections give garbage (even NaN)
     residuals: callers select with `confidence > 0` (NaN compares False with any threshold).
     """
-    projected = _project(P, points3d)
+    projected = project_with_matrices(P, points3d)
     depth = projected[..., 2]
     visible = depth > _MIN_DEPTH_MM
     pixels = projected[..., :2] / jnp.where(visible, depth, 1.0)[..., None]

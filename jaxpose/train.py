@@ -17,7 +17,9 @@ import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
+from jax.sharding import Mesh
 
+from jaxpose import parallel
 from jaxpose.camera import normalize_keypoints
 from jaxpose.config import LossConfig, ModelConfig
 from jaxpose.data.batch import MultiViewBatch
@@ -118,9 +120,16 @@ def make_train_step(
     return train_step
 
 
-def jit_train_step(train_step: Callable) -> Callable:
-    """`jax.jit` with the state donated: its buffers are reused for the new state."""
-    return jax.jit(train_step, donate_argnums=0)
+def jit_train_step(train_step: Callable, mesh: Mesh | None = None) -> Callable:
+    """The jit of `train_step(state, batch, key) -> (state, metrics)` over the devices of `mesh`
+    (None: the default device alone), the one way a train step is compiled.
+
+    State and key replicated, batch split by samples, outputs replicated (`jaxpose.parallel`); the
+    state is donated, so its buffers are reused for the new state.
+    """
+    mesh = parallel.data_mesh(1) if mesh is None else mesh
+    copy, split = parallel.replicated(mesh), parallel.batch_sharding(mesh)
+    return jax.jit(train_step, in_shardings=(copy, split, copy), out_shardings=(copy, copy), donate_argnums=0)
 
 
 def make_predict_fn(model: Lifter, model_config: ModelConfig) -> Callable[..., jax.Array]:

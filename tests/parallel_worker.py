@@ -31,7 +31,7 @@ from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.data.synthetic import SyntheticConfig
 from jaxpose.model import Lifter
-from jaxpose.train import TrainState, init_train_state, lifter_inputs, make_train_step
+from jaxpose.train import TrainState, init_train_state, jit_train_step, lifter_inputs, make_train_step
 
 STEPS = 5
 SMALL = ModelConfig(width=64)  # dropout 0.5 and BatchNorm on, as in the paper's network
@@ -61,10 +61,10 @@ def reference_problem() -> Problem:
 
 
 def sharded_run(problem: Problem, mesh) -> tuple[TrainState, dict]:
-    """`STEPS` steps of `parallel.shard_train_step` on `mesh`, and the dropout patterns of one forward pass."""
+    """`STEPS` steps of `jit_train_step` on `mesh`, and the dropout patterns of one forward pass."""
     state, key = parallel.replicate((problem.initial_state, jax.random.key(1)), mesh)
     batch = parallel.global_batch(problem.batch, mesh, len(problem.batch.pseudo3d))
-    step = parallel.shard_train_step(problem.train_step, mesh)
+    step = jit_train_step(problem.train_step, mesh)
     for _ in range(STEPS):
         state, _ = step(state, batch, key)
     copy = parallel.replicated(mesh)

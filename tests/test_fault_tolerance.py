@@ -126,10 +126,11 @@ def _corrupt_newest(job: Job) -> tuple[int, int]:
 
 
 def _corrupt_newest_in(checkpoints: pathlib.Path) -> tuple[int, int]:
-    """Truncate the largest file of the newest committed step; returns (corrupted, previous) steps."""
+    """Truncate the largest file of the newest committed step's train state (the item a resume reads);
+    returns (corrupted, previous) steps."""
     steps = sorted(int(p.name) for p in checkpoints.iterdir() if p.name.isdigit())
     assert len(steps) >= 2, steps
-    files = [p for p in (checkpoints / str(steps[-1])).rglob("*") if p.is_file()]
+    files = [p for p in (checkpoints / str(steps[-1]) / "state").rglob("*") if p.is_file()]
     largest = max(files, key=lambda p: p.stat().st_size)
     with largest.open("r+b") as handle:
         handle.truncate(largest.stat().st_size // 2)
@@ -192,15 +193,18 @@ def test_killed_and_corrupted_runs_end_bit_identical_to_an_uninterrupted_one(tmp
 def test_restore_latest_reports_an_unreadable_step_and_can_discard_it(tmp_path):
     """In-process and fast: the fallback itself, and that a resuming run can save the step again."""
     from jaxpose import checkpoint
+    from jaxpose.config import ModelConfig
+    from jaxpose.skeleton import H36M_17
     from jaxpose.train import TrainState
 
     def state(step: int) -> TrainState:
         params = {"w": jnp.full((64, 64), float(step))}
         return TrainState(step=jnp.asarray(step), params=params, batch_stats={}, opt_state=())
 
+    lifter = checkpoint.LifterRecord(H36M_17, ModelConfig())
     manager = checkpoint.checkpoint_manager(tmp_path, asynchronous=False)
     for step in (1, 2):
-        checkpoint.save(manager, state(step))
+        checkpoint.save(manager, state(step), lifter)
     corrupted, _ = _corrupt_newest_in(tmp_path)
     assert corrupted == 2
     with pytest.warns(UserWarning, match="checkpoint step 2 .* unreadable"):
@@ -210,7 +214,7 @@ def test_restore_latest_reports_an_unreadable_step_and_can_discard_it(tmp_path):
         restored = checkpoint.restore_latest(manager, state(0), discard_unreadable=True)
     np.testing.assert_array_equal(restored.params["w"], 1.0)
     assert manager.all_steps() == [1]
-    checkpoint.save(manager, state(2))
+    checkpoint.save(manager, state(2), lifter)
     assert int(checkpoint.restore_latest(manager, state(0)).step) == 2
     with pytest.raises(checkpoint.CheckpointError, match="no readable checkpoint"), pytest.warns(UserWarning):
         checkpoint.restore_latest(manager, state(0).replace(params={"w": jnp.zeros((3,))}), discard_unreadable=True)

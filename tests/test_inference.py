@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import pathlib
 import shutil
 
 import numpy as np
@@ -15,7 +16,7 @@ import pytest
 
 from experiments import synthetic as synthetic_job
 from help_text import assert_every_flag_documented
-from jaxpose import evaluation, inference, predict
+from jaxpose import checkpoint, evaluation, inference, predict
 from jaxpose.camera import project_from_camera, world_to_camera
 from jaxpose.data.synthetic import SyntheticConfig
 from jaxpose.keypoint_formats import OPENPOSE_25_JOINT_NAMES, coco17_to_h36m17
@@ -243,21 +244,47 @@ def test_cli_errors(trained_run, tmp_path):
     incomplete = tmp_path / "incomplete"
     incomplete.mkdir()
     shutil.copy(run_dir / "config.json", incomplete)
-    runs = [(tmp_path / "nowhere", "does not exist"), (incomplete, "no checkpoints/"), (tmp_path, "no config.json")]
-    for checkpoint, message in runs:
+    runs = [(tmp_path / "nowhere", "does not exist"), (incomplete, "no checkpoints/"), (tmp_path, "no checkpoints/")]
+    for run, message in runs:
         with pytest.raises(SystemExit, match=message):
-            _cli("--checkpoint", checkpoint, "--input", tmp_path / "j17.npz", "--output", tmp_path / "o.json")
-    # A config.json that does not describe the checkpoint's network.
-    mismatched = tmp_path / "mismatched"
-    shutil.copytree(run_dir / "checkpoints", mismatched / "checkpoints")
-    config = json.loads((run_dir / "config.json").read_text())
-    config["model"]["width"] = 32
-    (mismatched / "config.json").write_text(json.dumps(config))
-    with pytest.raises(SystemExit, match="does not match the network of config.json"):
-        _cli("--checkpoint", mismatched, "--input", tmp_path / "j17.npz", "--output", tmp_path / "o.npz")
+            _cli("--checkpoint", run, "--input", tmp_path / "j17.npz", "--output", tmp_path / "o.json")
     (incomplete / "checkpoints").mkdir()
     with pytest.raises(SystemExit, match="holds no checkpoint"):
         _cli("--checkpoint", incomplete / "checkpoints", "--input", tmp_path / "j17.npz", "--output", tmp_path / "o.npz")
+
+
+def _newest_step(checkpoints) -> pathlib.Path:
+    return max((p for p in checkpoints.iterdir() if p.name.isdigit()), key=lambda p: int(p.name))
+
+
+def test_a_checkpoint_alone_rebuilds_its_lifter(trained_run, lifter, tmp_path):
+    """The checkpoint records its network: without config.json (or anything else of the run) the
+    checkpoints folder loads to the same lifter."""
+    checkpoints = tmp_path / "copy" / "checkpoints"
+    shutil.copytree(trained_run[0] / "checkpoints", checkpoints)
+    alone = inference.load(checkpoints)
+    assert (alone.skeleton, alone.model_config, alone.step) == (lifter.skeleton, lifter.model_config, lifter.step)
+    keypoints, confidence, K = (a[:64] for a in _views(trained_run[1]))
+    np.testing.assert_array_equal(alone.predict(keypoints, K, confidence), lifter.predict(keypoints, K, confidence))
+    # Only the variables are restored: a step whose optimizer state is unreadable still loads.
+    shutil.rmtree(_newest_step(checkpoints) / "state")
+    assert inference.load(checkpoints).step == lifter.step
+
+
+def test_a_checkpoint_without_a_matching_lifter_record_is_refused(trained_run, tmp_path):
+    checkpoints = tmp_path / "checkpoints"
+    shutil.copytree(trained_run[0] / "checkpoints", checkpoints)
+    steps = sorted((p for p in checkpoints.iterdir() if p.name.isdigit()), key=lambda p: int(p.name))
+    for step in steps:  # a record whose network is not the one saved
+        record_file = next((step / "lifter").glob("*"))
+        record = json.loads(record_file.read_text())
+        record["model"]["width"] = 32
+        record_file.write_text(json.dumps(record))
+    with pytest.raises(checkpoint.CheckpointError, match="do not match the network of its 'lifter' item"), pytest.warns(UserWarning):
+        inference.load(checkpoints)
+    shutil.rmtree(steps[-1] / "lifter")  # written before checkpoints recorded their network
+    with pytest.raises(checkpoint.CheckpointError, match="no 'lifter' item"), pytest.warns(UserWarning):
+        inference.load(checkpoints)
 
 
 def test_cli_help_documents_every_flag(capsys):

@@ -28,7 +28,7 @@ from parallel_worker import (
 
 from jaxpose import checkpoint, parallel
 from jaxpose.data.dataset import steps_per_epoch
-from jaxpose.train import init_train_state, jit_train_step
+from jaxpose.train import init_train_state
 
 WORKER = pathlib.Path(__file__).with_name("parallel_worker.py")
 REPO = WORKER.parent.parent
@@ -66,10 +66,10 @@ def _relative_error(a: np.ndarray, b: np.ndarray) -> float:
 def test_eight_devices_train_as_one(tmp_path):
     out, log = tmp_path / "sharded.npz", tmp_path / "sharded.log"
     worker = _start_worker(["sharded", str(out)], devices=8, log=log)
-    # Meanwhile, the single-device references: the plain jitted step, and the sharded step on a
-    # one-device mesh, which must be the very same computation.
+    # Meanwhile, the single-device references: a plain `jax.jit` of the step (no shardings), and
+    # `jit_train_step` on a one-device mesh, which must be the very same computation.
     problem = reference_problem()
-    plain_step, state = jit_train_step(problem.train_step), problem.initial_state
+    plain_step, state = jax.jit(problem.train_step), problem.initial_state
     for _ in range(STEPS):
         state, _ = plain_step(state, jax.device_put(problem.batch), jax.random.key(1))
     plain = jax.device_get(state)
