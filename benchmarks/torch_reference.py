@@ -44,8 +44,8 @@ class ResidualBlock(nn.Module):
         return x + self.layers(x)
 
 
-class Lifter(nn.Module):
-    """[N, J, 2] normalized 2D -> [N, J, 3] root-relative mm (root row zero), as `jaxpose.model.Lifter`."""
+class LifterNetwork(nn.Module):
+    """[N, J, 2] normalized 2D -> [N, J, 3] root-relative mm (root row zero), as `jaxpose.model.LifterNetwork`."""
 
     def __init__(self, num_joints: int, width: int = 1024, stages: int = 2, blocks_per_stage: int = 2, dropout: float = 0.5):
         super().__init__()
@@ -178,7 +178,7 @@ def make_step(arrays: dict[str, np.ndarray], compiled: bool, seed: int = 0) -> C
     torch.manual_seed(seed)
     batch = tensors(arrays)
     B, C, J, _ = batch["keypoints2d"].shape
-    model = Lifter(J).train()
+    model = LifterNetwork(J).train()
     optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
 
     def loss_fn() -> torch.Tensor:

@@ -37,7 +37,7 @@ from jaxpose.train import (
     TrainState,
     init_train_state,
     jit_train_step,
-    make_predict_fn,
+    make_eval_step,
     make_train_step,
 )
 
@@ -215,8 +215,8 @@ def evaluate_and_report(
     test = splits.test
     if test.target3d is None:
         raise ValueError("the test split has no 3D ground truth to evaluate against")
-    predict_fn = make_predict_fn(model, config.model)
-    pred = evaluation.predict_all_views(predict_fn, state.variables, test, config.train.eval_batch_size)
+    eval_step = make_eval_step(model, config.model)
+    pred = evaluation.lift_every_view(eval_step, state.variables, test, config.train.eval_batch_size)
     target = evaluation.poses_in_views(test, test.target3d)
     groups = test.labels.get(splits.group_label)
     valid = test.confidence[..., 0] > 0  # a view whose root was not detected cannot be lifted

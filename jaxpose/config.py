@@ -20,13 +20,13 @@ import tyro
 
 from jaxpose import robust
 from jaxpose.losses import LossWeights
-from jaxpose.model import Lifter
+from jaxpose.model import LifterNetwork
 from jaxpose.robust import PseudoLabelMethod
 
 
 @dataclasses.dataclass(frozen=True)
 class ModelConfig:
-    """The lifter (see `jaxpose.model.Lifter`) and how a 2D pose is turned into its input."""
+    """The lifter (see `jaxpose.model.LifterNetwork`) and how a 2D pose is turned into its input."""
 
     width: int = 1024
     """Hidden width of every layer."""
@@ -41,9 +41,9 @@ class ModelConfig:
     input_normalization: Literal["intrinsics", "intrinsics_scale"] = "intrinsics_scale"
     """2D input: through K^-1 and root-relative ("intrinsics"), then scaled to unit RMS ("intrinsics_scale")."""
 
-    def build(self, num_joints: int) -> Lifter:
+    def build(self, num_joints: int) -> LifterNetwork:
         """The network for a skeleton of `num_joints` joints."""
-        return Lifter(
+        return LifterNetwork(
             num_joints=num_joints,
             width=self.width,
             stages=self.stages,

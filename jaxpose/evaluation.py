@@ -29,36 +29,22 @@ def poses_in_views(dataset: MultiViewDataset, poses_world: np.ndarray) -> np.nda
     return in_camera - in_camera[..., :1, :]
 
 
-def predict_all_views(
-    predict_fn: Callable[..., jax.Array], variables, dataset: MultiViewDataset, batch_size: int = 16384
+def lift_every_view(
+    eval_step: Callable[..., jax.Array], variables, dataset: MultiViewDataset, batch_size: int = 16384
 ) -> np.ndarray:
     """Single-view predictions for every view of every sample: [N, C, J, 3] mm.
 
-    Batches are padded to a fixed size so the predictor compiles once.
+    Chunks are padded to a fixed size (`jaxpose.chunks.map_in_chunks`) so the eval step compiles once.
     """
     dataset = dataset.undistorted()
     N, C, J, _ = dataset.keypoints2d.shape
     keypoints = dataset.keypoints2d.reshape(N * C, J, 2)
     confidence = dataset.confidence.reshape(N * C, J)
     K = np.asarray(dataset.rigs.K)[dataset.rig_index].reshape(N * C, 3, 3)
-    out = predict_in_chunks(predict_fn, variables, keypoints, K, confidence, min(batch_size, N * C))
+    lift = functools.partial(eval_step, variables)
+    out = map_in_chunks(lift, (keypoints, K, confidence), min(batch_size, N * C))
     return out.reshape(N, C, J, 3)
 
-
-def predict_in_chunks(
-    predict_fn: Callable[..., jax.Array],
-    variables,
-    keypoints2d: np.ndarray,
-    K: np.ndarray,
-    confidence: np.ndarray,
-    chunk_size: int,
-) -> np.ndarray:
-    """Single-view predictions [M, J, 3] mm for keypoints2d [M, J, 2], K [M, 3, 3], confidence [M, J].
-
-    Every call of `predict_fn` gets exactly `chunk_size` rows (`jaxpose.chunks.map_in_chunks`), so
-    it compiles once per chunk size.
-    """
-    return map_in_chunks(functools.partial(predict_fn, variables), (keypoints2d, K, confidence), chunk_size)
 
 
 def compute_metrics(pred: np.ndarray, target: np.ndarray, chunk: int = 65536) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:

@@ -20,6 +20,7 @@ root-relative, and its output row is NaN (the experiments' evaluation skips thos
 from __future__ import annotations
 
 import dataclasses
+import functools
 import pathlib
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -31,9 +32,9 @@ import numpy as np
 from jaxpose import checkpoint
 from jaxpose.camera import Cameras, undistort_points
 from jaxpose.config import ModelConfig
-from jaxpose.evaluation import predict_in_chunks
+from jaxpose.chunks import map_in_chunks
 from jaxpose.skeleton import ROOT, Skeleton
-from jaxpose.train import make_predict_fn
+from jaxpose.train import make_eval_step
 
 DEFAULT_BATCH_SIZE = 1024
 
@@ -83,7 +84,7 @@ class Lifter3D:
     """The training step of the restored checkpoint."""
     source: pathlib.Path
     """The checkpoints directory it was restored from."""
-    predict_fn: Callable[..., jax.Array] = dataclasses.field(repr=False)
+    eval_step: Callable[..., jax.Array] = dataclasses.field(repr=False)
     batch_size: int = DEFAULT_BATCH_SIZE
     """The most poses per jitted call."""
 
@@ -130,10 +131,9 @@ class Lifter3D:
         poses = np.full((count, self.num_joints, 3), np.nan, np.float32)
         liftable = np.flatnonzero(confidence[:, ROOT] > 0)
         if len(liftable):
-            poses[liftable] = predict_in_chunks(
-                self.predict_fn, self.variables, keypoints[liftable], K[liftable], confidence[liftable],
-                _chunk_size(len(liftable), self.batch_size),
-            )
+            lift = functools.partial(self.eval_step, self.variables)
+            inputs = (keypoints[liftable], K[liftable], confidence[liftable])
+            poses[liftable] = map_in_chunks(lift, inputs, _chunk_size(len(liftable), self.batch_size))
         return poses[0] if single else poses
 
     def _check_keypoints(self, keypoints: np.ndarray, confidence) -> tuple[np.ndarray, np.ndarray]:
@@ -232,6 +232,6 @@ def load(path: str | pathlib.Path, batch_size: int = DEFAULT_BATCH_SIZE) -> Lift
         variables=variables,
         step=step,
         source=checkpoints,
-        predict_fn=make_predict_fn(model, record.model),
+        eval_step=make_eval_step(model, record.model),
         batch_size=batch_size,
     )

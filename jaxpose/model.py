@@ -170,7 +170,7 @@ class ResidualBlock(nn.Module):
         return x + y
 
 
-class Lifter(nn.Module):
+class LifterNetwork(nn.Module):
     """Root-relative 2D pose (normalized, [..., J, 2]) -> root-relative 3D pose in mm [..., J, 3].
 
     Each stage is a DenseBlock to `width` followed by `blocks_per_stage` residual blocks; the
@@ -188,7 +188,7 @@ class Lifter(nn.Module):
     @nn.compact
     def __call__(self, keypoints: jax.Array, train: bool) -> jax.Array:
         if keypoints.shape[-2:] != (self.num_joints, 2):
-            raise ValueError(f"Lifter: expected inputs [..., {self.num_joints}, 2], got {keypoints.shape}")
+            raise ValueError(f"LifterNetwork: expected inputs [..., {self.num_joints}, 2], got {keypoints.shape}")
         leading = keypoints.shape[:-2]
         x = keypoints.reshape(-1, self.num_joints * 2)
         for _ in range(self.stages):

@@ -45,7 +45,7 @@ LIFT_BLOCK = 16384
 
 
 @dataclasses.dataclass(frozen=True)
-class Detections:
+class DetectionFile:
     """Poses read from an input file, in the file's joint layout."""
 
     keypoints: np.ndarray
@@ -76,16 +76,16 @@ def _triplets(values: Sequence[float], where: str, expected: int | None = None) 
     return array.reshape(-1, 3)
 
 
-def _from_triplets(triplets: list[np.ndarray], image_ids: list[Any], layout: str, where: str) -> Detections:
+def _from_triplets(triplets: list[np.ndarray], image_ids: list[Any], layout: str, where: str) -> DetectionFile:
     if not triplets:
         raise ValueError(f"{where}: no poses to lift")
     if len({len(t) for t in triplets}) > 1:
         raise ValueError(f"{where}: poses have different numbers of keypoints {sorted({len(t) for t in triplets})}")
     stacked = np.stack(triplets)
-    return Detections(stacked[..., :2], stacked[..., 2], image_ids, layout)
+    return DetectionFile(stacked[..., :2], stacked[..., 2], image_ids, layout)
 
 
-def read_coco_results(path: pathlib.Path) -> Detections:
+def read_coco_results(path: pathlib.Path) -> DetectionFile:
     """COCO keypoint results: one pose per entry, in file order."""
     entries = _load_json(path)
     if not isinstance(entries, list):
@@ -99,7 +99,7 @@ def read_coco_results(path: pathlib.Path) -> Detections:
     return _from_triplets(triplets, image_ids, "coco17", str(path))
 
 
-def read_openpose(path: pathlib.Path) -> Detections:
+def read_openpose(path: pathlib.Path) -> DetectionFile:
     """OpenPose JSON: a folder of `*_keypoints.json` frames (sorted by name) or one such file."""
     files = sorted(path.glob("*" + OPENPOSE_SUFFIX)) if path.is_dir() else [path]
     if not files:
@@ -118,7 +118,7 @@ def read_openpose(path: pathlib.Path) -> Detections:
     return _from_triplets(triplets, image_ids, "openpose25", str(path))
 
 
-def read_npz(path: pathlib.Path) -> Detections:
+def read_npz(path: pathlib.Path) -> DetectionFile:
     """keypoints [N, J, 2], optional confidence [N, J], image_id [N], K [N, 3, 3]."""
     with np.load(path, allow_pickle=False) as data:
         if "keypoints" not in data:
@@ -134,10 +134,10 @@ def read_npz(path: pathlib.Path) -> Detections:
         raise ValueError(f"{path}: 'image_id' has {len(image_ids)} entries for {count} poses")
     if intrinsics is not None and intrinsics.shape != (count, 3, 3):
         raise ValueError(f"{path}: 'K' must be [N, 3, 3] = {(count, 3, 3)}, got {intrinsics.shape}")
-    return Detections(keypoints, scores, image_ids, None, intrinsics)
+    return DetectionFile(keypoints, scores, image_ids, None, intrinsics)
 
 
-def read_detections(path: pathlib.Path) -> Detections:
+def read_detections(path: pathlib.Path) -> DetectionFile:
     """Dispatch on the path: folder -> OpenPose, .npz, .json (COCO results list or one OpenPose frame)."""
     if not path.exists():
         raise FileNotFoundError(f"input {path} does not exist")

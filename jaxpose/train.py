@@ -24,7 +24,7 @@ from jaxpose.camera import normalize_keypoints
 from jaxpose.config import LossConfig, ModelConfig
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.losses import gradient_shares, input_triangulation_loss, total_loss
-from jaxpose.model import Lifter
+from jaxpose.model import LifterNetwork
 
 
 # Metric-name prefix of each term's share of the gradient w.r.t. the lifter output (`gradient_shares`).
@@ -43,7 +43,7 @@ class TrainState:
         return {"params": self.params, "batch_stats": self.batch_stats}
 
 
-def init_train_state(model: Lifter, optimizer: optax.GradientTransformation, key: jax.Array) -> TrainState:
+def init_train_state(model: LifterNetwork, optimizer: optax.GradientTransformation, key: jax.Array) -> TrainState:
     dummy = jnp.zeros((2, model.num_joints, 2), jnp.float32)
     variables = model.init({"params": key}, dummy, train=False)
     params = variables["params"]
@@ -65,7 +65,7 @@ def output_triangulation_start_step(loss: LossConfig, total_steps: int) -> int:
 
 
 def make_loss_fn(
-    model: Lifter, model_config: ModelConfig, loss: LossConfig, output_start_step: int
+    model: LifterNetwork, model_config: ModelConfig, loss: LossConfig, output_start_step: int
 ) -> Callable[..., tuple[jax.Array, tuple[dict[str, jax.Array], Any]]]:
     """loss_fn(params, batch_stats, batch, dropout_key, step) -> (loss, (metrics, new batch_stats))."""
 
@@ -94,7 +94,7 @@ def make_loss_fn(
 
 
 def make_train_step(
-    model: Lifter,
+    model: LifterNetwork,
     model_config: ModelConfig,
     optimizer: optax.GradientTransformation,
     loss: LossConfig,
@@ -132,13 +132,13 @@ def jit_train_step(train_step: Callable, mesh: Mesh | None = None) -> Callable:
     return jax.jit(train_step, in_shardings=(copy, split, copy), out_shardings=(copy, copy), donate_argnums=0)
 
 
-def make_predict_fn(model: Lifter, model_config: ModelConfig) -> Callable[..., jax.Array]:
-    """Jitted single-view inference (the eval step):
-    predict(variables, keypoints2d [N, J, 2] undistorted px, K [N, 3, 3], confidence [N, J]) -> [N, J, 3] mm."""
+def make_eval_step(model: LifterNetwork, model_config: ModelConfig) -> Callable[..., jax.Array]:
+    """Jitted single-view inference: eval_step(variables, keypoints2d [N, J, 2] undistorted px,
+    K [N, 3, 3], confidence [N, J]) -> [N, J, 3] mm, root-relative in the camera frame."""
 
     @jax.jit
-    def predict(variables, keypoints2d, K, confidence):
+    def eval_step(variables, keypoints2d, K, confidence):
         inputs = normalize_keypoints(keypoints2d, K, confidence, model_config.input_normalization)
         return model.apply(variables, inputs, train=False)
 
-    return predict
+    return eval_step

@@ -30,7 +30,7 @@ from jaxpose import parallel, pseudo_labelling
 from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.data.synthetic import SyntheticConfig
-from jaxpose.model import Lifter
+from jaxpose.model import LifterNetwork
 from jaxpose.train import TrainState, init_train_state, jit_train_step, lifter_inputs, make_train_step
 
 STEPS = 5
@@ -45,7 +45,7 @@ FIRST_STEPS, TOTAL_STEPS, SAMPLES = 2, 4, 64  # the multi-process run: 1 epoch o
 class Problem:
     """16 exact samples x 4 views, the small lifter, and its pure train step (L_out on from step 2)."""
 
-    model: Lifter
+    model: LifterNetwork
     train_step: Callable
     initial_state: TrainState
     batch: MultiViewBatch

@@ -1,6 +1,5 @@
 """Geometry: projection, undistortion, projection matrices and DLT triangulation."""
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest

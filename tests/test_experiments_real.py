@@ -4,7 +4,6 @@ their presets, paper-layout tables, --help and missing-data errors."""
 
 import dataclasses
 import json
-import re
 
 import pytest
 

@@ -1,6 +1,5 @@
 """Robust pseudo-labels: outlier and swap rejection, validity weights, NaN-proof masking, dispatch."""
 
-import dataclasses
 import functools
 
 import jax

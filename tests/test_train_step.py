@@ -2,7 +2,6 @@
 
 import chex
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 from geometry_helpers import exact_batch
@@ -11,7 +10,7 @@ from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.train import (
     init_train_state,
     jit_train_step,
-    make_predict_fn,
+    make_eval_step,
     make_train_step,
 )
 
@@ -75,7 +74,7 @@ def test_dropout_masks_depend_on_the_step_and_are_reproducible():
 def test_predict_is_single_view_and_root_relative():
     batch, _ = exact_batch(np.random.default_rng(4), 8, 4, 17)
     model, state, _ = _setup(SMALL, LossConfig(), 10)
-    predict = make_predict_fn(model, SMALL)
+    predict = make_eval_step(model, SMALL)
     pose = predict(state.variables, batch.keypoints2d[:, 0], batch.cameras.K[:, 0], batch.confidence[:, 0])
     assert pose.shape == (8, 17, 3)
     assert np.all(np.asarray(pose[:, 0]) == 0.0)
