@@ -148,7 +148,8 @@ def restore_lifter(
     checkpoints recorded their network).
     """
     options = ocp.CheckpointManagerOptions(create=False, cleanup_tmp_directories=False, enable_async_checkpointing=False)
-    handlers = {"variables": ocp.StandardCheckpointHandler(), "lifter": ocp.JsonCheckpointHandler()}
+    handlers = {name: ocp.StandardCheckpointHandler() for name in ("state", "variables")}
+    handlers["lifter"] = ocp.JsonCheckpointHandler()
 
     def restore_step(step: int) -> tuple[int, LifterRecord, dict[str, Any]]:
         if not (pathlib.Path(manager.directory) / str(step) / "lifter").is_dir():

@@ -14,34 +14,14 @@ import shutil
 import numpy as np
 import pytest
 
-from experiments import synthetic as synthetic_job
 from help_text import assert_help_documents_every_field
 from jaxpose import checkpoint, evaluation, inference, predict
 from jaxpose.camera import project_from_camera, world_to_camera
-from jaxpose.data.synthetic import SyntheticConfig
 from jaxpose.keypoint_formats import OPENPOSE_25_JOINT_NAMES, coco17_to_h36m17
 from jaxpose.skeleton import COCO_17, H36M_17
 
 METHOD = "Lifter, self-supervised (ours)"
 IMAGE_SIZE = (1000, 1000)  # the synthetic rig's images
-
-
-@pytest.fixture(scope="module")
-def trained_run(tmp_path_factory):
-    """A tiny self-supervised synthetic run: (run directory, its test split)."""
-    run_dir = tmp_path_factory.mktemp("run") / "synthetic"
-    synthetic_job.main([
-        "--run.run-dir", str(run_dir), "--model.width", "64", "--train.epochs", "1", "--train.max-steps", "30",
-        "--data.generator.samples-per-subject", "200", "--run.no-progress", "--run.plot-samples", "0",
-    ])  # fmt: skip
-    generator = json.loads((run_dir / "config.json").read_text())["data"]["generator"]
-    generator = SyntheticConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in generator.items()})
-    return run_dir, synthetic_job.load_splits(synthetic_job.SyntheticData(generator)).test
-
-
-@pytest.fixture(scope="module")
-def lifter(trained_run):
-    return inference.load(trained_run[0])
 
 
 def _views(test):

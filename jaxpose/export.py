@@ -1,0 +1,154 @@
+"""Ship a trained lifter: a self-contained single-view model in ONNX and in JAX's serialized form.
+
+    python -m jaxpose.export runs/synthetic --output lifter.onnx
+
+writes, for the newest readable checkpoint of the run:
+
+  lifter.onnx         ONNX (converted by jax2onnx; `pip install 'jaxpose[export]'`), runnable with
+                      onnxruntime alone; the skeleton and its joint names are in its metadata
+  lifter.jax_export   the same function serialized with `jax.export` (JAX only, no jaxpose needed:
+                      `jax.export.deserialize(data).call(keypoints, K, confidence)`)
+  lifter.json         the metadata of both: skeleton, joint names, inputs, output, units, step
+
+The model takes what `jaxpose.inference.Lifter3D.predict` takes, for any number B of poses:
+
+  keypoints   f32[B, J, 2]  undistorted pixels, in the skeleton's joint order
+  K           f32[B, 3, 3]  the intrinsics of each pose's camera
+  confidence  f32[B, J]     > 0 detected, 0 missing (a missing joint's coordinates are ignored)
+
+and returns `pose3d_mm` f32[B, J, 3]: root-relative millimetres in each camera's frame (x right,
+y down, z forward); rows whose root (joint 0) is missing are NaN.  Distorted detections must be
+undistorted first (`Lifter3D.predict(distortion=...)` does it; the exported model does not).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import pathlib
+from collections.abc import Callable
+from typing import Annotated, Any
+
+import jax
+import jax.numpy as jnp
+import tyro
+
+from jaxpose import checkpoint
+from jaxpose.camera import normalize_keypoints
+from jaxpose.inference import Lifter3D, load
+from jaxpose.skeleton import ROOT
+
+INPUT_NAMES = ("keypoints", "K", "confidence")
+OUTPUT_NAME = "pose3d_mm"
+JAX_SUFFIX = ".jax_export"
+
+
+def single_view_function(lifter: Lifter3D) -> Callable[[jax.Array, jax.Array, jax.Array], jax.Array]:
+    """The lifter as one pure function (keypoints, K, confidence) -> pose3d_mm, its variables baked
+    in: what `Lifter3D.predict` computes for undistorted keypoints, missing joints and roots included."""
+    model = lifter.model_config.build(lifter.num_joints)
+    normalization = lifter.model_config.input_normalization
+
+    def lift(keypoints: jax.Array, K: jax.Array, confidence: jax.Array) -> jax.Array:
+        detected = confidence > 0
+        keypoints = jnp.where(detected[..., None], keypoints, 0.0)  # NaN in a missing joint stays out
+        poses = model.apply(lifter.variables, normalize_keypoints(keypoints, K, confidence, normalization), train=False)
+        return jnp.where(detected[:, ROOT, None, None], poses, jnp.nan)
+
+    return lift
+
+
+def metadata(lifter: Lifter3D) -> dict[str, Any]:
+    """What a user of the exported model needs to know, without jaxpose."""
+    J = lifter.num_joints
+    return {
+        "skeleton": lifter.skeleton.name,
+        "joint_names": list(lifter.joint_names),
+        "inputs": {
+            "keypoints": f"f32[B, {J}, 2] undistorted pixels, joints in joint_names order",
+            "K": "f32[B, 3, 3] camera intrinsics",
+            "confidence": f"f32[B, {J}] > 0 detected, 0 missing",
+        },
+        "output": {OUTPUT_NAME: f"f32[B, {J}, 3] root-relative mm in the camera frame (x right, y down, z forward); NaN rows where the root is missing"},
+        "step": lifter.step,
+        "model": dataclasses.asdict(lifter.model_config),
+    }
+
+
+def _input_shapes(num_joints: int, batch) -> list[jax.ShapeDtypeStruct]:
+    return [
+        jax.ShapeDtypeStruct((batch, num_joints, 2), jnp.float32),
+        jax.ShapeDtypeStruct((batch, 3, 3), jnp.float32),
+        jax.ShapeDtypeStruct((batch, num_joints), jnp.float32),
+    ]
+
+
+def export_jax(lifter: Lifter3D, path: str | pathlib.Path) -> pathlib.Path:
+    """Write the `jax.export` serialization of `single_view_function`, for any batch size."""
+    (batch,) = jax.export.symbolic_shape("B")
+    exported = jax.export.export(jax.jit(single_view_function(lifter)))(*_input_shapes(lifter.num_joints, batch))
+    path = pathlib.Path(path)
+    path.write_bytes(exported.serialize())
+    return path
+
+
+def export_onnx(lifter: Lifter3D, path: str | pathlib.Path) -> pathlib.Path:
+    """Write `single_view_function` as an ONNX model with a dynamic batch axis and the metadata.
+
+    Raises ImportError without the `export` extra (jax2onnx, onnx), and whatever jax2onnx raises for
+    an operation it cannot convert (its message names the JAX primitive).
+    """
+    import onnx
+    from jax2onnx import to_onnx
+
+    # onnx_ir logs a warning for every shape constant it serializes without a declared type.
+    logging.getLogger("onnx_ir.serde").setLevel(logging.ERROR)
+    shapes = [("B", *s.shape[1:]) for s in _input_shapes(lifter.num_joints, 1)]
+    model = to_onnx(
+        single_view_function(lifter), shapes, model_name="jaxpose_lifter",
+        input_names=list(INPUT_NAMES), output_names=[OUTPUT_NAME],
+    )  # fmt: skip
+    onnx.helper.set_model_props(model, {key: json.dumps(value) for key, value in metadata(lifter).items()})
+    path = pathlib.Path(path)
+    onnx.save(model, path)
+    return path
+
+
+@dataclasses.dataclass(frozen=True)
+class ExportArgs:
+    """Export a trained lifter as ONNX and as a `jax.export` serialization, with a metadata JSON."""
+
+    run_dir: tyro.conf.Positional[Annotated[pathlib.Path, tyro.conf.arg(metavar="RUN_DIR")]]
+    """Run directory (or its checkpoints/ folder); the newest readable checkpoint is exported."""
+    output: pathlib.Path = pathlib.Path("lifter.onnx")
+    """The ONNX file to write; the JAX form (suffix .jax_export) and the metadata (.json) go beside it."""
+    onnx: bool = True
+    """Write the ONNX model (needs `pip install 'jaxpose[export]'`); --no-onnx writes the JAX form only."""
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = tyro.cli(ExportArgs, args=argv, description=__doc__, prog="python -m jaxpose.export")
+    try:
+        lifter = load(args.run_dir)
+    except (FileNotFoundError, checkpoint.CheckpointError) as error:
+        raise SystemExit(f"error: {error}") from None
+    output = args.output.with_suffix(".onnx")
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.with_suffix(".json").write_text(json.dumps(metadata(lifter), indent=2) + "\n")
+    print(f"wrote {export_jax(lifter, output.with_suffix(JAX_SUFFIX))} and {output.with_suffix('.json')}")
+    if not args.onnx:
+        return
+    try:
+        print(f"wrote {export_onnx(lifter, output)}")
+    except ImportError as error:
+        raise SystemExit(f"error: the ONNX export needs jax2onnx and onnx ({error}); pip install 'jaxpose[export]'") from None
+    except Exception as error:  # noqa: BLE001 - a conversion failure: report it, the JAX form is written
+        raise SystemExit(
+            f"error: jax2onnx could not convert the lifter ({type(error).__name__}: {error}); only the JAX form"
+            f" {output.with_suffix(JAX_SUFFIX)} was written"
+        ) from None
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,69 @@
+"""The exported lifter (`python -m jaxpose.export`): ONNX run by onnxruntime and the `jax.export`
+form, each against `Lifter3D.predict` on the shared tiny trained synthetic run."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import numpy as np
+import onnx
+import onnxruntime
+import pytest
+
+from help_text import assert_every_flag_documented
+from jaxpose import export
+
+TOLERANCE_MM = 0.01
+
+
+def _poses(test, count: int):
+    """`count` single-view test poses (keypoints, K, confidence), with a missing joint whose
+    coordinates are NaN and a pose whose root is missing among them."""
+    N, C, J, _ = test.keypoints2d.shape
+    keypoints = test.keypoints2d.reshape(N * C, J, 2)[:count].copy()
+    confidence = test.confidence.reshape(N * C, J)[:count].copy()
+    K = np.asarray(test.rigs.K)[test.rig_index].reshape(N * C, 3, 3)[:count].astype(np.float32)
+    confidence[1, 5], keypoints[1, 5] = 0.0, np.nan
+    confidence[2, 0] = 0.0
+    return keypoints, K, confidence
+
+
+@pytest.fixture(scope="module")
+def exported(trained_run, tmp_path_factory):
+    output = tmp_path_factory.mktemp("export") / "lifter.onnx"
+    export.main([str(trained_run[0]), "--output", str(output)])
+    return output
+
+
+def test_onnx_model_matches_predict_and_carries_the_joint_names(exported, trained_run, lifter):
+    session = onnxruntime.InferenceSession(str(exported))
+    assert [i.name for i in session.get_inputs()] == list(export.INPUT_NAMES)
+    for count in (3, 57):  # the batch axis is dynamic
+        keypoints, K, confidence = _poses(trained_run[1], count)
+        (poses,) = session.run(None, {"keypoints": keypoints, "K": K, "confidence": confidence})
+        expected = lifter.predict(keypoints, K, confidence)
+        assert poses.shape == (count, lifter.num_joints, 3)
+        np.testing.assert_array_equal(np.isnan(poses).all((1, 2)), confidence[:, 0] == 0)
+        np.testing.assert_allclose(poses, expected, atol=TOLERANCE_MM, rtol=0)  # NaN rows compare equal
+    properties = {p.key: json.loads(p.value) for p in onnx.load(str(exported)).metadata_props}
+    assert properties["joint_names"] == list(lifter.joint_names) and properties["skeleton"] == lifter.skeleton.name
+    assert json.loads(exported.with_suffix(".json").read_text())["joint_names"] == list(lifter.joint_names)
+
+
+def test_jax_form_matches_predict(exported, trained_run, lifter):
+    restored = jax.export.deserialize(exported.with_suffix(export.JAX_SUFFIX).read_bytes())
+    keypoints, K, confidence = _poses(trained_run[1], 11)
+    poses = np.asarray(restored.call(keypoints, K, confidence))
+    np.testing.assert_allclose(poses, lifter.predict(keypoints, K, confidence), atol=TOLERANCE_MM, rtol=0)
+
+
+def test_errors_and_help(tmp_path, capsys):
+    with pytest.raises(SystemExit, match="no checkpoints/"):
+        export.main([str(tmp_path), "--output", str(tmp_path / "lifter.onnx")])
+    with pytest.raises(SystemExit) as stop:
+        export.main(["--help"])
+    assert stop.value.code == 0
+    text = capsys.readouterr().out
+    assert_every_flag_documented(text, ["--output", "--onnx"])
+    assert "RUN_DIR" in text and "newest readable checkpoint" in text
