@@ -37,6 +37,12 @@ class TrainConfig:
     """Checkpoints kept on disk (the newest ones)."""
     eval_batch_size: int = 16384
     """Poses per inference call during evaluation."""
+    eval_every: int = 0
+    """Steps between evaluations of the current model on a fixed subset of the test split (0 = never),
+    logged as eval_p_mpjpe / eval_mpjpe to metrics.jsonl, TensorBoard and plots/periodic_evaluation.png.
+    For watching a run only: nothing is selected on it, and the report is always the final checkpoint."""
+    eval_samples: int = 1000
+    """Test samples (with all their views) in each periodic evaluation: a fixed, evenly spaced subset."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,6 +58,10 @@ class RunConfig:
     """Test samples drawn as GT-vs-prediction skeletons in the report."""
     progress: bool = True
     """Show progress bars."""
+    tensorboard: bool = True
+    """Also write TensorBoard event files to <run_dir>/tensorboard while training (needs tensorboardX:
+    pip install 'jaxpose[monitor]'; without it a warning, and metrics.jsonl as always).  Watch with
+    `tensorboard --logdir runs/`."""
 
 
 @dataclasses.dataclass(frozen=True)

@@ -135,14 +135,65 @@ def _truncate_log(path: pathlib.Path, step: int) -> None:
     path.write_text("".join(json.dumps(record) + "\n" for record in kept))
 
 
+class RunLog:
+    """The run's metric lines: appended to metrics.jsonl and, where tensorboardX is installed, written
+    as TensorBoard scalars (`<group>/<name>`) to <run_dir>/tensorboard.  Process 0 writes."""
+
+    def __init__(self, run_dir: pathlib.Path, start_step: int, tensorboard: bool):
+        self.path = run_dir / "metrics.jsonl"
+        _truncate_log(self.path, start_step)
+        self.writer = None
+        if not tensorboard or jax.process_index() != 0:
+            return
+        try:
+            from tensorboardX import SummaryWriter
+        except ImportError:
+            log.warning("no TensorBoard events: tensorboardX is not installed (pip install 'jaxpose[monitor]')")
+            return
+        # purge_step: a resumed run replays the steps after its checkpoint; TensorBoard drops their
+        # first logging, as `_truncate_log` does for metrics.jsonl.
+        self.writer = SummaryWriter(str(run_dir / "tensorboard"), purge_step=start_step or None, flush_secs=5)
+
+    def write(self, group: str, record: dict) -> None:
+        _append_jsonl(self.path, record)
+        if self.writer is not None:
+            for name, value in record.items():
+                if name != "step":
+                    self.writer.add_scalar(f"{group}/{name}", value, record["step"])
+            self.writer.flush()
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+
+
+def periodic_evaluation(config: ExperimentConfig, test: MultiViewDataset, model) -> Callable[[Any], dict]:
+    """variables -> {eval_p_mpjpe, eval_mpjpe} (mm) on `config.train.eval_samples` evenly spaced test samples."""
+    rows = np.unique(np.linspace(0, len(test) - 1, min(config.train.eval_samples, len(test))).astype(int))
+    subset = test.subset(rows)
+    target = evaluation.poses_in_views(subset, subset.target3d)
+    valid = subset.confidence[..., 0] > 0
+    eval_step = make_eval_step(model, config.model)
+
+    def evaluate(variables) -> dict:
+        pred = evaluation.lift_every_view(eval_step, variables, subset, config.train.eval_batch_size)
+        overall = evaluation.evaluate_poses(pred, target, None, valid)["overall"]
+        return {"eval_p_mpjpe": overall["p_mpjpe"], "eval_mpjpe": overall["mpjpe"]}
+
+    return evaluate
+
+
 def _read_jsonl(path: pathlib.Path) -> list[dict]:
     if not path.exists():
         return []
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
 
-def train(config: ExperimentConfig, train_set: MultiViewDataset, run_dir: pathlib.Path) -> tuple[TrainState, Any]:
+def train(
+    config: ExperimentConfig, train_set: MultiViewDataset, run_dir: pathlib.Path, test_set: MultiViewDataset | None = None
+) -> tuple[TrainState, Any]:
     """Train (or resume) on `train_set`, which must carry pseudo-labels.  Returns (state, model).
+    With `train.eval_every`, a subset of `test_set` is evaluated every so many steps (monitoring only).
 
     Data parallel over `config.parallel.data` devices of all processes (`jaxpose.parallel`); the
     returned state is this process's copy, on one local device.
@@ -159,11 +210,12 @@ def train(config: ExperimentConfig, train_set: MultiViewDataset, run_dir: pathli
     manager = checkpoint.checkpoint_manager(run_dir / "checkpoints", cfg.keep_checkpoints)
     lifter = checkpoint.LifterRecord(train_set.skeleton, config.model)
     restored = checkpoint.restore_latest(manager, state, discard_unreadable=True)
-    metrics_path = run_dir / "metrics.jsonl"
     if restored is not None:
         state = restored
         log.info("resumed from step %d of %d", int(state.step), total_steps)
-    _truncate_log(metrics_path, int(jax.device_get(state.step)))
+    run_log = RunLog(run_dir, int(jax.device_get(state.step)), config.run.tensorboard)
+    learning_rate = config.optimizer.learning_rate_schedule(total_steps)
+    evaluate = periodic_evaluation(config, test_set, model) if cfg.eval_every > 0 and test_set is not None else None
     step_fn = jit_train_step(make_train_step(model, config.model, optimizer, config.loss, total_steps), mesh)
     start = int(state.step)
     views = train_set.num_views
@@ -188,15 +240,19 @@ def train(config: ExperimentConfig, train_set: MultiViewDataset, run_dir: pathli
                 rate = (done - last_step) * cfg.batch_size / max(now - last_time, 1e-9)
                 last_time, last_step = now, done
                 record = {"step": done, "epoch": done / per_epoch, "samples_per_s": rate, **metrics}
-                _append_jsonl(metrics_path, record)
+                run_log.write("train", record | {"learning_rate": float(learning_rate(step))})
                 bar.set_postfix(loss=f"{metrics['loss']:.4g}", samples_s=f"{rate:.0f}")
+            if evaluate is not None and (done % cfg.eval_every == 0 or done == stop_step):
+                run_log.write("eval", {"step": done, **evaluate(parallel.local_replica(state).variables)})
             if done % cfg.checkpoint_every == 0 or done == stop_step or interrupt.received is not None:
                 checkpoint.save(manager, state, lifter)
             if interrupt.received is not None:
                 manager.wait_until_finished()
                 bar.close()
+                run_log.close()
                 raise Interrupted(f"stopped by signal {interrupt.received} at step {done}; checkpoint saved in {run_dir}")
     bar.close()
+    run_log.close()
     checkpoint.save(manager, state, lifter)
     manager.wait_until_finished()
     return parallel.local_replica(state), model
@@ -236,7 +292,8 @@ def evaluate_and_report(
             subset = evaluation.evaluate_poses(poses[..., agreeing, :], target[..., agreeing, :], groups, valid)
             rows[name]["agreeing_joints"] = {k: subset[k] for k in ("overall", "group_average") if k in subset}
     history = _read_jsonl(run_dir / "metrics.jsonl")
-    shares = {k.removeprefix(GRADIENT_SHARE_PREFIX): v for k, v in (history[-1] if history else {}).items() if k.startswith(GRADIENT_SHARE_PREFIX)}
+    last_train = next((r for r in reversed(history) if "loss" in r), {})
+    shares = {k.removeprefix(GRADIENT_SHARE_PREFIX): v for k, v in last_train.items() if k.startswith(GRADIENT_SHARE_PREFIX)}
     report = {
         "method": method_name,
         "results": rows,
@@ -294,7 +351,14 @@ def gradient_share_table(shares: dict[str, float], step: int) -> str:
 
 
 def _plots(config, test: MultiViewDataset, pred, target, run_dir: pathlib.Path) -> None:
-    history = _read_jsonl(run_dir / "metrics.jsonl")
+    records = _read_jsonl(run_dir / "metrics.jsonl")
+    history = [r for r in records if "loss" in r]
+    evaluations = [r for r in records if "eval_p_mpjpe" in r]
+    if evaluations:
+        curves = {name: [(r["step"], r[f"eval_{key}"]) for r in evaluations] for key, name in (("p_mpjpe", "P-MPJPE (mm)"), ("mpjpe", "MPJPE (mm)"))}
+        figure = viz.figure_loss_curves(curves, log_y=False, overlay=True)
+        figure.suptitle("periodic evaluation on a test subset (monitoring only; the report is the final checkpoint)")
+        viz.save_figure(figure, run_dir / "plots" / "periodic_evaluation.png")
     if history:
         keys = [k for k in ("loss", *TERMS, "supervised") if k in history[-1]]
         curves = {k: [(r["step"], r[k]) for r in history if k in r] for k in keys}
@@ -331,7 +395,7 @@ def run(config: ExperimentConfig, load_data: Callable[[Any], Splits]) -> dict:
     validate_batch(train_set.batch(np.arange(len(train_set))))
     splits = dataclasses.replace(splits, train=train_set)
     try:
-        state, model = train(config, train_set, run_dir)
+        state, model = train(config, train_set, run_dir, splits.test)
     except Interrupted as stop:
         log.warning("%s", stop)
         raise SystemExit(130) from None

@@ -123,3 +123,40 @@ def test_ablation_runs_the_five_loss_configurations(tmp_path):
     config = json.loads((tmp_path / "2_reprojection" / "config.json").read_text())
     assert config["loss"]["input_triangulation"] == 0.0 and config["loss"]["reprojection"] == 1.0
     assert ablation.SUPERVISED_LABEL in table and (tmp_path / "comparison.md").exists()
+
+
+def _tensorboard_scalars(directory) -> dict[str, list[tuple[int, float]]]:
+    """tag -> [(step, value)] of every event file under `directory`, read from the TFRecord framing
+    (u64 length, u32 crc, Event proto, u32 crc) with tensorboardX's own Event message."""
+    from tensorboardX.proto.event_pb2 import Event
+
+    scalars: dict[str, list[tuple[int, float]]] = {}
+    for path in sorted(directory.rglob("events.out.tfevents.*")):
+        data, offset = path.read_bytes(), 0
+        while offset < len(data):
+            length = int.from_bytes(data[offset : offset + 8], "little")
+            event = Event.FromString(data[offset + 12 : offset + 12 + length])
+            offset += 12 + length + 4
+            for value in event.summary.value:
+                scalars.setdefault(value.tag, []).append((event.step, value.simple_value))
+    return scalars
+
+
+def test_periodic_evaluation_and_tensorboard_curves(tmp_path):
+    """--train.eval-every logs the current model's test errors while training, to metrics.jsonl and
+    TensorBoard; over the whole test split, its last value is the report's (the final checkpoint)."""
+    run_dir = tmp_path / "run"
+    args = [*TINY_ARGS, "--run.run-dir", str(run_dir), "--train.eval-every", "4", "--train.eval-samples", "100000"]
+    report = synthetic.main(args)
+    records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    evaluations = [r for r in records if "eval_p_mpjpe" in r]
+    total = report["train_steps"]
+    assert [r["step"] for r in evaluations] == [*range(4, total, 4), total]
+    final = report["results"]["Lifter, self-supervised (ours)"]["overall"]
+    assert evaluations[-1]["eval_p_mpjpe"] == pytest.approx(final["p_mpjpe"], abs=1e-3)
+    assert evaluations[-1]["eval_mpjpe"] == pytest.approx(final["mpjpe"], abs=1e-3)
+    assert (run_dir / "plots" / "periodic_evaluation.png").exists()
+    scalars = _tensorboard_scalars(run_dir / "tensorboard")
+    for tag in ("train/loss", "train/learning_rate", "train/samples_per_s", "train/grad_share_reprojection"):
+        assert [step for step, _ in scalars[tag]] == [r["step"] for r in records if "loss" in r], tag
+    assert scalars["eval/eval_p_mpjpe"] == [(r["step"], pytest.approx(r["eval_p_mpjpe"], rel=1e-6)) for r in evaluations]
