@@ -163,7 +163,8 @@ def restore_lifter(
         except (KeyError, TypeError) as error:
             raise CheckpointError(f"its 'lifter' item {record} is not a skeleton and a ModelConfig ({error!r})") from None
         # Compared before restoring: a clear message, and Orbax is not left with a half-done read.
-        expected, saved = _shapes(lifter.abstract_variables()), _shapes(manager.item_metadata(step)["variables"])
+        abstract = lifter.abstract_variables()
+        expected, saved = _shapes(abstract), _shapes(manager.item_metadata(step)["variables"])
         if saved != expected:
             differ = sorted(path for path in expected.keys() | saved.keys() if expected.get(path) != saved.get(path))
             raise CheckpointError(
@@ -171,9 +172,7 @@ def restore_lifter(
                 f" {saved.get(differ[0])} in the checkpoint, {expected.get(differ[0])} in that network"
                 f" ({len(differ)} leaves differ)"
             )
-        abstract = jax.tree.map(
-            lambda s: jax.ShapeDtypeStruct(s.shape, s.dtype, sharding=sharding), lifter.abstract_variables()
-        )
+        abstract = jax.tree.map(lambda s: jax.ShapeDtypeStruct(s.shape, s.dtype, sharding=sharding), abstract)
         restored = manager.restore(step, args=ocp.args.Composite(variables=ocp.args.StandardRestore(abstract)))
         return step, lifter, restored["variables"]
 

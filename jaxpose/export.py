@@ -35,7 +35,6 @@ import jax.numpy as jnp
 import tyro
 
 from jaxpose import checkpoint
-from jaxpose.camera import normalize_keypoints
 from jaxpose.inference import Lifter3D, load
 from jaxpose.skeleton import ROOT
 
@@ -47,13 +46,11 @@ JAX_SUFFIX = ".jax_export"
 def single_view_function(lifter: Lifter3D) -> Callable[[jax.Array, jax.Array, jax.Array], jax.Array]:
     """The lifter as one pure function (keypoints, K, confidence) -> pose3d_mm, its variables baked
     in: what `Lifter3D.predict` computes for undistorted keypoints, missing joints and roots included."""
-    model = lifter.model_config.build(lifter.num_joints)
-    normalization = lifter.model_config.input_normalization
 
     def lift(keypoints: jax.Array, K: jax.Array, confidence: jax.Array) -> jax.Array:
         detected = confidence > 0
         keypoints = jnp.where(detected[..., None], keypoints, 0.0)  # NaN in a missing joint stays out
-        poses = model.apply(lifter.variables, normalize_keypoints(keypoints, K, confidence, normalization), train=False)
+        poses = lifter.eval_step(lifter.variables, keypoints, K, confidence)
         return jnp.where(detected[:, ROOT, None, None], poses, jnp.nan)
 
     return lift
