@@ -19,6 +19,9 @@ in input order; or ``.npz`` with ``pose3d_mm`` f32[N, J, 3] (NaN rows), ``valid`
 and ``joint_names`` [J].  Poses are root-relative, in mm, in the camera frame (x right, y down,
 z forward).  A pose whose root (the pelvis; for COCO/OpenPose both hips) was not detected cannot be
 lifted: null / NaN.
+
+``--animation clip.gif`` (or ``.mp4``) animates a sequence, one frame per image id: the 2D input beside
+the lifted 3D pose.
 """
 
 from __future__ import annotations
@@ -58,6 +61,8 @@ class DetectionFile:
     """The keypoint_formats name of the file's layout; None = the checkpoint's own layout."""
     intrinsics: np.ndarray | None = None
     """f32[N, 3, 3], when the file gives a camera per pose."""
+    frame_ids: list[Any] | None = None
+    """Every frame in sequence order, those without a pose too (OpenPose files); None: the sorted image_ids."""
 
 
 def _load_json(path: pathlib.Path) -> Any:
@@ -76,13 +81,15 @@ def _triplets(values: Sequence[float], where: str, expected: int | None = None) 
     return array.reshape(-1, 3)
 
 
-def _from_triplets(triplets: list[np.ndarray], image_ids: list[Any], layout: str, where: str) -> DetectionFile:
+def _from_triplets(
+    triplets: list[np.ndarray], image_ids: list[Any], layout: str, where: str, frame_ids: list[Any] | None = None
+) -> DetectionFile:
     if not triplets:
         raise ValueError(f"{where}: no poses to lift")
     if len({len(t) for t in triplets}) > 1:
         raise ValueError(f"{where}: poses have different numbers of keypoints {sorted({len(t) for t in triplets})}")
     stacked = np.stack(triplets)
-    return DetectionFile(stacked[..., :2], stacked[..., 2], image_ids, layout)
+    return DetectionFile(stacked[..., :2], stacked[..., 2], image_ids, layout, frame_ids=frame_ids)
 
 
 def read_coco_results(path: pathlib.Path) -> DetectionFile:
@@ -105,17 +112,18 @@ def read_openpose(path: pathlib.Path) -> DetectionFile:
     if not files:
         raise FileNotFoundError(f"{path} holds no OpenPose files (*{OPENPOSE_SUFFIX})")
     joints = len(OPENPOSE_25_JOINT_NAMES)  # BODY_25; OpenPose's COCO-18 model is not supported
-    triplets, image_ids = [], []
+    triplets, image_ids, frame_ids = [], [], []
     for file in tqdm(files, desc="reading", unit="file", disable=len(files) < 1000):
         frame = _load_json(file)
         if not isinstance(frame, dict):
             raise ValueError(f"{file}: expected an OpenPose frame {{'people': [{{'pose_keypoints_2d': [...]}}, ...]}}")
         image_id = file.name.removesuffix(OPENPOSE_SUFFIX)
+        frame_ids.append(image_id)
         for person, entry in enumerate(frame.get("people", [])):
             values = entry.get("pose_keypoints_2d", [])
             triplets.append(_triplets(values, f"{file}: person {person} 'pose_keypoints_2d' (BODY_25)", joints))
             image_ids.append(image_id)
-    return _from_triplets(triplets, image_ids, "openpose25", str(path))
+    return _from_triplets(triplets, image_ids, "openpose25", str(path), frame_ids)
 
 
 def read_npz(path: pathlib.Path) -> DetectionFile:
@@ -207,6 +215,42 @@ def save_plots(
     return saved
 
 
+def _sequence_order(image_id: Any) -> tuple[bool, Any]:
+    """Numbers first, numerically, then names as strings sort."""
+    return isinstance(image_id, str), image_id
+
+
+def animation_frames(
+    image_ids: list[Any], confidence: np.ndarray, poses: np.ndarray, frame_ids: list[Any] | None
+) -> tuple[list[Any], list[int | None]]:
+    """The frames in sequence order and the pose each one shows (None: no pose in that frame).
+
+    A frame with several poses shows the one with the highest mean keypoint confidence, lifted ones first.
+    """
+    rank = list(zip(np.isfinite(poses).all((1, 2)), confidence.mean(1)))
+    shown: dict[Any, int] = {}
+    for index, image_id in enumerate(image_ids):
+        if image_id not in shown or rank[index] > rank[shown[image_id]]:
+            shown[image_id] = index
+    frames = frame_ids if frame_ids is not None else sorted(shown, key=_sequence_order)
+    return frames, [shown.get(frame) for frame in frames]
+
+
+def save_animation(
+    path: pathlib.Path, keypoints, confidence, poses, image_ids, frame_ids, skeleton, image_size, fps: float
+) -> pathlib.Path:
+    """`viz.save_pose_animation` of one pose per frame (`animation_frames`); a frame without one is blank."""
+    frames, shown = animation_frames(image_ids, confidence, poses, frame_ids)
+    blank = len(poses)  # the index of a row appended for frames without a pose
+    rows = [blank if index is None else index for index in shown]
+    joints = keypoints.shape[1]
+    keypoints = np.concatenate([keypoints, np.full((1, joints, 2), np.nan, np.float32)])[rows]
+    confidence = np.concatenate([confidence, np.zeros((1, joints), np.float32)])[rows]
+    poses = np.concatenate([poses, np.full((1, joints, 3), np.nan, np.float32)])[rows]
+    titles = [f"image {frame}" + (" (no pose)" if index is None else "") for frame, index in zip(frames, shown)]
+    return viz.save_pose_animation(path, poses, skeleton, keypoints, confidence, image_size, titles, fps)
+
+
 @dataclasses.dataclass(frozen=True)
 class PredictArgs:
     """The command's flags."""
@@ -230,14 +274,26 @@ class PredictArgs:
     """Save 2D-detection / 3D-pose figures (PNG) of the first lifted poses into DIR."""
     plot_count: int = 4
     """Poses --plot draws."""
+    animation: Annotated[pathlib.Path | None, tyro.conf.arg(metavar="FILE")] = None
+    """Write an animation of the sequence, .gif or .mp4 by suffix (.mp4 needs ffmpeg: on PATH, or pip install
+    'jaxpose[video]'): a frame per image id (numbers in numerical order, names as they sort; OpenPose frames
+    in file order, empty ones too), the 2D input beside the lifted 3D pose, at limits fixed over the sequence.
+    A frame with several people shows the pose with the highest mean keypoint score, lifted ones first."""
+    fps: float = 10.0
+    """Frames per second of --animation."""
     batch_size: int = inference.DEFAULT_BATCH_SIZE
     """Most poses per jitted lifter call."""
 
 
 def run(args: PredictArgs) -> np.ndarray:
-    """The whole command: read, convert, lift, write, plot.  Returns the poses f32[N, J, 3]."""
+    """The whole command: read, convert, lift, write, plot, animate.  Returns the poses f32[N, J, 3]."""
     if args.output.suffix not in OUTPUT_SUFFIXES:
         raise ValueError(f"--output {args.output}: the suffix must be one of {OUTPUT_SUFFIXES}")
+    if args.animation is not None:
+        try:  # a wrong suffix, or no encoder for .mp4, fails before the lifting
+            viz.check_animation_path(args.animation, args.fps)
+        except ValueError as error:
+            raise ValueError(f"--animation {error}") from None
     detections = read_detections(args.input)
     layout = args.format or detections.layout
     if layout is None:
@@ -274,6 +330,12 @@ def run(args: PredictArgs) -> np.ndarray:
             args.plot, keypoints, confidence, poses, detections.image_ids, lifter.skeleton, image_size, args.plot_count
         )
         print(f"saved {len(saved)} figures to {args.plot}", file=sys.stderr)
+    if args.animation is not None:
+        save_animation(
+            args.animation, keypoints, confidence, poses, detections.image_ids, detections.frame_ids,
+            lifter.skeleton, image_size, args.fps,
+        )  # fmt: skip
+        print(f"saved the animation {args.animation}", file=sys.stderr)
     return poses
 
 

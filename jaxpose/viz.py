@@ -2,6 +2,7 @@
 
 Figures are built with `matplotlib.figure.Figure`, not pyplot: no global state, no display needed,
 nothing is ever shown; the caller saves them (`save_figure`) or lets a notebook render them.
+`save_pose_animation` writes a pose sequence as a .gif or .mp4 instead.
 
 Conventions (docs/conventions.md): 2D keypoints in pixels, image y pointing down; 3D poses in mm in
 a camera frame (x right, y down, z forward).  3D panels plot (x, z, -y), so the person stands
@@ -12,9 +13,12 @@ RIGHT_COLOR, the rest (spine, head, root) CENTER_COLOR.
 
 from __future__ import annotations
 
+import contextlib
 import math
+import warnings
 from pathlib import Path
 
+import matplotlib as mpl
 import numpy as np
 from matplotlib import animation
 from matplotlib import pyplot as plt
@@ -22,6 +26,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import MaxNLocator
+from tqdm.auto import tqdm
 
 from jaxpose.skeleton import Skeleton
 
@@ -34,6 +39,9 @@ GT_STYLE = {"color": "0.55", "linestyle": "--", "linewidth": 1.5, "marker": ""}
 REPROJECTION_STYLE = {"color": "black", "linestyle": ":", "linewidth": 1.0, "marker": "x", "markersize": 3.0}
 # A three-quarter view from slightly above and behind the camera.
 VIEW_3D = {"elev": 12.0, "azim": -70.0}
+ANIMATION_SUFFIXES = (".gif", ".mp4")
+# 4 x 4 inch panels at 100 dpi: 400 px a panel keeps the labels readable and a .gif frame under 1 MB.
+ANIMATION_DPI = 100
 
 
 def _as_array(values, shape: tuple[int | None, ...], name: str) -> np.ndarray:
@@ -271,27 +279,121 @@ def figure_loss_curves(
     return fig
 
 
-def save_sequence_gif(poses, skeleton: Skeleton, path, fps: int = 10) -> Path:
-    """Animate a 3D pose sequence [T, J, 3] (mm, camera frame) to a GIF at `path`; returns the path.
+def _movie_writer(path: Path, fps: float) -> tuple[animation.AbstractMovieWriter, dict[str, str]]:
+    """The matplotlib writer for `path`'s suffix and the rcParams it runs under; ValueError naming what is wrong."""
+    if not fps > 0:
+        raise ValueError(f"{path}: fps must be positive, got {fps}")
+    suffix = path.suffix.lower()
+    if suffix == ".gif":
+        return animation.PillowWriter(fps=fps), {}
+    if suffix != ".mp4":
+        raise ValueError(f"{path}: the suffix must be one of {ANIMATION_SUFFIXES}")
+    ffmpeg = _ffmpeg_executable()
+    if ffmpeg is None:
+        raise ValueError(
+            f"{path}: an .mp4 needs the ffmpeg encoder: pip install 'jaxpose[video]' (it bundles one) or put"
+            " ffmpeg on PATH; a .gif needs nothing more"
+        )
+    return animation.FFMpegWriter(fps=fps), {"animation.ffmpeg_path": ffmpeg}
 
-    The limits are fixed over the whole sequence, so motion is not hidden by rescaling.
+
+@contextlib.contextmanager
+def _starting_ffmpeg():
+    """Silence JAX's warning on a fork of its threads: subprocess forks and at once execs ffmpeg, taking no lock."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", r"os\.fork\(\) was called", RuntimeWarning)
+        yield
+
+
+def _ffmpeg_executable() -> str | None:
+    """The ffmpeg matplotlib is set to use (by default the one on PATH), else the one imageio-ffmpeg bundles."""
+    if animation.FFMpegWriter.isAvailable():
+        return animation.FFMpegWriter.bin_path()
+    try:
+        import imageio_ffmpeg  # the 'video' extra; imported here as only an .mp4 needs it
+
+        with _starting_ffmpeg():  # it runs `ffmpeg -version` to check the binary
+            return imageio_ffmpeg.get_ffmpeg_exe()
+    except (ImportError, RuntimeError):  # RuntimeError: installed without a binary for this platform
+        return None
+
+
+def check_animation_path(path, fps: float = 10.0) -> None:
+    """Raise the ValueError `save_pose_animation` would for `path` and `fps` (suffix, frame rate, encoder), before
+    any work is done."""
+    _movie_writer(Path(path), fps)
+
+
+def _fix_image_frame(ax: Axes, keypoints: np.ndarray, image_size: tuple[float, float] | None) -> None:
+    """Fixed 2D limits: the whole image when its size is known, else every finite keypoint [..., 2] plus a margin."""
+    if image_size is not None:
+        _set_image_size(ax, image_size)
+        return
+    finite = keypoints[np.isfinite(keypoints).all(axis=-1)]
+    if finite.size:
+        low, high = finite.min(axis=0), finite.max(axis=0)
+        margin = max(0.1 * np.ptp(finite, axis=0).max(), 1.0)
+        ax.set_xlim(low[0] - margin, high[0] + margin)
+        ax.set_ylim(high[1] + margin, low[1] - margin)  # y down, as in the image
+
+
+def save_pose_animation(
+    path, poses, skeleton: Skeleton, keypoints2d=None, confidence=None,
+    image_size: tuple[float, float] | None = None, titles=None, fps: float = 10.0,
+) -> Path:
+    """Animate a 3D pose sequence [T, J, 3] (mm, camera frame), beside its 2D input [T, J, 2] (pixels;
+    confidence [T, J], 0 = not drawn) when given, to `path`: a .gif (Pillow) or an .mp4 (ffmpeg, see
+    `check_animation_path`).  Returns the path.
+
+    Limits are fixed over the whole sequence, so motion is not hidden by rescaling: the 2D panel
+    frames the image of `image_size` (width, height) or else every drawn keypoint, the 3D cube every
+    finite pose.  A frame whose pose is not finite (not lifted) has an empty 3D panel marked so.
+    `titles`: one per frame.  One figure is redrawn and grabbed frame by frame; an .mp4 is streamed
+    to ffmpeg, while a .gif holds its frames (about 1 MB each) until written.
     """
     poses = _as_array(poses, (None, skeleton.num_joints, 3), "poses")
+    count = len(poses)
+    if count == 0:
+        raise ValueError("save_pose_animation: no frames")
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    writer, rc = _movie_writer(path, fps)
+    panels = 1 if keypoints2d is None else 2
+    fig = Figure(figsize=(4.0 * panels, 4.0), dpi=ANIMATION_DPI, layout="constrained")
+    if keypoints2d is not None:
+        keypoints2d = _as_array(keypoints2d, (count, skeleton.num_joints, 2), "keypoints2d")
+        if confidence is not None:  # undetected joints are not drawn, nor framed
+            confidence = _as_array(confidence, keypoints2d.shape[:2], "confidence")
+            keypoints2d = np.where(confidence[..., None] > 0, keypoints2d, np.nan)
+        ax2d = fig.add_subplot(1, 2, 1)
+        _fix_image_frame(ax2d, keypoints2d, image_size)
+        ax2d.set_title("2D input", fontsize=9)
+        ax2d.set_xlabel("x (px)", fontsize=7)
+        ax2d.set_ylabel("y (px)", fontsize=7)
+        ax2d.tick_params(labelsize=6)
+    ax3d = _add_3d_axes(fig, 1, panels, panels)
     points = _to_display(poses)
-    fig = Figure(figsize=(4.0, 4.0), dpi=80)
-    ax = _add_3d_axes(fig, 1, 1, 1)
-    lines = plot_pose_3d(ax, poses[0], skeleton)
-    _fit_cube(ax, points.reshape(-1, 3), keep_existing=False)
-
-    def draw_frame(t: int) -> list[Line2D]:
-        for line, (child, parent) in zip(lines, skeleton.bones):
-            line.set_data_3d(*points[t, [parent, child]].T)
-        ax.set_title(f"frame {t}", fontsize=9)
-        return lines
-
-    animation.FuncAnimation(fig, draw_frame, frames=len(poses)).save(path, writer=animation.PillowWriter(fps=fps))
+    lines = plot_pose_3d(ax3d, poses[0], skeleton)
+    _fit_cube(ax3d, points.reshape(-1, 3), keep_existing=False)
+    ax3d.set_title("lifted 3D pose (mm)", fontsize=9)
+    not_lifted = ax3d.text2D(0.5, 0.5, "not lifted", transform=ax3d.transAxes, ha="center", color="0.4")
+    _side_legend(ax3d)  # the cube's corners stay clear of a moving pose; the 2D panel's may not
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with mpl.rc_context(rc), _starting_ffmpeg():
+        with writer.saving(fig, path, dpi=ANIMATION_DPI):
+            for t in tqdm(range(count), desc=f"writing {path.name}", unit="frame"):
+                if keypoints2d is not None:
+                    for artist in [*ax2d.lines, *ax2d.collections]:  # the previous frame; limits and legend stay
+                        artist.remove()
+                    plot_pose_2d(ax2d, keypoints2d[t], skeleton)
+                for line, (child, parent) in zip(lines, skeleton.bones):
+                    line.set_data_3d(*points[t, [parent, child]].T)
+                not_lifted.set_visible(not np.isfinite(poses[t]).all())
+                if titles is not None:
+                    fig.suptitle(titles[t], fontsize=10)
+                if t == 0:  # lay out once: laid out per frame, the panels would shift as the pose moves
+                    fig.draw_without_rendering()
+                    fig.set_layout_engine("none")
+                writer.grab_frame()
     return path
 
 

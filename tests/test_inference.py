@@ -14,6 +14,7 @@ import shutil
 import numpy as np
 import pytest
 
+from detection_helpers import body25_from_coco, coco_from_h36m, views
 from help_text import assert_help_documents_every_field
 from jaxpose import checkpoint, evaluation, inference, predict
 from jaxpose.camera import project_from_camera, world_to_camera
@@ -22,30 +23,6 @@ from jaxpose.skeleton import COCO_17, H36M_17
 
 METHOD = "Lifter, self-supervised (ours)"
 IMAGE_SIZE = (1000, 1000)  # the synthetic rig's images
-
-
-def _views(test):
-    """Every test view as one single-view sample: keypoints [M, J, 2], confidence [M, J], K [M, 3, 3]."""
-    N, C, J, _ = test.keypoints2d.shape
-    K = np.asarray(test.rigs.K)[test.rig_index].reshape(N * C, 3, 3)
-    return test.keypoints2d.reshape(N * C, J, 2), test.confidence.reshape(N * C, J), K
-
-
-def _coco_from_h36m(keypoints: np.ndarray) -> np.ndarray:
-    """COCO-17 keypoints [N, 17, 2] that a detector could have given for H36M_17 poses [N, 17, 2]:
-    limbs copied, eyes and ears placed around the face line from Neck/Nose to Head."""
-    joint = {name: keypoints[:, H36M_17.index(name)] for name in H36M_17.joint_names}
-    nose, up = joint["Neck/Nose"], (joint["Head"] - joint["Neck/Nose"]) / 3.0
-    side = np.stack([-up[:, 1], up[:, 0]], axis=1)  # perpendicular to the face line
-    coco = {
-        "nose": nose, "left_eye": nose + up + 0.4 * side, "right_eye": nose + up - 0.4 * side,
-        "left_ear": nose + 0.8 * up + 1.0 * side, "right_ear": nose + 0.8 * up - 1.0 * side,
-    }  # fmt: skip
-    for side_name, letter in (("left", "L"), ("right", "R")):
-        for coco_joint, h36m_joint in (("shoulder", "Shoulder"), ("elbow", "Elbow"), ("wrist", "Wrist"),
-                                       ("hip", "Hip"), ("knee", "Knee"), ("ankle", "Foot")):  # fmt: skip
-            coco[f"{side_name}_{coco_joint}"] = joint[letter + h36m_joint]
-    return np.stack([coco[name] for name in COCO_17.joint_names], axis=1)
 
 
 def _cli(*args) -> np.ndarray:
@@ -58,7 +35,7 @@ def _cli(*args) -> np.ndarray:
 
 def test_cli_reproduces_experiment_p_mpjpe(trained_run, tmp_path):
     run_dir, test = trained_run
-    keypoints, confidence, K = _views(test.undistorted())
+    keypoints, confidence, K = views(test.undistorted())
     np.savez(tmp_path / "views.npz", keypoints=keypoints, confidence=confidence, K=K, image_id=np.arange(len(K)))
     _cli("--checkpoint", run_dir, "--input", tmp_path / "views.npz", "--output", tmp_path / "poses.npz")
     with np.load(tmp_path / "poses.npz") as out:
@@ -78,8 +55,8 @@ def test_cli_reproduces_experiment_p_mpjpe(trained_run, tmp_path):
 
 
 def test_cli_coco_results_round_trip_through_the_adapter(trained_run, lifter, tmp_path):
-    keypoints, confidence, _ = _views(trained_run[1])
-    coco = _coco_from_h36m(keypoints[:5])
+    keypoints, confidence, _ = views(trained_run[1])
+    coco = coco_from_h36m(keypoints[:5])
     scores = np.full(coco.shape[:2], 0.9, np.float32)
     scores[3, COCO_17.index("left_hip")] = 0.0  # no hip -> no pelvis (the root) -> not liftable
     image_ids = [7, 7, 12, 40, 41]  # two people in image 7
@@ -103,23 +80,9 @@ def test_cli_coco_results_round_trip_through_the_adapter(trained_run, lifter, tm
     assert sorted(p.name for p in (tmp_path / "plots").iterdir()) == ["lifting_00000.png", "lifting_00001.png"]
 
 
-def _body25_from_coco(coco: np.ndarray, score: float) -> np.ndarray:
-    """OpenPose BODY_25 [x, y, score] [N, 25, 3] with the joints COCO-17 shares, the neck between the
-    shoulders; feet and mid-hip undetected (score 0)."""
-    body25 = np.zeros((len(coco), 25, 3), np.float32)
-    for b, name in enumerate(OPENPOSE_25_JOINT_NAMES):
-        side = {"L": "left_", "R": "right_"}.get(name[0], "")
-        coco_name = side + name[1:].lower() if side else name.lower()  # "LShoulder" -> "left_shoulder"
-        if coco_name in COCO_17.joint_names:
-            body25[:, b] = np.concatenate([coco[:, COCO_17.index(coco_name)], np.full((len(coco), 1), score)], 1)
-    shoulders = [COCO_17.index("left_shoulder"), COCO_17.index("right_shoulder")]
-    body25[:, OPENPOSE_25_JOINT_NAMES.index("Neck")] = [*coco[:, shoulders].mean(1).T, np.full(len(coco), score)]
-    return body25
-
-
 def test_cli_openpose_folder(trained_run, tmp_path):
-    keypoints, _, K = _views(trained_run[1])
-    body25 = _body25_from_coco(_coco_from_h36m(keypoints[:3]), 0.8)
+    keypoints, _, K = views(trained_run[1])
+    body25 = body25_from_coco(coco_from_h36m(keypoints[:3]), 0.8)
     body25[2, OPENPOSE_25_JOINT_NAMES.index("RHip"), 2] = 0.0  # not liftable
     folder = tmp_path / "openpose"
     folder.mkdir()
@@ -159,7 +122,7 @@ def test_cli_npz_with_distortion_from_an_intrinsics_file(trained_run, lifter, tm
 
 
 def test_predict_chunking_single_pose_and_missing_root(trained_run, lifter):
-    keypoints, confidence, K = _views(trained_run[1].undistorted())
+    keypoints, confidence, K = views(trained_run[1].undistorted())
     rows = np.flatnonzero(confidence[:, 0] > 0)[:10]  # root detected
     keypoints, confidence, K = keypoints[rows], confidence[rows], K[rows]
     confidence[4, 0] = 0.0
@@ -192,7 +155,7 @@ def test_default_intrinsics():
     ],
 )
 def test_predict_errors(trained_run, lifter, change, message):
-    keypoints, confidence, K = _views(trained_run[1])
+    keypoints, confidence, K = views(trained_run[1])
     with pytest.raises(ValueError, match=message):
         keypoints, confidence, K = change(keypoints[:3], np.ones_like(confidence[:3]), K[:3])
         lifter.predict(keypoints, intrinsics=K, confidence=confidence)
@@ -204,7 +167,7 @@ def test_predict_errors(trained_run, lifter, change, message):
 
 def test_cli_errors(trained_run, tmp_path):
     run_dir = trained_run[0]
-    keypoints, _, K = _views(trained_run[1])
+    keypoints, _, K = views(trained_run[1])
     np.savez(tmp_path / "j16.npz", keypoints=keypoints[:2, :16])
     np.savez(tmp_path / "j17.npz", keypoints=keypoints[:2], K=K[:2])
     base = ["--checkpoint", run_dir, "--output", tmp_path / "out.json"]
@@ -244,7 +207,7 @@ def test_a_checkpoint_alone_rebuilds_its_lifter(trained_run, lifter, tmp_path):
     shutil.copytree(trained_run[0] / "checkpoints", checkpoints)
     alone = inference.load(checkpoints)
     assert (alone.skeleton, alone.model_config, alone.step) == (lifter.skeleton, lifter.model_config, lifter.step)
-    keypoints, confidence, K = (a[:64] for a in _views(trained_run[1]))
+    keypoints, confidence, K = (a[:64] for a in views(trained_run[1]))
     np.testing.assert_array_equal(alone.predict(keypoints, K, confidence), lifter.predict(keypoints, K, confidence))
     # Only the variables are restored: a step whose optimizer state is unreadable still loads.
     shutil.rmtree(_newest_step(checkpoints) / "state")

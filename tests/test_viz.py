@@ -177,14 +177,18 @@ def test_figure_loss_curves():
         viz.figure_loss_curves({})
 
 
-def test_save_sequence_gif(tmp_path):
+def test_save_pose_animation_of_3d_poses_alone(tmp_path):
     frames = 5
     pose = standing_pose(HUMANEVA_15)
     poses = np.stack([pose + [0.0, 0.0, 100.0 * t] for t in range(frames)])
-    path = viz.save_sequence_gif(poses, HUMANEVA_15, tmp_path / "sub" / "walk.gif", fps=5)
-    assert path.stat().st_size > 5_000
+    poses[2] = np.nan  # a frame not lifted is drawn empty, not an error
+    path = viz.save_pose_animation(tmp_path / "sub" / "walk.gif", poses, HUMANEVA_15, fps=5)
     with Image.open(path) as gif:
-        assert gif.n_frames == frames
+        assert gif.n_frames == frames and gif.size == (400, 400)  # one panel
+    with pytest.raises(ValueError, match=r"walk\.avi: the suffix must be one of \('\.gif', '\.mp4'\)"):
+        viz.save_pose_animation(tmp_path / "walk.avi", poses, HUMANEVA_15)
+    with pytest.raises(ValueError, match="fps must be positive"):
+        viz.save_pose_animation(tmp_path / "walk.gif", poses, HUMANEVA_15, fps=0)
 
 
 def test_save_figure_closes_pyplot_figures(tmp_path):
