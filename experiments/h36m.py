@@ -26,7 +26,7 @@ from experiments import cli, paper_tables
 from experiments.config import ExperimentConfig, RunConfig, TrainConfig
 from experiments.runner import Splits
 from jaxpose.config import RESCALED_LOSS, LossConfig, ModelConfig, OptimizerConfig, PseudoLabelConfig
-from jaxpose.data.h36m import DETECTION_FILES, POSES_3D_FILE, TEST_SUBJECTS, TRAIN_SUBJECTS, load_h36m
+from jaxpose.data.h36m import DETECTION_FILES, POSES_3D_FILE, TEST_SUBJECTS, TRAIN_SUBJECTS, load_h36m, subject_rigs
 
 
 # The Stacked Hourglass detector was trained on MPII: its "Spine" is MPII's thorax (~200 mm from the
@@ -46,7 +46,11 @@ class H36MData:
     detections: str = "cpn"
     """2D source: cpn (VideoPose3D's CPN npz, as the paper), sh (h36m.zip, 16 joints), gt, or a 2D .npz path."""
     cameras_path: pathlib.Path | None = None
-    """Calibration: cameras.h5 or a jaxpose camera file (.json); None = <data-dir>/cameras.h5."""
+    """Calibration the training subjects are triangulated and trained with: cameras.h5 or a jaxpose
+    camera file, e.g. one recovered by `python -m jaxpose.calibrate`; None = the reference."""
+    reference_cameras_path: pathlib.Path | None = None
+    """Calibration of the motion capture, for the test samples' ground truth (and --data.detections gt):
+    None = <data-dir>/cameras.h5 where it exists, else --data.cameras-path."""
     train_subjects: tuple[str, ...] = TRAIN_SUBJECTS
     """Subjects to train on (the standard protocol: S1 S5 S6 S7 S8)."""
     test_subjects: tuple[str, ...] = TEST_SUBJECTS
@@ -70,6 +74,7 @@ def load_splits(data: H36MData) -> Splits:
         raise ValueError(f"subjects {overlap} are in both --data.train-subjects and --data.test-subjects")
     if data.split == "trials" and data.test_subjects:
         raise ValueError("--data.split trials tests on other trials of --data.train-subjects: pass --data.test-subjects with no subject")
+    reference = reference_calibration(data)
     dataset = load_h36m(
         data.data_dir,
         layout=data.layout,
@@ -77,7 +82,7 @@ def load_splits(data: H36MData) -> Splits:
         subjects=data.train_subjects + data.test_subjects,
         train_stride=data.train_stride,
         test_stride=data.test_stride,
-        cameras_path=data.cameras_path,
+        cameras_path=reference,
     )
     if data.split == "trials":
         train = first_trials(dataset.labels["subject"], dataset.labels["action"], dataset.labels["sequence"])
@@ -85,12 +90,25 @@ def load_splits(data: H36MData) -> Splits:
     else:
         train = np.isin(dataset.labels["subject"], list(data.train_subjects))
         test = ~train
+    train_set = dataset.subset(np.flatnonzero(train))
+    if data.cameras_path is not None and data.cameras_path != reference:
+        # Train on another calibration (e.g. one recovered from these detections); the test samples
+        # keep the reference, in whose world frame their ground truth is.
+        train_set = train_set.recalibrated(subject_rigs(data.cameras_path, data.train_subjects))
     return Splits(
-        train=dataset.subset(np.flatnonzero(train)),
+        train=train_set,
         test=dataset.subset(np.flatnonzero(test)),
         group_label="action",
         detector_specific_joints=SH_MPII_JOINTS if data.detections == "sh" else (),
     )
+
+
+def reference_calibration(data: H36MData) -> pathlib.Path:
+    """The motion capture's calibration (see `H36MData.reference_cameras_path`)."""
+    if data.reference_cameras_path is not None:
+        return data.reference_cameras_path
+    default = data.data_dir / "cameras.h5"
+    return default if default.exists() or data.cameras_path is None else data.cameras_path
 
 
 def first_trials(subjects: np.ndarray, actions: np.ndarray, sequences: np.ndarray) -> np.ndarray:
@@ -120,7 +138,7 @@ def expected_files(data: H36MData) -> str:
         poses2d = f"{root}/{DETECTION_FILES[data.detections]} (VideoPose3D)"
     else:
         poses2d = str(data.detections)
-    cameras = data.cameras_path or f"{root}/cameras.h5"
+    cameras = data.cameras_path or reference_calibration(data)
     subjects = f"{' '.join(data.train_subjects)} (train), {' '.join(data.test_subjects)} (test)"
     return "\n".join(
         [
@@ -128,6 +146,7 @@ def expected_files(data: H36MData) -> str:
             f"  3D poses (--data.layout {data.layout}):  {poses3d[data.layout]}",
             f"  2D (--data.detections {data.detections}):  {poses2d}",
             f"  cameras (--data.cameras-path):  {cameras}",
+            f"  reference cameras (--data.reference-cameras-path):  {reference_calibration(data)}",
             f"  subjects:  {subjects}",
         ]
     )

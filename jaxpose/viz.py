@@ -397,6 +397,47 @@ def save_pose_animation(
     return path
 
 
+def figure_rig(
+    centres, rotations, camera_names, reference: tuple[np.ndarray, np.ndarray] | None = None
+) -> Figure:
+    """A camera rig from above and from the side: centres [C, 3] (mm) and world-to-camera rotations
+    [C, 3, 3], optionally beside a reference rig (centres, rotations) in the same world frame.
+
+    The views are along the principal axes of the camera centres (of the reference, when given):
+    cameras around a scene lie near a plane, so the first view looks down on it whatever the
+    world's up axis.  Each camera is a dot with its optical axis as a line.
+    """
+    centres = _as_array(centres, (None, 3), "centres")
+    rotations = _as_array(rotations, (len(centres), 3, 3), "rotations")
+    frame_centres = centres if reference is None else np.asarray(reference[0], np.float64)
+    middle = frame_centres.mean(0)
+    axes = np.linalg.svd(frame_centres - middle)[2]  # rows: in-plane, in-plane, normal
+    extent = np.abs(frame_centres - middle).max()
+    fig = Figure(figsize=(10, 4.8), layout="constrained")
+    rigs = [("recovered", centres, rotations, {"color": "tab:red", "marker": "x"})]
+    if reference is not None:
+        rigs.insert(0, ("reference", reference[0], reference[1], {"color": "0.45", "marker": "o", "fillstyle": "none"}))
+    for panel, (title, pair) in enumerate((("from above", (0, 1)), ("from the side", (0, 2)))):
+        ax = fig.add_subplot(1, 2, panel + 1)
+        for label, rig_centres, rig_rotations, style in rigs:
+            planar = (np.asarray(rig_centres) - middle) @ axes[list(pair)].T
+            # A camera's optical axis in the world is the third row of its rotation.
+            axis = np.asarray(rig_rotations)[:, 2] @ axes[list(pair)].T * 0.25 * extent
+            ax.plot(*planar.T, linestyle="", markersize=8, label=label, **style)
+            for c, name in enumerate(camera_names):
+                ax.plot(*np.stack([planar[c], planar[c] + axis[c]]).T, color=style["color"], linewidth=1.2)
+                if label == rigs[-1][0]:
+                    ax.annotate(str(name), planar[c], textcoords="offset points", xytext=(6, 6), fontsize=7)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("principal axis 1 of the camera centres (mm)", fontsize=7)
+        ax.set_ylabel(f"{'principal axis 2' if pair[1] == 1 else 'normal of the camera plane'} (mm)", fontsize=7)
+        ax.tick_params(labelsize=6)
+        ax.grid(alpha=0.3)
+    fig.axes[0].legend(fontsize=7, loc="best")
+    return fig
+
+
 def save_figure(fig: Figure, path, dpi: int = 150) -> Path:
     """Save `fig` as PNG (creating the folder) and close it, so report loops do not accumulate figures."""
     path = Path(path)

@@ -61,8 +61,9 @@ def test_save_load_round_trip_and_null_distortion(tmp_path):
     assert load_image_sizes(tmp_path / "again.json")["S1"] == [(640, 480), (640, 480), None]
 
     pinhole = {"S2": (["a", "b"], rigs["S1"][1][:2].without_distortion())}
-    save_cameras(tmp_path / "pinhole.json", pinhole)
+    save_cameras(tmp_path / "pinhole.json", pinhole, comment="world frame: camera a")
     assert load_cameras(tmp_path / "pinhole.json")["S2"][1].dist is None
+    assert json.loads((tmp_path / "pinhole.json").read_text())["comment"] == "world frame: camera a"
 
 
 def test_convert_h36m_cameras_keeps_the_documented_projection(tmp_path):
@@ -137,6 +138,7 @@ def test_invalid_field_names_file_subject_camera_and_field(tmp_path, camera, fie
         ({**_document([]), "subjects": {}}, "non-empty"),
         (_document([_camera(), _camera()]), "unique"),
         (_document([{"K": []}]), '"name"'),
+        ({**_document([_camera()]), "comment": ["not", "text"]}, '"comment": a string'),
     ],
 )
 def test_invalid_documents(tmp_path, document, expected):

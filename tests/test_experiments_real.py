@@ -5,10 +5,13 @@ their presets, paper-layout tables, --help and missing-data errors."""
 import dataclasses
 import json
 
+import numpy as np
 import pytest
 
 from experiments import ablation, cli, h36m, humaneva, mpi_inf_3dhp, paper_tables
 from help_text import assert_every_flag_documented, assert_help_documents_every_field
+from jaxpose.data.camera_file import read_h36m_cameras, save_cameras
+from jaxpose.data.h36m import CAMERA_NAMES
 from fixtures_real_data import write_h36m_martinez_tree, write_h36m_videopose3d_files, write_humaneva_files
 from fixtures_real_data import write_mpi_inf_3dhp_test_set
 from jaxpose.data.mpi_inf_3dhp import camera_intrinsics
@@ -197,3 +200,26 @@ def test_h36m_dev_preset_is_the_cpu_recipe_at_a_proportional_budget():
     assert 0 < dev.optimizer.warmup_steps < cpu.optimizer.warmup_steps / 10
     # Every term acts: the recipe's L_con and L_out weights are not the paper's near-zero ones.
     assert cpu.loss.consistency >= 0.01 and cpu.loss.output_triangulation >= 0.1
+
+
+def test_h36m_trains_on_another_calibration_and_tests_on_the_reference(h36m_tree, tmp_path):
+    """--data.cameras-path (e.g. a rig recovered by jaxpose.calibrate) reaches the training subjects
+    only; the test subjects keep <data-dir>/cameras.h5, the frame of their ground truth."""
+    data_dir = h36m_tree / "martinez"
+    reference = read_h36m_cameras(data_dir / "cameras.h5")
+    names, cameras = reference["S1"]
+    moved = cameras.replace(t=cameras.t + np.float32(250.0))  # the same rig in another world frame
+    recovered = tmp_path / "recovered.json"
+    save_cameras(recovered, {"S1": (names, moved)})
+    data = h36m.H36MData(data_dir=data_dir, detections="sh", train_subjects=("S1",), test_subjects=("S9",),
+                         cameras_path=recovered)  # fmt: skip
+    splits = h36m.load_splits(data)
+    order = [names.index(name) for name in CAMERA_NAMES]
+    np.testing.assert_allclose(splits.train.cameras_for(np.arange(2)).t, np.broadcast_to(moved.t[order], (2, 4, 3)))
+    assert splits.train.target3d is None  # the mocap frame's ground truth does not fit the new rig
+    test_names, test_cameras = reference["S9"]
+    np.testing.assert_allclose(
+        splits.test.cameras_for(np.arange(2)).t,
+        np.broadcast_to(test_cameras.t[[test_names.index(name) for name in CAMERA_NAMES]], (2, 4, 3)),
+    )
+    assert splits.test.target3d is not None

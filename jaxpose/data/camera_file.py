@@ -5,6 +5,7 @@ Schema (version 1)::
     {
       "format": "jaxpose-cameras",
       "version": 1,
+      "comment": "...",                      # optional free text, e.g. how the rig was obtained
       "distortion_model": "opencv" | "h36m",
       "subjects": {
         "S1": [
@@ -83,8 +84,9 @@ def save_cameras(
     path: str | Path,
     rigs: Mapping[str, tuple[Sequence[str], Cameras]],
     image_sizes: Mapping[str, Sequence[ImageSize]] | None = None,
+    comment: str | None = None,
 ) -> None:
-    """Write rigs (subject -> (camera names, `Cameras` [C])) as a camera file.
+    """Write rigs (subject -> (camera names, `Cameras` [C])) as a camera file, with an optional comment.
 
     All rigs must share one distortion model.  The document is validated before it is written, so
     this never produces a file that `load_cameras` rejects.
@@ -113,6 +115,8 @@ def save_cameras(
         "distortion_model": models.pop() if models else "opencv",
         "subjects": subjects,
     }
+    if comment is not None:
+        document["comment"] = comment
     _parse(document, path)
     path.write_text(json.dumps(document, indent=1) + "\n")
 
@@ -213,6 +217,8 @@ def _parse(document, path: Path) -> tuple[dict[str, SubjectCameras], dict[str, l
         raise DataFormatError(path, f'a JSON object with "format": "{FORMAT_NAME}"', repr(found))
     if document.get("version") != FORMAT_VERSION:
         raise DataFormatError(path, f'"version": {FORMAT_VERSION}', repr(document.get("version")))
+    if not isinstance(document.get("comment", ""), str):
+        raise DataFormatError(path, '"comment": a string, if present', repr(document["comment"])[:200])
     model = document.get("distortion_model")
     if model not in DISTORTION_MODELS:
         raise DataFormatError(path, f'"distortion_model" one of {list(DISTORTION_MODELS)}', repr(model))

@@ -98,6 +98,21 @@ class MultiViewDataset:
             keep &= np.isin(self.labels[name], np.asarray(values))
         return self.subset(np.flatnonzero(keep))
 
+    def recalibrated(self, rigs: Mapping[str, Cameras]) -> "MultiViewDataset":
+        """The same detections with each subject's rig replaced (`rigs[subject]`: numpy `Cameras` [C]).
+
+        For training on a calibration recovered from the detections (`jaxpose.calibrate`): its world
+        frame is not the motion capture's, so the 3D ground truth no longer fits and is dropped.
+        """
+        subjects = list(dict.fromkeys(self.labels["subject"].tolist()))
+        missing = [subject for subject in subjects if subject not in rigs]
+        if missing:
+            raise ValueError(f"recalibrated: no rig for subjects {missing} (given: {sorted(rigs)})")
+        stacked = jax.tree.map(lambda *fields: np.stack(fields), *[rigs[subject] for subject in subjects])
+        index = {subject: i for i, subject in enumerate(subjects)}
+        rig_index = np.array([index[subject] for subject in self.labels["subject"].tolist()], np.int32)
+        return dataclasses.replace(self, rigs=stacked, rig_index=rig_index, target3d=None)
+
     def usable_view_count(self) -> np.ndarray:
         """i32[N]: views whose root and at least one other joint were detected (confidence > 0)."""
         return ((self.confidence[..., 0] > 0) & ((self.confidence[..., 1:] > 0).sum(-1) >= 1)).sum(-1)

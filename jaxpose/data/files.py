@@ -94,6 +94,16 @@ def load_npz_object(path: Path, key: str, what: str) -> Any:
     return value.item() if value.dtype == object and value.shape == () else value
 
 
+def read_npz_arrays(path: Path, what: str) -> dict[str, np.ndarray]:
+    """Every array of an .npz file (no pickled objects: they would run code from the file)."""
+    require_file(path, what)
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            return {key: archive[key] for key in archive.files}
+    except _NPZ_ERRORS as error:
+        raise DataFormatError(path, f"{what} (an .npz file of plain arrays)", f"a file numpy cannot read ({error!r})") from None
+
+
 def read_mat(path: Path, names: Sequence[str], what: str) -> dict[str, np.ndarray]:
     """Variables of a MATLAB .mat file, in MATLAB's axis order, whichever kind the file is.
 

@@ -107,7 +107,7 @@ def load_h36m(
     layout = _resolve_layout(data_dir, layout)
     skeleton = H36M_16 if detections == "sh" else H36M_17
     joints3d = np.array([_MOCAP_INDEX[name] for name in skeleton.joint_names])
-    rigs = _subject_rigs(Path(cameras_path) if cameras_path else data_dir / "cameras.h5", subjects)
+    rigs = subject_rigs(Path(cameras_path) if cameras_path else data_dir / "cameras.h5", subjects)
     read_3d = functools.partial(_martinez_3d, data_dir)
     if layout == "videopose3d":
         path = data_dir / POSES_3D_FILE
@@ -191,7 +191,7 @@ def _resolve_layout(data_dir: Path, layout: str) -> str:
     )
 
 
-def _subject_rigs(path: Path, subjects: Sequence[str]) -> dict[str, Cameras]:
+def subject_rigs(path: Path, subjects: Sequence[str]) -> dict[str, Cameras]:
     """Each subject's 4 cameras in `CAMERA_NAMES` order, from cameras.h5 or a camera file."""
     calibration: dict[str, SubjectCameras] = load_cameras(path) if path.suffix == ".json" else read_h36m_cameras(path)
     rigs = {}

@@ -1,0 +1,225 @@
+"""Rig calibration from the person in view (`jaxpose.calibration`, `python -m jaxpose.calibrate`).
+
+The accuracy tests calibrate one subject of the synthetic data set (its rig and bodies are known
+exactly) and, where `../shared` is present, the real Human3.6M S1 against its cameras.h5.  The
+rest checks the pieces against oracles: the rig comparison against known similarities, the
+limb-length scale against scaled skeletons, and every refusal's message.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from jaxpose import calibrate as calibrate_cli
+from jaxpose.calibration import CalibrationConfig, CalibrationError, RigDetections, calibrate, compare_rigs, from_dataset
+from jaxpose.calibration.compare import camera_centres
+from jaxpose.calibration.scale import DEFAULT_LIMB_LENGTHS_MM, LIMBS, limb_joints, metric_scale
+from jaxpose.camera import Cameras
+from jaxpose.data.camera_file import load_cameras, save_cameras
+from jaxpose.data.dataset import MultiViewDataset
+from jaxpose.data.synthetic import SyntheticConfig, generate
+from jaxpose.skeleton import SKELETONS, H36M_17
+from help_text import assert_every_flag_documented
+
+S1_DIR = pathlib.Path(__file__).resolve().parents[2] / "shared" / "data" / "h36m_s1"
+NAMES = ("c0", "c1", "c2", "c3")
+FAST = CalibrationConfig(max_frames=300)
+
+
+@pytest.fixture(scope="module")
+def synthetic_subject():
+    """Subject S2 of the default synthetic generator (default detector noise, outliers and swaps),
+    1,500 instants; its body is within 1% of the default limb prior."""
+    dataset = generate(SyntheticConfig(num_train_subjects=2, num_test_subjects=0, samples_per_subject=1500))
+    return dataset.where(subject=["S2"])
+
+
+def own_rig(dataset: MultiViewDataset) -> Cameras:
+    """The rig of a one-subject data set (`where` keeps every subject's rig; S2's is not the first)."""
+    return dataset.rigs[int(dataset.rig_index[0])]
+
+
+def true_limb_ratio(dataset: MultiViewDataset) -> float:
+    """Geometric mean over the four limbs of prior / true median length: the scale error the prior implies."""
+    ratios = []
+    for limb, pairs in limb_joints(dataset.skeleton).items():
+        lengths = np.concatenate([np.linalg.norm(dataset.target3d[:, a] - dataset.target3d[:, b], axis=-1) for a, b in pairs])
+        ratios.append(DEFAULT_LIMB_LENGTHS_MM[LIMBS.index(limb)] / np.median(lengths))
+    return float(np.exp(np.mean(np.log(ratios))))
+
+
+def write_npz(path, dataset: MultiViewDataset, with_intrinsics: bool) -> None:
+    arrays = dict(
+        keypoints=dataset.keypoints2d, confidence=dataset.confidence, camera_names=np.array(NAMES),
+        image_size=np.tile(np.array([1000, 1000], np.int32), (4, 1)), skeleton=np.array(dataset.skeleton.name),
+    )  # fmt: skip
+    if with_intrinsics:
+        arrays["K"] = np.asarray(own_rig(dataset).K, np.float32)
+    np.savez(path, **arrays)
+
+
+def test_synthetic_rig_is_recovered_through_the_command_line(synthetic_subject, tmp_path):
+    rig = own_rig(synthetic_subject)
+    reference = tmp_path / "reference.json"
+    save_cameras(reference, {"S2": (list(NAMES), rig)})
+    write_npz(tmp_path / "detections.npz", synthetic_subject, with_intrinsics=True)
+    output = tmp_path / "recovered.json"
+    calibration, comparison = calibrate_cli.main([
+        "--input", str(tmp_path / "detections.npz"), "--output", str(output), "--subject", "S2",
+        "--reference", str(reference), "--calibration.max-frames", "300",
+    ])  # fmt: skip
+
+    distance = np.linalg.norm(
+        camera_centres(np.asarray(rig.R, np.float64), np.asarray(rig.t, np.float64))
+        - np.median(synthetic_subject.target3d[:, 0], axis=0), axis=-1,
+    )  # fmt: skip
+    assert comparison.rotation_deg.max() < 0.5
+    assert (comparison.centre_mm / distance).max() < 0.01
+    # The scale is as right as the prior is for this body: the error is the body's deviation from it.
+    expected = true_limb_ratio(synthetic_subject) - 1.0
+    assert abs(comparison.scale_error - expected) < 0.015
+    assert abs(comparison.scale_error) < 0.03
+    assert np.all(calibration.reprojection_median_px < 6.0)  # the detector's noise is 3-8 px
+
+    # The written file is a valid camera file with the given intrinsics and a stated world frame.
+    names, cameras = load_cameras(output)["S2"]
+    assert names == list(NAMES)
+    np.testing.assert_allclose(cameras.K, rig.K, rtol=1e-6)
+    document = json.loads(output.read_text())
+    assert "view 0's camera frame" in document["comment"] and "millimetres" in document["comment"]
+    report = output.with_suffix(".md").read_text()
+    assert "rotation error" in report and "scale error" in report
+    assert output.with_suffix(".png").stat().st_size > 10_000
+
+
+def test_unknown_focal_lengths_are_estimated(synthetic_subject):
+    rig = own_rig(synthetic_subject)
+    detections = from_dataset(synthetic_subject, "S2", NAMES, np.full((4, 2), 1000), intrinsics_known=False)
+    calibration = calibrate(detections, FAST)
+    assert calibration.focal_estimated
+    # The start is 1.2 x 1000 px; the true focal lengths are ~1150 px.
+    np.testing.assert_allclose(calibration.cameras.K[:, 0, 0], np.asarray(rig.K)[:, 0, 0], rtol=0.02)
+    comparison = compare_rigs(calibration.cameras.R, calibration.cameras.t, np.asarray(rig.R), np.asarray(rig.t))
+    assert comparison.rotation_deg.max() < 1.5
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), scale=st.floats(0.01, 100.0), num_cameras=st.integers(2, 6))
+def test_rig_comparison_sees_through_any_similarity(seed, scale, num_cameras):
+    rng = np.random.default_rng(seed)
+    R_ref = Rotation.random(num_cameras, random_state=seed).as_matrix()
+    t_ref = rng.normal(0.0, 3000.0, (num_cameras, 3))
+    Q = Rotation.random(random_state=seed + 1).as_matrix()
+    shift = rng.normal(0.0, 1000.0, 3)
+    # The same rig in a world X' with X_ref = scale Q X' + shift: R' = R_ref Q, t' = (R_ref shift + t_ref) / scale.
+    R = R_ref @ Q
+    t = (np.einsum("cij,j->ci", R_ref, shift) + t_ref) / scale
+    comparison = compare_rigs(R, t, R_ref, t_ref)
+    assert comparison.rotation_deg.max() < 1e-4
+    assert comparison.centre_mm.max() < 1e-6 * np.abs(t_ref).max()
+    assert comparison.scale_error == pytest.approx(1.0 / scale - 1.0, rel=1e-6, abs=1e-9)
+
+    # A known error in one camera shows up there, by its size.
+    R_bad = R.copy()
+    R_bad[0] = Rotation.from_rotvec([0.0, 0.0, np.radians(2.0)]).as_matrix() @ R[0]
+    assert compare_rigs(R_bad, t, R_ref, t_ref).rotation_deg[0] == pytest.approx(2.0, abs=2.0 / num_cameras + 0.01)
+
+
+@pytest.mark.parametrize("name", sorted(SKELETONS))
+def test_every_skeleton_has_all_four_limbs_on_both_sides(name):
+    limbs = limb_joints(SKELETONS[name])
+    assert sorted(limbs) == sorted(LIMBS) and all(len(pairs) == 2 for pairs in limbs.values())
+
+
+def test_metric_scale_recovers_a_scaled_skeleton():
+    dataset = generate(SyntheticConfig(num_train_subjects=1, num_test_subjects=0, samples_per_subject=50))
+    points = dataset.target3d.astype(np.float64)
+    true = metric_scale(points, np.ones(points.shape[:2], bool), H36M_17).mm_per_unit
+    shrunk = metric_scale(points / 7.5, np.ones(points.shape[:2], bool), H36M_17)
+    assert shrunk.mm_per_unit == pytest.approx(7.5 * true, rel=1e-9)
+    # With its own limb lengths as the prior, a skeleton's scale is exactly 1.
+    measured = [shrunk.measured_mm[limb] / true for limb in LIMBS]
+    assert metric_scale(points, np.ones(points.shape[:2], bool), H36M_17, measured).mm_per_unit == pytest.approx(1.0)
+
+
+def detections(keypoints, confidence=None, **fields) -> RigDetections:
+    N, C, J, _ = keypoints.shape
+    return RigDetections(
+        keypoints=keypoints, confidence=np.ones((N, C, J), np.float32) if confidence is None else confidence,
+        camera_names=tuple(f"c{c}" for c in range(C)), image_size=np.full((C, 2), 1000), skeleton=H36M_17, **fields,
+    )  # fmt: skip
+
+
+def test_one_view_is_refused():
+    with pytest.raises(ValueError, match="at least 2 views"):
+        detections(np.zeros((10, 1, 17, 2), np.float32))
+
+
+def test_nan_keypoint_with_positive_confidence_is_named(synthetic_subject):
+    keypoints = synthetic_subject.keypoints2d[:20].copy()
+    keypoints[3, 2, 5] = np.nan
+    with pytest.raises(ValueError, match=r"frame 3, view 2 \(c2\), joint 'LKnee'"):
+        detections(keypoints)
+    confidence = np.ones(keypoints.shape[:-1], np.float32)
+    confidence[3, 2, 5] = 0.0
+    detections(keypoints, confidence)  # a missing joint is fine
+
+
+def test_a_person_standing_still_is_refused(synthetic_subject):
+    still = np.repeat(synthetic_subject.keypoints2d[:1], 200, axis=0)
+    still = still + np.random.default_rng(0).normal(0.0, 1.0, still.shape).astype(np.float32)
+    with pytest.raises(CalibrationError, match="barely moves"):
+        calibrate(detections(still, K=np.asarray(own_rig(synthetic_subject).K, np.float64)))
+
+
+def test_too_few_shared_frames_are_refused(synthetic_subject):
+    confidence = synthetic_subject.confidence.copy()
+    confidence[20:] = 0.0
+    with pytest.raises(CalibrationError, match=r"only 20 frames .* needs >= 30"):
+        calibrate(detections(synthetic_subject.keypoints2d, confidence))
+
+
+def test_a_view_that_never_sees_the_person_with_the_others_is_named(synthetic_subject):
+    confidence = synthetic_subject.confidence.copy()
+    confidence[:, 3, :] = 0.0
+    confidence[:40, :3, :] = 0.0
+    confidence[:40, 3, :] = 1.0  # c3 sees the person only in frames nobody else does
+    with pytest.raises(CalibrationError, match="view c3 cannot be placed"):
+        calibrate(detections(synthetic_subject.keypoints2d, confidence, K=np.asarray(own_rig(synthetic_subject).K, np.float64)))
+
+
+def test_recalibrated_dataset_uses_the_new_rigs_and_drops_the_ground_truth(synthetic_subject):
+    rig = own_rig(synthetic_subject)
+    moved = Cameras(K=np.asarray(rig.K), R=np.asarray(rig.R), t=np.asarray(rig.t) + 100.0)
+    recalibrated = synthetic_subject.recalibrated({"S2": moved})
+    np.testing.assert_array_equal(recalibrated.cameras_for(np.arange(3)).t, np.broadcast_to(moved.t, (3, 4, 3)))
+    assert recalibrated.target3d is None
+    with pytest.raises(ValueError, match=r"no rig for subjects \['S2'\]"):
+        synthetic_subject.recalibrated({"S9": moved})
+
+
+def test_help_documents_every_flag(capsys):
+    with pytest.raises(SystemExit) as stop:
+        calibrate_cli.main(["--help"])
+    assert stop.value.code == 0
+    flags = [f"--{field.name}".replace("_", "-") for field in dataclasses.fields(calibrate_cli.CalibrateArgs) if field.name != "calibration"]
+    flags += [f"--calibration.{field.name}".replace("_", "-") for field in dataclasses.fields(CalibrationConfig)]
+    assert_every_flag_documented(capsys.readouterr().out, flags)
+
+
+@pytest.mark.skipif(not (S1_DIR / "cameras.h5").is_file(), reason=f"the real Human3.6M S1 development set is not at {S1_DIR}")
+def test_real_s1_rig_from_stacked_hourglass_detections(tmp_path):
+    _, comparison = calibrate_cli.main([
+        "--input", str(S1_DIR), "--subject", "S1", "--output", str(tmp_path / "s1.json"),
+        "--reference", str(S1_DIR / "cameras.h5"),
+    ])  # fmt: skip
+    assert comparison.rotation_deg.max() < 1.0
+    assert comparison.centre_mm.max() < 50.0
