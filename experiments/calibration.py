@@ -21,8 +21,7 @@ import tyro
 
 from jaxpose.calibration import CalibrationConfig, calibrate, compare_rigs, from_dataset
 from jaxpose.calibration.compare import camera_centres
-from jaxpose.calibration.scale import LIMBS, limb_joints
-from jaxpose.data.dataset import MultiViewDataset
+from jaxpose.calibration.scale import prior_scale_error
 from jaxpose.data.synthetic import SyntheticConfig, generate
 
 
@@ -36,15 +35,6 @@ class Args:
     """How the rigs are recovered."""
     unknown_intrinsics: bool = False
     """Withhold K: estimate the focal lengths from the image-size guess."""
-
-
-def prior_scale_error(subject: MultiViewDataset, limb_lengths_mm: tuple[float, ...]) -> float:
-    """The scale error a perfect calibration gets from the limb prior for this body."""
-    ratios = []
-    for limb, pairs in limb_joints(subject.skeleton).items():
-        lengths = np.concatenate([np.linalg.norm(subject.target3d[:, a] - subject.target3d[:, b], axis=-1) for a, b in pairs])
-        ratios.append(limb_lengths_mm[LIMBS.index(limb)] / np.median(lengths))
-    return float(np.exp(np.mean(np.log(ratios)))) - 1.0
 
 
 def main(argv=None) -> list[dict]:
@@ -71,7 +61,7 @@ def main(argv=None) -> list[dict]:
             "centre_mm": float(comparison.centre_mm.max()),
             "centre_share": float((comparison.centre_mm / distance).max()),
             "scale_error": comparison.scale_error,
-            "prior_scale_error": prior_scale_error(samples, args.calibration.limb_lengths_mm),
+            "prior_scale_error": prior_scale_error(samples.target3d, samples.skeleton, args.calibration.limb_lengths_mm),
             "reprojection_px": float(np.median(calibration.reprojection_median_px)),
             "seconds": calibration.seconds,
         }

@@ -91,7 +91,7 @@ def load_splits(data: H36MData) -> Splits:
         train = np.isin(dataset.labels["subject"], list(data.train_subjects))
         test = ~train
     train_set = dataset.subset(np.flatnonzero(train))
-    if data.cameras_path is not None and data.cameras_path != reference:
+    if data.cameras_path is not None and data.cameras_path.resolve() != reference.resolve():
         # Train on another calibration (e.g. one recovered from these detections); the test samples
         # keep the reference, in whose world frame their ground truth is.
         train_set = train_set.recalibrated(subject_rigs(data.cameras_path, data.train_subjects))

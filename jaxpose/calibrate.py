@@ -24,7 +24,7 @@ import tyro
 from jaxpose import viz
 from jaxpose.calibration import (
     WORLD_FRAME, Calibration, CalibrationConfig, RigComparison, RigDetections, calibrate, compare_rigs, from_dataset,
-    read_npz,
+    read_detections_npz,
 )  # fmt: skip
 from jaxpose.calibration.compare import camera_centres
 from jaxpose.camera import Cameras
@@ -68,7 +68,7 @@ def read_input(args: CalibrateArgs) -> RigDetections:
         sizes = np.array([H36M_IMAGE_SIZES[name] for name in CAMERA_NAMES])
         detections = from_dataset(dataset, args.subject, CAMERA_NAMES, sizes, source=str(args.input))
     else:
-        detections = read_npz(args.input)
+        detections = read_detections_npz(args.input)
     if args.unknown_intrinsics:
         detections = dataclasses.replace(detections, K=None, dist=None)
     return detections
@@ -94,7 +94,7 @@ def report(calibration: Calibration, comparison: RigComparison | None, reference
         f"# Rig recovered from the person ({len(calibration.camera_names)} cameras, {intrinsics})",
         "",
         f"{calibration.frames_used} frames, {calibration.seconds:.1f} s. World frame: {WORLD_FRAME}.",
-        f"Scale: {scale.mm_per_unit:.1f} mm per unit of the first view pair's baseline, from the limb prior "
+        "Scale from the limb prior: "
         + ", ".join(f"{limb} {scale.prior_mm[limb]:.0f} mm (measured {length:.0f})" for limb, length in scale.measured_mm.items())
         + ".",
         "",

@@ -108,7 +108,10 @@ def make_train_step(
 
     def train_step(state: TrainState, batch: MultiViewBatch, key: jax.Array):
         if loss.supervision == "full" and batch.target3d is None:
-            raise ValueError("supervision='full' needs batch.target3d")
+            raise ValueError(
+                "supervision='full' needs batch.target3d (a training set recalibrated with another calibration"
+                " has none: its world frame is not the motion capture's)"
+            )
         dropout_key = jax.random.fold_in(key, state.step)
         (value, (metrics, batch_stats)), grads = grad_fn(state.params, state.batch_stats, batch, dropout_key, state.step)
         updates, opt_state = optimizer.update(grads, state.opt_state, state.params)

@@ -19,9 +19,11 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from jaxpose import calibrate as calibrate_cli
-from jaxpose.calibration import CalibrationConfig, CalibrationError, RigDetections, calibrate, compare_rigs, from_dataset
+from jaxpose.calibration import (
+    CalibrationConfig, CalibrationError, RigDetections, calibrate, compare_rigs, from_dataset, read_detections_npz,
+)  # fmt: skip
 from jaxpose.calibration.compare import camera_centres
-from jaxpose.calibration.scale import DEFAULT_LIMB_LENGTHS_MM, LIMBS, limb_joints, metric_scale
+from jaxpose.calibration.scale import LIMBS, limb_joints, metric_scale, prior_scale_error
 from jaxpose.camera import Cameras
 from jaxpose.data.camera_file import load_cameras, save_cameras
 from jaxpose.data.dataset import MultiViewDataset
@@ -45,15 +47,6 @@ def synthetic_subject():
 def own_rig(dataset: MultiViewDataset) -> Cameras:
     """The rig of a one-subject data set (`where` keeps every subject's rig; S2's is not the first)."""
     return dataset.rigs[int(dataset.rig_index[0])]
-
-
-def true_limb_ratio(dataset: MultiViewDataset) -> float:
-    """Geometric mean over the four limbs of prior / true median length: the scale error the prior implies."""
-    ratios = []
-    for limb, pairs in limb_joints(dataset.skeleton).items():
-        lengths = np.concatenate([np.linalg.norm(dataset.target3d[:, a] - dataset.target3d[:, b], axis=-1) for a, b in pairs])
-        ratios.append(DEFAULT_LIMB_LENGTHS_MM[LIMBS.index(limb)] / np.median(lengths))
-    return float(np.exp(np.mean(np.log(ratios))))
 
 
 def write_npz(path, dataset: MultiViewDataset, with_intrinsics: bool) -> None:
@@ -84,7 +77,7 @@ def test_synthetic_rig_is_recovered_through_the_command_line(synthetic_subject, 
     assert comparison.rotation_deg.max() < 0.5
     assert (comparison.centre_mm / distance).max() < 0.01
     # The scale is as right as the prior is for this body: the error is the body's deviation from it.
-    expected = true_limb_ratio(synthetic_subject) - 1.0
+    expected = prior_scale_error(synthetic_subject.target3d, synthetic_subject.skeleton)
     assert abs(comparison.scale_error - expected) < 0.015
     assert abs(comparison.scale_error) < 0.03
     assert np.all(calibration.reprojection_median_px < 6.0)  # the detector's noise is 3-8 px
@@ -109,6 +102,22 @@ def test_unknown_focal_lengths_are_estimated(synthetic_subject):
     np.testing.assert_allclose(calibration.cameras.K[:, 0, 0], np.asarray(rig.K)[:, 0, 0], rtol=0.02)
     comparison = compare_rigs(calibration.cameras.R, calibration.cameras.t, np.asarray(rig.R), np.asarray(rig.t))
     assert comparison.rotation_deg.max() < 1.5
+
+
+def test_two_views_with_occluded_joints(synthetic_subject):
+    """The smallest rig, with a third of one view's joints missing (some joints then seen by one view only)."""
+    rig = own_rig(synthetic_subject)
+    views = np.array([0, 2])
+    confidence = synthetic_subject.confidence[:, views].copy()
+    confidence[:, 1][np.random.default_rng(0).random(confidence[:, 1].shape) < 0.33] = 0.0
+    detections = RigDetections(
+        keypoints=synthetic_subject.keypoints2d[:, views], confidence=confidence, camera_names=("c0", "c2"),
+        image_size=np.full((2, 2), 1000), skeleton=synthetic_subject.skeleton, K=np.asarray(rig.K, np.float64)[views],
+    )  # fmt: skip
+    calibration = calibrate(detections, FAST)
+    comparison = compare_rigs(calibration.cameras.R, calibration.cameras.t, np.asarray(rig.R)[views], np.asarray(rig.t)[views])
+    assert comparison.rotation_deg.max() < 0.5
+    assert np.all(calibration.reprojection_median_px < 6.0)  # joints seen once are not counted as errors
 
 
 @settings(max_examples=25, deadline=None)
@@ -158,6 +167,21 @@ def detections(keypoints, confidence=None, **fields) -> RigDetections:
     )  # fmt: skip
 
 
+def test_npz_refusals_name_the_file_and_array(tmp_path):
+    path = tmp_path / "d.npz"
+    np.savez(path, keypoints=np.zeros((5, 2, 17, 2), np.float32), camera_names=np.array(["a", "b"]))
+    with pytest.raises(ValueError, match=r"d.npz: expected arrays \['image_size', 'skeleton'\]"):
+        read_detections_npz(path)
+    np.savez(path, keypoints=np.zeros((5, 2, 17, 2), np.float32), camera_names=np.array(["a", "b"]),
+             image_size=np.full((2, 2), 640), skeleton=np.array("smpl"))  # fmt: skip
+    with pytest.raises(ValueError, match=r"array 'skeleton'.*'smpl'"):
+        read_detections_npz(path)
+    np.savez(path, keypoints=np.zeros((5, 2, 17, 2), np.float32), camera_names=np.array(["a", "b"]),
+             image_size=np.full((2, 2), 640), skeleton=np.array("h36m17"), K=np.eye(3)[None])  # fmt: skip
+    with pytest.raises(ValueError, match=r"field 'K'.*\[C, 3, 3\] = \(2, 3, 3\)"):
+        read_detections_npz(path)
+
+
 def test_one_view_is_refused():
     with pytest.raises(ValueError, match="at least 2 views"):
         detections(np.zeros((10, 1, 17, 2), np.float32))
@@ -198,7 +222,7 @@ def test_a_view_that_never_sees_the_person_with_the_others_is_named(synthetic_su
 
 def test_recalibrated_dataset_uses_the_new_rigs_and_drops_the_ground_truth(synthetic_subject):
     rig = own_rig(synthetic_subject)
-    moved = Cameras(K=np.asarray(rig.K), R=np.asarray(rig.R), t=np.asarray(rig.t) + 100.0)
+    moved = Cameras(K=np.asarray(rig.K), R=np.asarray(rig.R), t=np.asarray(rig.t) + 100.0)  # another rig
     recalibrated = synthetic_subject.recalibrated({"S2": moved})
     np.testing.assert_array_equal(recalibrated.cameras_for(np.arange(3)).t, np.broadcast_to(moved.t, (3, 4, 3)))
     assert recalibrated.target3d is None

@@ -4,6 +4,8 @@ their presets, paper-layout tables, --help and missing-data errors."""
 
 import dataclasses
 import json
+import os
+import pathlib
 
 import numpy as np
 import pytest
@@ -208,7 +210,7 @@ def test_h36m_trains_on_another_calibration_and_tests_on_the_reference(h36m_tree
     data_dir = h36m_tree / "martinez"
     reference = read_h36m_cameras(data_dir / "cameras.h5")
     names, cameras = reference["S1"]
-    moved = cameras.replace(t=cameras.t + np.float32(250.0))  # the same rig in another world frame
+    moved = cameras.replace(t=cameras.t + np.float32(250.0))  # a different calibration of the same views
     recovered = tmp_path / "recovered.json"
     save_cameras(recovered, {"S1": (names, moved)})
     data = h36m.H36MData(data_dir=data_dir, detections="sh", train_subjects=("S1",), test_subjects=("S9",),
@@ -223,3 +225,6 @@ def test_h36m_trains_on_another_calibration_and_tests_on_the_reference(h36m_tree
         np.broadcast_to(test_cameras.t[[test_names.index(name) for name in CAMERA_NAMES]], (2, 4, 3)),
     )
     assert splits.test.target3d is not None
+    # The reference itself, however spelled, is no recalibration: the ground truth stays.
+    same = dataclasses.replace(data, cameras_path=pathlib.Path(os.path.relpath(data_dir / "cameras.h5")))
+    assert h36m.load_splits(same).train.target3d is not None

@@ -1,7 +1,7 @@
 """Recover a multi-camera rig from the person it films: no calibration target, no calibration file.
 
-    from jaxpose.calibration import CalibrationConfig, calibrate, read_npz
-    calibration = calibrate(read_npz("detections.npz"), CalibrationConfig())
+    from jaxpose.calibration import CalibrationConfig, calibrate, read_detections_npz
+    calibration = calibrate(read_detections_npz("detections.npz"), CalibrationConfig())
     calibration.cameras          # Cameras [C]: K, R, t (mm), dist as given
 
 The steps, each its own module:
@@ -34,13 +34,13 @@ import numpy as np
 from jaxpose.calibration.bundle import bundle_adjust
 from jaxpose.calibration.compare import RigComparison, compare_rigs
 from jaxpose.calibration.initial import CalibrationError, initial_rig
-from jaxpose.calibration.inputs import RigDetections, from_dataset, read_npz
+from jaxpose.calibration.inputs import RigDetections, from_dataset, read_detections_npz
 from jaxpose.calibration.scale import DEFAULT_LIMB_LENGTHS_MM, MetricScale, metric_scale
 from jaxpose.camera import Cameras, undistort_points
 
 __all__ = [
     "Calibration", "CalibrationConfig", "CalibrationError", "RigComparison", "RigDetections", "calibrate",
-    "compare_rigs", "from_dataset", "read_npz",
+    "compare_rigs", "from_dataset", "read_detections_npz",
 ]  # fmt: skip
 
 WORLD_FRAME = "view 0's camera frame (origin at its centre, x right, y down, z forward), millimetres"
@@ -74,7 +74,14 @@ class CalibrationConfig:
     robust_rounds: int = 4
     """Re-weighting rounds of the bundle adjustment (each down-weights outlying detections anew)."""
     seed: int = 0
-    """RANSAC and frame-selection seed."""
+    """Seed of the RANSAC estimates and of their correspondence subsets."""
+
+    def __post_init__(self):
+        for name in ("max_frames", "min_joints", "min_frames", "robust_rounds"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"calibration {name} must be >= 1, got {getattr(self, name)}")
+        if self.ransac_threshold_px <= 0 or len(self.limb_lengths_mm) != 4 or min(self.limb_lengths_mm) <= 0:
+            raise ValueError("calibration ransac_threshold_px and the four limb_lengths_mm must be positive")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,8 +102,6 @@ class Calibration:
     focal_estimated: bool
     frames_used: int
     seconds: float
-    subject_centre: np.ndarray
-    """f64[3] median root joint position (world mm): where the person was."""
 
 
 def _select_frames(valid: np.ndarray, config: CalibrationConfig) -> np.ndarray:
@@ -112,7 +117,7 @@ def _check_motion(pixels: np.ndarray, valid: np.ndarray, detections: RigDetectio
     positions = np.where(valid[..., None], pixels, np.nan)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # a joint never seen by a view: all-NaN
-        spread = np.sqrt(np.nansum(np.nanvar(positions, axis=0), axis=-1))  # [C, J] pixels
+        spread = np.sqrt(np.sum(np.nanvar(positions, axis=0), axis=-1))  # [C, J] pixels, NaN where never seen
     diagonal = np.linalg.norm(detections.image_size, axis=-1)[:, None]
     motion = float(np.nanmedian(spread / diagonal))
     if not motion > config.min_motion:
@@ -134,8 +139,13 @@ def calibrate(detections: RigDetections, config: CalibrationConfig = Calibration
             f"{detections.source}: only {len(frames)} frames in which >= 2 views each see >= {config.min_joints} joints"
             f" (confidence >= {config.min_confidence}); calibration needs >= {config.min_frames}"
         )
-    valid = valid_all[frames]
+    # A joint seen by one view only cannot be triangulated: it would only add noise to the adjustment.
+    valid = valid_all[frames] & (valid_all[frames].sum(1, keepdims=True) >= 2)
     estimate_focal = detections.K is None if config.estimate_focal is None else config.estimate_focal
+    if estimate_focal and detections.dist is not None:
+        raise CalibrationError(f"{detections.source}: the focal lengths cannot be estimated under a given dist (fitted to the given K)")
+    if not estimate_focal and detections.K is None:
+        raise CalibrationError(f"{detections.source}: without K the focal lengths must be estimated (estimate_focal)")
     K = detections.K if detections.K is not None else _guess_intrinsics(detections.image_size)
     intrinsics = Cameras(K=jnp.asarray(K), R=jnp.tile(jnp.eye(3), (len(K), 1, 1)), t=jnp.zeros((len(K), 3)),
                          dist=None if detections.dist is None else jnp.asarray(detections.dist),
@@ -156,7 +166,6 @@ def calibrate(detections: RigDetections, config: CalibrationConfig = Calibration
     kept = adjusted.weights > 0.5
     cameras = Cameras(K=adjusted.K, R=adjusted.R, t=adjusted.t * scale.mm_per_unit, dist=detections.dist,
                       distortion_model=detections.distortion_model)  # fmt: skip
-    root = adjusted.points[:, 0][reliable[:, 0]] * scale.mm_per_unit
     return Calibration(
         cameras=cameras,
         camera_names=detections.camera_names,
@@ -168,7 +177,6 @@ def calibrate(detections: RigDetections, config: CalibrationConfig = Calibration
         focal_estimated=estimate_focal,
         frames_used=len(frames),
         seconds=time.perf_counter() - start,
-        subject_centre=np.median(root, axis=0) if len(root) else np.full(3, np.nan),
     )
 
 

@@ -13,8 +13,8 @@ A detector's outliers (left/right swaps, a limb mistaken for another) are handle
 re-weighted least squares: each round fixes Cauchy weights from the current residuals, both in the
 triangulation and in the residuals, and solves to convergence (optimistix's Levenberg-Marquardt).
 Rotations are updated on SO(3) with jaxlie.  Gauge: view 0 stays at the origin with identity
-rotation; the scale is left free (Levenberg-Marquardt's damping keeps that null direction still)
-and set afterwards from the body (`jaxpose.calibration.scale`).
+rotation, and one residual holds view 1's distance from it; the metric scale is set afterwards
+from the body (`jaxpose.calibration.scale`).
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ import jaxlie
 import numpy as np
 import optimistix as optx
 
+from jaxpose.calibration.initial import CalibrationError
 from jaxpose.camera import project_with_matrices
 from jaxpose.triangulation import triangulate
 
@@ -37,10 +38,10 @@ REWEIGHTINGS = 2
 # Cauchy scale as a multiple of the median residual: inliers keep ~full weight, a swapped joint
 # (tens of pixels off) next to none.
 CAUCHY_SCALE_PER_MEDIAN = 3.0
-# Tolerances on the parameters (radians, rig units ~ the first baseline, log focal): 1e-6 rad is
-# 0.00006 degrees, far below what the detections determine.
 EARLY_ROUND_STEPS = 10
 GAUGE_WEIGHT = 1e4  # pixels per rig unit of the scale-gauge residual
+# Tolerances on the parameters (radians, rig units ~ the first baseline, log focal): 1e-6 rad is
+# 0.00006 degrees, far below what the detections determine.
 SOLVER = optx.LevenbergMarquardt(rtol=1e-5, atol=1e-6)
 
 
@@ -60,8 +61,6 @@ class BundleResult:
     """f64[F, C, J] re-projection error of every observation (NaN where not observed)."""
     weights: np.ndarray
     """f64[F, C, J] the final robust weights (0 where not observed)."""
-    steps: int
-    """Levenberg-Marquardt steps over all rounds."""
 
 
 def _cameras(params: dict, R0: jax.Array, t0: jax.Array, K0: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -122,7 +121,7 @@ def _reweight_and_solve(params, R0, t0, K0, pixels, observed, max_steps: int):
     solution = optx.least_squares(
         _residuals, SOLVER, params, args=(R0, t0, K0, pixels, weights), max_steps=max_steps, throw=False
     )
-    return solution.value, weights, solution.stats["num_steps"]
+    return solution.value, weights
 
 
 @jax.jit
@@ -154,16 +153,15 @@ def bundle_adjust(
             params["log_focal"] = jnp.zeros(C, jnp.float64)
         R0, t0, K0, pixels64 = (jnp.asarray(a, jnp.float64) for a in (R, t, K, pixels))
         observed = jnp.asarray(observed)
-        steps = 0
         for round_index in range(rounds):
             # The early rounds only need to bring the outliers' weights down; the last one converges.
             limit = max_steps if round_index == rounds - 1 else EARLY_ROUND_STEPS
-            params, weights, round_steps = _reweight_and_solve(params, R0, t0, K0, pixels64, observed, limit)
-            steps += int(round_steps)
+            params, weights = _reweight_and_solve(params, R0, t0, K0, pixels64, observed, limit)
         R_out, t_out, K_out, points, error = _final(params, R0, t0, K0, pixels64, weights)
+    if not all(np.all(np.isfinite(np.asarray(a))) for a in (R_out, t_out, K_out)):
+        raise CalibrationError("the bundle adjustment diverged (non-finite cameras); check the detections' views and names")
     error = np.where(observed, np.asarray(error, np.float64), np.nan)
     return BundleResult(
         R=np.asarray(R_out, np.float64), t=np.asarray(t_out, np.float64), K=np.asarray(K_out, np.float64),
         points=np.asarray(points, np.float64), error_px=error, weights=np.asarray(weights, np.float64),
-        steps=int(steps),
     )  # fmt: skip

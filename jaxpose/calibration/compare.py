@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
 import numpy as np
+
+from jaxpose.camera import Cameras, camera_centers
 
 
 @dataclasses.dataclass(frozen=True)
@@ -25,7 +28,9 @@ class RigComparison:
 
 
 def camera_centres(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    return -np.einsum("cji,cj->ci", R, t)
+    """f64[C, 3] centres of cameras given as float64 numpy (jaxpose.camera.camera_centers, kept in float64)."""
+    with jax.enable_x64(True):
+        return np.asarray(camera_centers(Cameras(K=np.eye(3), R=np.asarray(R, np.float64), t=np.asarray(t, np.float64))))
 
 
 def _nearest_rotation(matrix: np.ndarray) -> np.ndarray:

@@ -64,7 +64,7 @@ def initial_rig(
     R = np.full((C, 3, 3), np.nan)
     t = np.full((C, 3), np.nan)
     R[first], t[first] = np.eye(3), np.zeros(3)
-    R[second], t[second] = _relative_pose(normalized, valid, first, second, threshold, rng)
+    R[second], t[second] = _relative_pose(normalized, valid, first, second, threshold, rng, camera_names)
     registered = [first, second]
     while len(registered) < C:
         points, usable = _triangulate_registered(normalized, valid, R, t, registered, threshold)
@@ -77,8 +77,8 @@ def initial_rig(
                 f" that the views {[camera_names[c] for c in registered]} triangulate; calibration needs"
                 f" >= {min_frames * min_joints} ({min_frames} frames x {min_joints} joints)"
             )
-        R[best], t[best] = _place_by_pnp(points[usable & valid[:, best]], normalized[:, best][usable & valid[:, best]],
-                                         threshold, rng)  # fmt: skip
+        seen = usable & valid[:, best]
+        R[best], t[best] = _place_by_pnp(points[seen], normalized[:, best][seen], threshold, rng, camera_names[best])
         registered.append(best)
     # Re-express every camera in view 0's frame: x_c = R_c R_0^T y + (t_c - R_c R_0^T t_0).
     relative = R @ R[0].T
@@ -86,7 +86,8 @@ def initial_rig(
 
 
 def _relative_pose(
-    normalized: np.ndarray, valid: np.ndarray, a: int, b: int, threshold: float, rng: np.random.Generator
+    normalized: np.ndarray, valid: np.ndarray, a: int, b: int, threshold: float, rng: np.random.Generator,
+    camera_names: Sequence[str],
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pose of view b in view a's frame (x_b = R x_a + t, |t| = 1) from their common joints."""
     both = valid[:, a] & valid[:, b]
@@ -101,7 +102,7 @@ def _relative_pose(
         points_a, points_b, np.eye(3), method=cv2.USAC_MAGSAC, prob=RANSAC_CONFIDENCE, threshold=threshold
     )
     if essential is None:
-        raise CalibrationError(f"views {a} and {b}: no essential matrix fits their common joints")
+        raise CalibrationError(f"views {camera_names[a]} and {camera_names[b]}: no essential matrix fits their common joints")
     # With few points the five-point solver may return several candidates stacked; keep the best one.
     _, R, t, _ = cv2.recoverPose(essential[:3], points_a, points_b, np.eye(3), mask=inliers)
     return R, t.ravel()
@@ -124,7 +125,7 @@ def _triangulate_registered(
 
 
 def _place_by_pnp(
-    points: np.ndarray, observed: np.ndarray, threshold: float, rng: np.random.Generator
+    points: np.ndarray, observed: np.ndarray, threshold: float, rng: np.random.Generator, name: str
 ) -> tuple[np.ndarray, np.ndarray]:
     """A view's (R, t) from 3D joints and their normalized observations in it (RANSAC, then LM)."""
     cv2.setRNGSeed(int(rng.integers(2**31)))
@@ -133,7 +134,7 @@ def _place_by_pnp(
         reprojectionError=threshold, confidence=RANSAC_CONFIDENCE, iterationsCount=2000, flags=cv2.SOLVEPNP_EPNP,
     )  # fmt: skip
     if not found or inliers is None or len(inliers) < 6:
-        raise CalibrationError("PnP found no camera pose consistent with the triangulated joints")
+        raise CalibrationError(f"view {name}: PnP found no camera pose consistent with the joints the other views triangulate")
     inliers = inliers.ravel()
     rvec, tvec = cv2.solvePnPRefineLM(points[inliers], observed[inliers].astype(np.float64), np.eye(3), None, rvec, tvec)
     return cv2.Rodrigues(rvec)[0], tvec.ravel()

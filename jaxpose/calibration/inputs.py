@@ -1,6 +1,6 @@
 """What rig calibration reads: one subject's synchronized multi-view detections, and where they come from.
 
-Two sources: an ``.npz`` written by any detector pipeline (`read_npz`, format below), or a subject of
+Two sources: an ``.npz`` written by any detector pipeline (`read_detections_npz`, format below), or a subject of
 a data set jaxpose already loads (`from_dataset`, e.g. Human3.6M's S1 with its known intrinsics).
 
 The ``.npz`` arrays:
@@ -80,12 +80,12 @@ class RigDetections:
         if self.image_size.shape != (C, 2) or np.any(self.image_size <= 0):
             fail("image_size", f"[C, 2] = {(C, 2)} positive (width, height) pixels", f"{self.image_size.tolist()}")
         if self.K is not None and (self.K.shape != (C, 3, 3) or not np.all(np.isfinite(self.K))):
-            fail("K", f"finite [C, 3, 3] = {(C, 3, 3)} intrinsics", f"shape {self.K.shape}")
+            fail("K", f"finite [C, 3, 3] = {(C, 3, 3)} intrinsics", f"shape {self.K.shape}, finite: {bool(np.all(np.isfinite(self.K)))}")
         if self.dist is not None:
             if self.K is None:
                 fail("dist", "intrinsics K as well (distortion is applied in K's normalized coordinates)", "no K")
             if self.dist.shape != (C, 5) or not np.all(np.isfinite(self.dist)):
-                fail("dist", f"finite [C, 5] = {(C, 5)} (k1, k2, p1, p2, k3)", f"shape {self.dist.shape}")
+                fail("dist", f"finite [C, 5] = {(C, 5)} (k1, k2, p1, p2, k3)", f"shape {self.dist.shape}, finite: {bool(np.all(np.isfinite(self.dist)))}")
         if self.distortion_model not in DISTORTION_MODELS:
             fail("distortion_model", f"one of {DISTORTION_MODELS}", repr(self.distortion_model))
 
@@ -102,7 +102,7 @@ class RigDetections:
                        distortion_model=self.distortion_model)  # fmt: skip
 
 
-def read_npz(path: str | Path) -> RigDetections:
+def read_detections_npz(path: str | Path) -> RigDetections:
     """Read the ``.npz`` described in the module docstring; errors name the file and the array."""
     path = Path(path)
     arrays = read_npz_arrays(path, "multi-view detections for calibration")

@@ -28,7 +28,7 @@ _LIMB_ENDS = {
     "upper arm": (("shoulder",), ("elbow",)),
     "forearm": (("elbow",), ("wrist",)),
     "thigh": (("hip",), ("knee",)),
-    "shank": (("knee",), ("foot", "ankle")),
+    "shank": (("knee",), ("ankle", "foot")),
 }
 
 
@@ -88,3 +88,11 @@ def metric_scale(
     return MetricScale(
         mm_per_unit, {limb: length * mm_per_unit for limb, length in medians.items()}, {limb: prior[limb] for limb in medians}
     )
+
+
+def prior_scale_error(points_mm: np.ndarray, skeleton: Skeleton, limb_lengths_mm=DEFAULT_LIMB_LENGTHS_MM) -> float:
+    """The scale error that the prior makes for a body of known joints f[F, J, 3] (mm): a perfect
+    calibration scaled by `metric_scale` is off by this much (prior / true limb length - 1, averaged
+    as `metric_scale` averages)."""
+    reference = metric_scale(points_mm, np.ones(points_mm.shape[:2], bool), skeleton, limb_lengths_mm)
+    return reference.mm_per_unit - 1.0
