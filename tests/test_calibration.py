@@ -247,3 +247,13 @@ def test_real_s1_rig_from_stacked_hourglass_detections(tmp_path):
     ])  # fmt: skip
     assert comparison.rotation_deg.max() < 1.0
     assert comparison.centre_mm.max() < 50.0
+
+
+def test_synthetic_calibration_experiment_help_documents_every_flag(capsys):
+    from experiments import calibration as experiment
+
+    with pytest.raises(SystemExit) as stop:
+        experiment.main(["--help"])
+    assert stop.value.code == 0
+    flags = ["--unknown-intrinsics"] + [f"--calibration.{field.name}".replace("_", "-") for field in dataclasses.fields(CalibrationConfig)]
+    assert_every_flag_documented(capsys.readouterr().out, flags)
