@@ -216,7 +216,9 @@ def train(
     run_log = RunLog(run_dir, int(jax.device_get(state.step)), config.run.tensorboard)
     learning_rate = config.optimizer.learning_rate_schedule(total_steps)
     evaluate = periodic_evaluation(config, test_set, model) if cfg.eval_every > 0 and test_set is not None else None
-    step_fn = jit_train_step(make_train_step(model, config.model, optimizer, config.loss, total_steps), mesh)
+    step_fn = jit_train_step(
+        make_train_step(model, config.model, optimizer, config.loss, total_steps, cfg.log_every, stop_step), mesh
+    )
     start = int(state.step)
     views = train_set.num_views
     log.info(

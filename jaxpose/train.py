@@ -23,7 +23,7 @@ from jaxpose import parallel
 from jaxpose.camera import normalize_keypoints
 from jaxpose.config import LossConfig, ModelConfig
 from jaxpose.data.batch import MultiViewBatch
-from jaxpose.losses import gradient_shares, input_triangulation_loss, total_loss
+from jaxpose.losses import TERMS, gradient_shares, input_triangulation_loss, total_loss
 from jaxpose.model import LifterNetwork
 
 
@@ -65,9 +65,14 @@ def output_triangulation_start_step(loss: LossConfig, total_steps: int) -> int:
 
 
 def make_loss_fn(
-    model: LifterNetwork, model_config: ModelConfig, loss: LossConfig, output_start_step: int
+    model: LifterNetwork, model_config: ModelConfig, loss: LossConfig, output_start_step: int,
+    measures_shares: Callable[[jax.Array], jax.Array] = lambda step: jnp.bool_(True),
 ) -> Callable[..., tuple[jax.Array, tuple[dict[str, jax.Array], Any]]]:
-    """loss_fn(params, batch_stats, batch, dropout_key, step) -> (loss, (metrics, new batch_stats))."""
+    """loss_fn(params, batch_stats, batch, dropout_key, step) -> (loss, (metrics, new batch_stats)).
+
+    The terms' gradient shares are computed on the steps where `measures_shares(step)` holds and are
+    0 on the others: one backward pull per term costs ~6% of a step, and only logged steps need them.
+    """
 
     def loss_fn(params, batch_stats, batch: MultiViewBatch, dropout_key, step):
         inputs = lifter_inputs(batch, model_config.input_normalization)
@@ -85,7 +90,15 @@ def make_loss_fn(
         else:
             weights = loss.weights(output_triangulation_on=step >= output_start_step)
             value, metrics = total_loss(pred, batch, weights, loss.triangulation, loss.label_robust_scale_mm)
-            shares = gradient_shares(jax.lax.stop_gradient(pred), batch, weights, loss.triangulation, loss.label_robust_scale_mm)
+            shares = jax.lax.cond(
+                measures_shares(step),
+                lambda p: {
+                    name: share.astype(jnp.float32)
+                    for name, share in gradient_shares(p, batch, weights, loss.triangulation, loss.label_robust_scale_mm).items()
+                },
+                lambda p: {name: jnp.zeros((), jnp.float32) for name in TERMS},
+                jax.lax.stop_gradient(pred),
+            )
             metrics = dict(metrics, output_triangulation_weight=weights.output_triangulation)
             metrics.update({f"{GRADIENT_SHARE_PREFIX}{name}": share for name, share in shares.items()})
         return value, (metrics, updates.get("batch_stats", batch_stats))
@@ -99,11 +112,26 @@ def make_train_step(
     optimizer: optax.GradientTransformation,
     loss: LossConfig,
     total_steps: int,
+    share_every: int = 1,
+    last_step: int | None = None,
 ) -> Callable[[TrainState, MultiViewBatch, jax.Array], tuple[TrainState, dict[str, jax.Array]]]:
-    """The pure train step (un-jitted; see `jit_train_step`)."""
+    """The pure train step (un-jitted; see `jit_train_step`).
+
+    The metrics' gradient shares are measured every `share_every` steps (counting completed steps,
+    as the run log does) and on the step that completes `last_step` (default `total_steps`), 0 on
+    the others: pass the log interval so that every logged line has them at no cost elsewhere.
+    """
     if loss.supervision not in ("self", "full"):
         raise ValueError(f"unknown supervision {loss.supervision!r}; expected 'self' or 'full'")
-    loss_fn = make_loss_fn(model, model_config, loss, output_triangulation_start_step(loss, total_steps))
+    if share_every < 1:
+        raise ValueError(f"share_every must be >= 1, got {share_every}")
+    last_step = total_steps if last_step is None else last_step
+
+    def measures_shares(step: jax.Array) -> jax.Array:
+        done = step + 1
+        return (done % share_every == 0) | (done == last_step)
+
+    loss_fn = make_loss_fn(model, model_config, loss, output_triangulation_start_step(loss, total_steps), measures_shares)
     grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
 
     def train_step(state: TrainState, batch: MultiViewBatch, key: jax.Array):

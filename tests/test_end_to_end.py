@@ -64,8 +64,12 @@ def test_main_job_writes_the_run_directory(tmp_path):
     plots = ("plots/loss_curves.png", "plots/gradient_shares.png", "plots/gt_vs_prediction.png")
     for name in ("config.json", "metrics.jsonl", "report.json", "report.md", *plots):
         assert (run_dir / name).exists(), name
-    # Each term's share of the gradient w.r.t. the lifter output is logged and reported.
-    record = json.loads((run_dir / "metrics.jsonl").read_text().splitlines()[-1])
+    # Each term's share of the gradient w.r.t. the lifter output is logged (on every logged line:
+    # the step measures them on those steps only) and reported.
+    records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    for line in (record for record in records if "loss" in record):
+        assert abs(sum(line[key] for key in line if key.startswith("grad_share_")) - 1.0) < 1e-4, line["step"]
+    record = records[-1]
     shares = [record[f"grad_share_{term}"] for term in ("input_triangulation", "reprojection", "consistency", "output_triangulation")]
     assert abs(sum(shares) - 1.0) < 1e-4 and all(share > 0 for share in shares)
     assert report["final_gradient_shares"] == pytest.approx(dict(zip(("input_triangulation", "reprojection", "consistency", "output_triangulation"), shares)))

@@ -39,6 +39,23 @@ def test_train_step_compiles_once_across_the_output_triangulation_switch():
     assert int(state.step) == 6
 
 
+def test_gradient_shares_are_measured_on_logged_steps_only():
+    batch, _ = exact_batch(np.random.default_rng(3), 8, 4, 17)
+    model = SMALL.build(17)
+    optimizer = OptimizerConfig().build(7)
+    state = init_train_state(model, optimizer, jax.random.key(0))
+    # Every 3rd completed step and the last one (5 of 7 planned, e.g. --train.max-steps 5).
+    step = make_train_step(model, SMALL, optimizer, LossConfig(output_triangulation_start=0.0), 7, share_every=3, last_step=5)
+    counted = jax.jit(chex.assert_max_traces(step, n=1))
+    sums = []
+    for _ in range(5):
+        state, metrics = counted(state, batch, jax.random.key(1))
+        sums.append(sum(float(value) for name, value in metrics.items() if name.startswith("grad_share_")))
+    np.testing.assert_allclose(sums, [0.0, 0.0, 1.0, 0.0, 1.0], atol=1e-5)
+    with pytest.raises(ValueError, match="share_every"):
+        make_train_step(model, SMALL, optimizer, LossConfig(), 7, share_every=0)
+
+
 def test_train_step_reduces_the_loss_tenfold_on_a_fixed_batch():
     # The optimization machinery (gradients through all four losses, Adam, BatchNorm) on one fixed
     # batch; dropout off so that memorizing unstructured random poses is possible at all.
