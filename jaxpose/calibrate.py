@@ -28,8 +28,8 @@ from jaxpose.calibration import (
 )  # fmt: skip
 from jaxpose.calibration.compare import camera_centres
 from jaxpose.camera import Cameras
-from jaxpose.data.camera_file import H36M_IMAGE_SIZES, load_cameras, read_h36m_cameras, save_cameras
-from jaxpose.data.errors import DataFormatError
+from jaxpose.data.camera_file import H36M_IMAGE_SIZES, read_calibration, save_cameras, select_views
+from jaxpose.data.h36m import CAMERA_NAMES, load_h36m
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,8 +61,6 @@ class CalibrateArgs:
 def read_input(args: CalibrateArgs) -> RigDetections:
     """The detections of an .npz, or of one subject of a Human3.6M folder (with its known intrinsics)."""
     if args.input.is_dir():
-        from jaxpose.data.h36m import CAMERA_NAMES, load_h36m
-
         dataset = load_h36m(args.input, detections=args.detections, subjects=(args.subject,),
                             train_stride=args.stride, test_stride=args.stride)  # fmt: skip
         sizes = np.array([H36M_IMAGE_SIZES[name] for name in CAMERA_NAMES])
@@ -76,14 +74,7 @@ def read_input(args: CalibrateArgs) -> RigDetections:
 
 def read_reference(path: Path, subject: str, camera_names: Sequence[str]) -> Cameras:
     """The reference rig of `subject`, in the order of `camera_names`."""
-    rigs = read_h36m_cameras(path) if path.suffix == ".h5" else load_cameras(path)
-    if subject not in rigs:
-        raise DataFormatError(path, f"a reference calibration of subject {subject!r}", f"subjects {sorted(rigs)}")
-    names, cameras = rigs[subject]
-    missing = [name for name in camera_names if name not in names]
-    if missing:
-        raise DataFormatError(path, f"subject {subject!r}: cameras {list(camera_names)}", f"cameras {names} (no {missing})")
-    return cameras[np.array([names.index(name) for name in camera_names])]
+    return select_views(read_calibration(path), path, subject, tuple(camera_names))
 
 
 def report(calibration: Calibration, comparison: RigComparison | None, reference: Cameras | None) -> str:

@@ -66,12 +66,13 @@ def output_triangulation_start_step(loss: LossConfig, total_steps: int) -> int:
 
 def make_loss_fn(
     model: LifterNetwork, model_config: ModelConfig, loss: LossConfig, output_start_step: int,
-    measures_shares: Callable[[jax.Array], jax.Array] = lambda step: jnp.bool_(True),
+    measures_shares: Callable[[jax.Array], jax.Array],
 ) -> Callable[..., tuple[jax.Array, tuple[dict[str, jax.Array], Any]]]:
     """loss_fn(params, batch_stats, batch, dropout_key, step) -> (loss, (metrics, new batch_stats)).
 
     The terms' gradient shares are computed on the steps where `measures_shares(step)` holds and are
-    0 on the others: one backward pull per term costs ~6% of a step, and only logged steps need them.
+    0 on the others: their backward pulls make the main job's step 1.13x slower (benchmarks/README.md),
+    and only logged steps need them.
     """
 
     def loss_fn(params, batch_stats, batch: MultiViewBatch, dropout_key, step):
@@ -92,11 +93,8 @@ def make_loss_fn(
             value, metrics = total_loss(pred, batch, weights, loss.triangulation, loss.label_robust_scale_mm)
             shares = jax.lax.cond(
                 measures_shares(step),
-                lambda p: {
-                    name: share.astype(jnp.float32)
-                    for name, share in gradient_shares(p, batch, weights, loss.triangulation, loss.label_robust_scale_mm).items()
-                },
-                lambda p: {name: jnp.zeros((), jnp.float32) for name in TERMS},
+                lambda p: gradient_shares(p, batch, weights, loss.triangulation, loss.label_robust_scale_mm),
+                lambda p: {name: jnp.zeros((), p.dtype) for name in TERMS},
                 jax.lax.stop_gradient(pred),
             )
             metrics = dict(metrics, output_triangulation_weight=weights.output_triangulation)

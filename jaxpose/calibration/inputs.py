@@ -20,7 +20,6 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxpose.camera import Cameras
 from jaxpose.data.camera_file import DISTORTION_MODELS
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.data.errors import DataFormatError
@@ -92,14 +91,6 @@ class RigDetections:
     @property
     def num_views(self) -> int:
         return self.keypoints.shape[1]
-
-    def known_intrinsics(self) -> Cameras | None:
-        """The given K and dist as `Cameras` [C] with identity extrinsics, or None when K is unknown."""
-        if self.K is None:
-            return None
-        C = self.num_views
-        return Cameras(K=self.K, R=np.tile(np.eye(3), (C, 1, 1)), t=np.zeros((C, 3)), dist=self.dist,
-                       distortion_model=self.distortion_model)  # fmt: skip
 
 
 def read_detections_npz(path: str | Path) -> RigDetections:

@@ -132,6 +132,12 @@ def read_h36m_cameras(path: str | Path) -> dict[str, SubjectCameras]:
     return {subject: (names, _as_float32(cameras)) for subject, (names, cameras) in _read_h36m(Path(path)).items()}
 
 
+def read_calibration(path: str | Path) -> dict[str, SubjectCameras]:
+    """A calibration of either kind: a jaxpose camera file (.json) or Human3.6M's cameras.h5."""
+    path = Path(path)
+    return load_cameras(path) if path.suffix == ".json" else read_h36m_cameras(path)
+
+
 def convert_h36m_cameras(cameras_h5: str | Path, out_json: str | Path) -> None:
     """Convert Human3.6M's `cameras.h5` into a camera file (exact float64 values, known image sizes)."""
     rigs = _read_h36m(Path(cameras_h5))

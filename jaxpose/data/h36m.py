@@ -42,7 +42,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from jaxpose.camera import Cameras
-from jaxpose.data.camera_file import SubjectCameras, load_cameras, read_h36m_cameras, select_views
+from jaxpose.data.camera_file import read_calibration, select_views
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.data.errors import DataFormatError
 from jaxpose.data.files import read_h5_dataset
@@ -193,7 +193,7 @@ def _resolve_layout(data_dir: Path, layout: str) -> str:
 
 def subject_rigs(path: Path, subjects: Sequence[str]) -> dict[str, Cameras]:
     """Each subject's 4 cameras in `CAMERA_NAMES` order, from cameras.h5 or a camera file."""
-    calibration: dict[str, SubjectCameras] = load_cameras(path) if path.suffix == ".json" else read_h36m_cameras(path)
+    calibration = read_calibration(path)
     rigs = {}
     for subject in subjects:
         rigs[subject] = select_views(calibration, path, subject, CAMERA_NAMES)
