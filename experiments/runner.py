@@ -57,6 +57,13 @@ class Splits:
     Hourglass's MPII "Spine" and "Head" on Human3.6M).  The report adds every metric over the other
     joints (Procrustes-aligned on those joints alone), where the definitions agree."""
 
+    def agreeing_joints(self) -> np.ndarray | None:
+        """Indices of the joints not in `detector_specific_joints`; None when every joint agrees."""
+        if not self.detector_specific_joints:
+            return None
+        names = self.test.skeleton.joint_names
+        return np.array([i for i, name in enumerate(names) if name not in self.detector_specific_joints])
+
 
 class Interrupted(Exception):
     """Raised inside the loop when SIGINT/SIGTERM arrived; the checkpoint is already saved."""
@@ -286,13 +293,9 @@ def evaluate_and_report(
         "Input triangulation (multi-view, reference)": triangulation,
         "Mean pose (baseline)": np.ascontiguousarray(mean_pose),
     }
-    rows = {name: evaluation.evaluate_poses(poses, target, groups, valid) for name, poses in predictions.items()}
     excluded = splits.detector_specific_joints
-    agreeing = np.array([i for i, name in enumerate(test.skeleton.joint_names) if name not in excluded])
-    if excluded:
-        for name, poses in predictions.items():
-            subset = evaluation.evaluate_poses(poses[..., agreeing, :], target[..., agreeing, :], groups, valid)
-            rows[name]["agreeing_joints"] = {k: subset[k] for k in ("overall", "group_average") if k in subset}
+    agreeing = splits.agreeing_joints()
+    rows = {name: evaluation.evaluate_poses(poses, target, groups, valid, agreeing) for name, poses in predictions.items()}
     history = _read_jsonl(run_dir / "metrics.jsonl")
     last_train = next((r for r in reversed(history) if "loss" in r), {})
     shares = {k.removeprefix(GRADIENT_SHARE_PREFIX): v for k, v in last_train.items() if k.startswith(GRADIENT_SHARE_PREFIX)}
@@ -377,8 +380,16 @@ def _plots(config, test: MultiViewDataset, pred, target, run_dir: pathlib.Path) 
         viz.save_figure(figure, run_dir / "plots" / "gt_vs_prediction.png")
 
 
-def run(config: ExperimentConfig, load_data: Callable[[Any], Splits]) -> dict:
-    """The whole job: data -> pseudo-labels -> train (or resume) -> evaluate -> report."""
+def run(
+    config: ExperimentConfig,
+    load_data: Callable[[Any], Splits],
+    replace_labels: Callable[[MultiViewDataset], MultiViewDataset] | None = None,
+) -> dict:
+    """The whole job: data -> pseudo-labels -> train (or resume) -> evaluate -> report.
+
+    `replace_labels` maps the labelled training set to the one trained on: a diagnostic hook for
+    studies of what the labels cost (`experiments.label_bias`), never part of a method.
+    """
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s", stream=sys.stderr)
     # Before anything touches a device: a multi-host run connects its processes first.
     parallel.initialize(config.parallel.coordinator_address, config.parallel.num_processes, config.parallel.process_id)
@@ -394,6 +405,8 @@ def run(config: ExperimentConfig, load_data: Callable[[Any], Splits]) -> dict:
         log.warning("dropping %d training samples with fewer than %d usable views", int((~usable).sum()), config.pseudo_labels.min_views)
     train_set = splits.train.subset(np.flatnonzero(usable))
     train_set = pseudo_labelling.label(train_set, config.pseudo_labels)
+    if replace_labels is not None:
+        train_set = replace_labels(train_set)
     validate_batch(train_set.batch(np.arange(len(train_set))))
     splits = dataclasses.replace(splits, train=train_set)
     try:

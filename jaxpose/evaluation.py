@@ -88,14 +88,27 @@ def summarize(
 
 
 def evaluate_poses(
-    pred: np.ndarray, target: np.ndarray, groups: np.ndarray | None = None, view_valid: np.ndarray | None = None
+    pred: np.ndarray,
+    target: np.ndarray,
+    groups: np.ndarray | None = None,
+    view_valid: np.ndarray | None = None,
+    agreeing_joints: np.ndarray | None = None,
 ) -> dict:
-    """Evaluate [N, C, J, 3] predictions against [N, C, J, 3] targets; groups: per-sample labels [N]."""
+    """Evaluate [N, C, J, 3] predictions against [N, C, J, 3] targets; groups: per-sample labels [N].
+
+    With `agreeing_joints` (indices), the summary also holds "agreeing_joints": the "overall" and
+    "group_average" metrics of those joints alone, Procrustes-aligned on them (for a 2D source that
+    defines the other joints differently from the ground truth).
+    """
     N, C = pred.shape[:2]
     per_pose, per_joint = compute_metrics(pred.reshape(N * C, *pred.shape[2:]), target.reshape(N * C, *target.shape[2:]))
     expanded_groups = None if groups is None else np.repeat(np.asarray(groups), C)
     valid = None if view_valid is None else view_valid.reshape(N * C)
-    return summarize(per_pose, expanded_groups, valid, per_joint)
+    summary = summarize(per_pose, expanded_groups, valid, per_joint)
+    if agreeing_joints is not None:
+        subset = evaluate_poses(pred[..., agreeing_joints, :], target[..., agreeing_joints, :], groups, view_valid)
+        summary["agreeing_joints"] = {k: subset[k] for k in ("overall", "group_average") if k in subset}
+    return summary
 
 
 def mean_pose_prediction(train: MultiViewDataset) -> np.ndarray:

@@ -25,6 +25,14 @@ H36M_MOCAP_17 = (0, 1, 2, 3, 6, 7, 8, 12, 13, 14, 15, 17, 18, 19, 25, 26, 27)
 # LFoot, Hip, Spine, Thorax, Head, RWrist, RElbow, RShoulder, LShoulder, LElbow, LWrist.
 H36M_SH_FILE_MOCAP = (3, 2, 1, 6, 7, 8, 0, 12, 13, 15, 27, 26, 25, 17, 18, 19)
 
+# Flags for experiment runs on these trees: a tiny network and one short epoch (the plumbing, not
+# the accuracy), and the subjects of the tree `write_h36m_martinez_tree` writes by default.
+TINY_TRAINING = [
+    "--model.width", "32", "--train.epochs", "1", "--train.batch-size", "8", "--train.eval-batch-size", "256",
+    "--run.no-progress", "--run.plot-samples", "0",
+]  # fmt: skip
+H36M_SUBJECTS = ["--data.train-subjects", "S1", "--data.test-subjects", "S9"]
+
 
 # ----------------------------------------------------------------------------------------------
 # Geometry
@@ -151,10 +159,11 @@ def write_h36m_martinez_tree(
     missing_views: dict[tuple[str, str], tuple[str, ...]] | None = None,
     orphan_2d: tuple[tuple[str, str], ...] = (),
     seed: int = 0,
+    sh_mocap_joints: tuple[int, ...] = H36M_SH_FILE_MOCAP,
 ) -> H36MFixture:
     """h36m.zip layout: S*/MyPoses/3D_positions/<seq>.h5 (3D_positions f64[96, N]),
     S*/StackedHourglass/<seq with _>.<camera>.h5 (poses [N, 16, 2], here the exact projection of
-    the mocap in the SH file order), and cameras.h5.
+    the mocap joints `sh_mocap_joints`: by default those of the SH file order), and cameras.h5.
 
     missing_views: (subject, sequence) -> cameras whose SH file is left out (like S11 Directions).
     orphan_2d: (subject, SH sequence name) written as SH files with no 3D file.
@@ -179,7 +188,7 @@ def write_h36m_martinez_tree(
             left_out = (missing_views or {}).get((subject, sequence), ())
             for camera in cameras[subject]:
                 if camera["name"] not in left_out:
-                    pixels = h36m_project(camera, points[:, H36M_SH_FILE_MOCAP])
+                    pixels = h36m_project(camera, points[:, sh_mocap_joints])
                     _write_sh(sh_dir / f"{sequence.replace(' ', '_')}.{camera['name']}.h5", pixels)
     for subject, sequence in orphan_2d:
         for camera in cameras[subject]:

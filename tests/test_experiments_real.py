@@ -14,27 +14,12 @@ from experiments import ablation, cli, h36m, humaneva, mpi_inf_3dhp, paper_table
 from help_text import assert_every_flag_documented, assert_help_documents_every_field
 from jaxpose.data.camera_file import read_h36m_cameras, save_cameras
 from jaxpose.data.h36m import CAMERA_NAMES
-from fixtures_real_data import write_h36m_martinez_tree, write_h36m_videopose3d_files, write_humaneva_files
+from fixtures_real_data import H36M_SUBJECTS, TINY_TRAINING, write_humaneva_files
 from fixtures_real_data import write_mpi_inf_3dhp_test_set
 from jaxpose.data.mpi_inf_3dhp import camera_intrinsics
 
-# A tiny network and one short epoch: these tests check the plumbing, not the accuracy.
-TINY = [
-    "--model.width", "32", "--train.epochs", "1", "--train.batch-size", "8", "--train.eval-batch-size", "256",
-    "--run.no-progress", "--run.plot-samples", "0",
-]
-H36M_SUBJECTS = ["--data.train-subjects", "S1", "--data.test-subjects", "S9"]
 TABLE_II_HEADER = "| Method | Dir. | Dis. | Eat | Greet | Phone | Photo | Pose | Purch. | Sit | SitD | Smoke | Wait | WalkD | Walk | WalkT | Avg |"
 TABLE_III_HEADER = "| Method | Walking S1 | Walking S2 | Walking S3 | Jogging S1 | Jogging S2 | Jogging S3 | Avg |"
-
-
-@pytest.fixture(scope="module")
-def h36m_tree(tmp_path_factory):
-    """S1 (train) and S9 (test) with Directions 1, TakingPhoto, WalkingDog 1, Walking 1 in both layouts."""
-    root = tmp_path_factory.mktemp("h36m")
-    fixture = write_h36m_martinez_tree(root / "martinez")
-    write_h36m_videopose3d_files(root / "videopose3d", fixture)
-    return root
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +27,7 @@ def sh_run(h36m_tree, tmp_path_factory):
     """Martinez layout, Stacked Hourglass 2D (16 joints), trained with full supervision."""
     run_dir = tmp_path_factory.mktemp("runs") / "h36m_sh"
     argv = ["--data.data-dir", str(h36m_tree / "martinez"), "--data.detections", "sh", "--supervision", "full"]
-    report = h36m.main(argv + H36M_SUBJECTS + TINY + ["--run.run-dir", str(run_dir)])
+    report = h36m.main(argv + H36M_SUBJECTS + TINY_TRAINING + ["--run.run-dir", str(run_dir)])
     return run_dir, report
 
 
@@ -54,7 +39,7 @@ def cpn_run(h36m_tree, tmp_path_factory):
         "--data.data-dir", str(h36m_tree / "videopose3d"), "--data.detections", "cpn",
         "--data.cameras-path", str(h36m_tree / "martinez" / "cameras.h5"),
     ]
-    report = h36m.main(argv + H36M_SUBJECTS + TINY + ["--run.run-dir", str(run_dir)])
+    report = h36m.main(argv + H36M_SUBJECTS + TINY_TRAINING + ["--run.run-dir", str(run_dir)])
     return run_dir, report
 
 
@@ -101,7 +86,7 @@ def test_humaneva_table_iii_layout(tmp_path):
         "--data.data-dir", str(files.root), "--data.train-subjects", "Train/S1", "Train/S2",
         "--data.test-subjects", "Validate/S1", "Validate/S2", "--run.run-dir", str(run_dir),
     ]
-    report = humaneva.main(argv + TINY)
+    report = humaneva.main(argv + TINY_TRAINING)
     groups = report["results"]["Lifter, self-supervised (ours)"]["groups"]
     assert set(groups) == {"Walk S1", "Walk S2", "Jog S1", "Jog S2"}  # no Gestures: the protocol tests Walk, Jog
     assert (run_dir / "report.md").exists()

@@ -1,0 +1,207 @@
+"""Where the self-supervised lifter's gap to its supervised twin comes from on real detections: the
+detector's joint definitions, or its frame-to-frame errors.
+
+    python -m experiments.label_bias --data.data-dir DIR        # Human3.6M development split, ~15 min on 2 cores
+
+An oracle study, not a method: it reads the 3D ground truth of the training half, which no
+self-supervised row may, to measure what the pseudo-labels cost.
+
+The error of each training pseudo-label (root-relative) is expressed in the body frame of the
+motion-capture pose (x from the right to the left hip, z up the trunk towards the thorax, y = z x x).
+Its mean per joint over the training half is the detector's *definition bias*: where the detector
+puts a joint on the body against where the motion capture does (Stacked Hourglass was trained on
+MPII: its "Spine" is MPII's thorax).  What is left varies from frame to frame.  The first table
+gives each joint's bias and the pseudo-labels' P-MPJPE with and without it, on the training half
+and, with the training half's bias, on the test half (does the bias carry over?).
+
+Then the lifter is trained as the chosen preset on three kinds of label, each with all four losses
+and with L_in alone: the pseudo-labels; the definition bias only (ground truth + bias: the labels
+without their frame-to-frame error); the pseudo-labels with the bias removed.  Then the first of
+these lifters (pseudo-labels, all four losses) once more, its output moved by the bias (in the body
+frame of each prediction) from the detector's joint definitions to the ground truth's.  And the
+supervised twin.  Each row trains in its own sub-directory of --run.run-dir (default runs/label_bias_h36m_<preset>),
+so an interrupted study resumes; the report is <run_dir>/label_bias.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import pathlib
+import sys
+
+import numpy as np
+
+from experiments import ablation, cli, h36m
+from experiments.config import ExperimentConfig
+from experiments.runner import Splits, run
+from jaxpose import evaluation, inference, pseudo_labelling
+from jaxpose.data.dataset import MultiViewDataset
+from jaxpose.losses import TERMS
+from jaxpose.skeleton import Skeleton
+
+PROG = "python -m experiments.label_bias"
+LABEL_KINDS = ("pseudo-labels", "definition bias only", "bias removed")
+TERM_SETS = (("all four losses", TERMS), ("L_in", ("input_triangulation",)))
+
+
+def body_frames(poses: np.ndarray, skeleton: Skeleton) -> np.ndarray:
+    """f64[N, 3, 3]: per pose, the body axes (columns x, y, z) in the poses' own frame.
+
+    x runs from the right to the left hip, z up the trunk (root to thorax, made orthogonal to x),
+    y = z x x: a right-handed frame that turns and moves with the body.
+    """
+    joint = skeleton.index
+    poses = np.asarray(poses, np.float64)
+    x = poses[:, joint("LHip")] - poses[:, joint("RHip")]
+    x /= np.linalg.norm(x, axis=-1, keepdims=True)
+    up = poses[:, joint("Thorax")] - poses[:, joint("Hip")]
+    z = up - np.sum(up * x, -1, keepdims=True) * x
+    z /= np.linalg.norm(z, axis=-1, keepdims=True)
+    return np.stack([x, np.cross(z, x), z], axis=-1)
+
+
+def definition_bias(labels: np.ndarray, truth: np.ndarray, taught: np.ndarray, skeleton: Skeleton) -> np.ndarray:
+    """f64[J, 3]: the mean root-relative error of the taught labels ([N, J] mask) per joint, in the
+    body frame of the ground truth (mm; zero at the root)."""
+    labels, truth = np.asarray(labels, np.float64), np.asarray(truth, np.float64)
+    error = (labels - labels[:, :1]) - (truth - truth[:, :1])
+    in_body = np.einsum("nij,nki->nkj", body_frames(truth, skeleton), error)  # frames^T @ error
+    weight = np.asarray(taught, np.float64)[..., None]
+    return (in_body * weight).sum(0) / np.maximum(weight.sum(0), 1.0)
+
+
+def moved_in_body(poses: np.ndarray, frames: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """`poses` [N, J, 3] with `offset` [J, 3] (body-frame mm) added through each pose's `frames` [N, 3, 3]."""
+    return np.asarray(poses, np.float64) + np.einsum("nij,kj->nki", frames, offset)
+
+
+def relabelled(kind: str, train: MultiViewDataset) -> MultiViewDataset:
+    """The labelled training set with the pseudo-labels of `kind` (one of `LABEL_KINDS`)."""
+    if kind == "pseudo-labels":
+        return train
+    if train.target3d is None:
+        raise ValueError("the label-bias study needs the training half's 3D ground truth (a reference calibration)")
+    bias = training_bias(train)
+    frames = body_frames(train.target3d, train.skeleton)
+    if kind == "definition bias only":
+        labels = moved_in_body(train.target3d, frames, bias)
+    elif kind == "bias removed":
+        labels = moved_in_body(train.pseudo3d, frames, -bias)
+    else:
+        raise ValueError(f"unknown label kind {kind!r}; expected one of {LABEL_KINDS}")
+    return dataclasses.replace(train, pseudo3d=labels.astype(np.float32))
+
+
+def label_errors(labels: np.ndarray, truth: np.ndarray, agreeing: np.ndarray) -> tuple[float, float]:
+    """Mean P-MPJPE (mm) of [N, J, 3] labels over all joints and over the `agreeing` joints alone."""
+    everything, _ = evaluation.compute_metrics(labels.astype(np.float32), truth.astype(np.float32))
+    subset, _ = evaluation.compute_metrics(labels[:, agreeing].astype(np.float32), truth[:, agreeing].astype(np.float32))
+    return float(everything["p_mpjpe"].mean()), float(subset["p_mpjpe"].mean())
+
+
+def training_bias(train: MultiViewDataset) -> np.ndarray:
+    """f64[J, 3]: the definition bias of a labelled training set's taught pseudo-labels."""
+    return definition_bias(train.pseudo3d, train.target3d, train.pseudo3d_weight > 0, train.skeleton)
+
+
+def label_table(splits: Splits, config: ExperimentConfig, bias: np.ndarray) -> str:
+    """Markdown: the definition `bias` per joint, and the labels' P-MPJPE with and without it."""
+    skeleton = splits.train.skeleton
+    names = skeleton.joint_names
+    agreeing = splits.agreeing_joints()
+    agreeing = np.arange(len(names)) if agreeing is None else agreeing
+    lines = [
+        "**Definition bias per joint (body frame, mm; estimated on the training half)**",
+        "",
+        "| " + " | ".join(["", *names]) + " |",
+        "|" + "---|" * (len(names) + 1),
+        "| length | " + " | ".join(f"{v:.0f}" for v in np.linalg.norm(bias, axis=-1)) + " |",
+    ]
+    for axis, label in enumerate(("x (to the left hip)", "y (forward)", "z (up the trunk)")):
+        lines.append(f"| {label} | " + " | ".join(f"{v:+.0f}" for v in bias[:, axis]) + " |")
+    excluded = ", ".join(splits.detector_specific_joints) or "none"
+    lines += [
+        "",
+        "**Pseudo-labels against the ground truth, P-MPJPE (mm); training half's bias removed from both halves**",
+        "",
+        f"| Half | Pseudo-labels, all joints | Bias removed, all joints | Pseudo-labels, without {excluded} | Bias removed, without {excluded} |",
+        "|---|---|---|---|---|",
+    ]
+    for half, dataset in (("training", splits.train), ("test", splits.test)):
+        dataset = pseudo_labelling.label(dataset, config.pseudo_labels)
+        truth = dataset.target3d
+        removed = moved_in_body(dataset.pseudo3d, body_frames(truth, skeleton), -bias)
+        raw_all, raw_agreeing = label_errors(dataset.pseudo3d, truth, agreeing)
+        removed_all, removed_agreeing = label_errors(removed, truth, agreeing)
+        lines.append(f"| {half} | {raw_all:.1f} | {removed_all:.1f} | {raw_agreeing:.1f} | {removed_agreeing:.1f} |")
+    return "\n".join(lines)
+
+
+def shifted_output_report(run_dir: pathlib.Path, splits: Splits, bias: np.ndarray, label: str) -> dict:
+    """The lifter of `run_dir` evaluated with each output joint moved by -`bias` in the body frame of
+    the prediction itself: the detector's joint definitions mapped to the ground truth's after
+    training.  A report shaped like the runner's, for `ablation.comparison_table`."""
+    lifter = inference.load(run_dir)
+    test = splits.test
+    pred = evaluation.lift_every_view(lifter.eval_step, lifter.variables, test)
+    flat = pred.reshape(-1, *pred.shape[2:])
+    shifted = moved_in_body(flat, body_frames(flat, test.skeleton), -bias).reshape(pred.shape).astype(np.float32)
+    target = evaluation.poses_in_views(test, test.target3d)
+    valid = test.confidence[..., 0] > 0
+    summary = evaluation.evaluate_poses(shifted, target, test.labels.get(splits.group_label), valid, splits.agreeing_joints())
+    return {"method": label, "results": {label: summary}}
+
+
+def row_configs(base: ExperimentConfig) -> list[tuple[str, str, ExperimentConfig]]:
+    """(row label, label kind, config) for every kind of label and set of terms, each in its own directory."""
+    rows = []
+    for kind in LABEL_KINDS:
+        for terms_label, terms in TERM_SETS:
+            loss = dataclasses.replace(base.loss, **{term: (getattr(base.loss, term) if term in terms else 0.0) for term in TERMS})
+            directory = f"{kind.replace(' ', '_')}__{terms_label.replace(' ', '_')}"
+            run_config = dataclasses.replace(base, loss=loss, run=dataclasses.replace(base.run, run_dir=base.run.run_dir / directory))
+            rows.append((f"{kind}, {terms_label}", kind, run_config))
+    return rows
+
+
+def main(argv: list[str] | None = None) -> str:
+    presets = {
+        name: dataclasses.replace(preset, run=dataclasses.replace(preset.run, run_dir=pathlib.Path(f"runs/label_bias_h36m_{name}")))
+        for name, preset in {"dev": h36m.DEV, **h36m.PRESETS}.items()
+    }
+    base = cli.parse(h36m.EXPERIMENT, sys.argv[1:] if argv is None else argv, __doc__, PROG, presets)
+    if base.loss.supervision != "self":
+        raise SystemExit("error: the label-bias study trains self-supervised rows (and adds the supervised twin itself): leave --supervision self")
+    load_splits = h36m.EXPERIMENT.loader()
+    splits = load_splits(base.data)
+    if splits.train.target3d is None:
+        raise SystemExit("error: the label-bias study needs the training half's 3D ground truth: leave --data.cameras-path unset")
+    bias = training_bias(pseudo_labelling.label(splits.train, base.pseudo_labels))
+    labels = label_table(splits, base, bias)
+    print(labels, flush=True)
+    results: list[tuple[str, dict]] = []
+    for label, kind, config in row_configs(base):
+        results.append((label, run(config, load_splits, replace_labels=functools.partial(relabelled, kind))))
+    # The first row's lifter, unchanged, with the training half's bias taken off its output.
+    first_label, _, first_config = row_configs(base)[0]
+    shifted_label = f"{first_label}, output moved by -bias"
+    results.append((shifted_label, shifted_output_report(first_config.run.run_dir, splits, bias, shifted_label)))
+    results.append((ablation.SUPERVISED_LABEL, run(ablation.supervised_twin(base), load_splits)))
+    joint_names = tuple(results[0][1]["joint_names"])
+    text = "\n\n".join(
+        [
+            labels,
+            "**Lifters trained on each kind of label (test half)**",
+            ablation.comparison_table(results),
+            evaluation.per_joint_table(ablation.per_joint_rows(results), "p_mpjpe", joint_names, "P-MPJPE (mm) per joint"),
+        ]
+    )
+    base.run.run_dir.mkdir(parents=True, exist_ok=True)
+    (base.run.run_dir / "label_bias.md").write_text(text + "\n")
+    print(text)
+    return text
+
+
+if __name__ == "__main__":
+    main()
