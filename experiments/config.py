@@ -100,6 +100,23 @@ class ExperimentConfig(Generic[DataT]):
     parallel: ParallelConfig = ParallelConfig()
 
 
+def mocap_calibration(given: pathlib.Path | None, default: pathlib.Path, training: pathlib.Path | None) -> pathlib.Path:
+    """The motion capture's calibration, in whose world frame the 3D ground truth is: the one
+    `given` (--data.reference-cameras-path), else the data set's own `default` where it exists, else
+    the `training` calibration (--data.cameras-path)."""
+    if given is not None:
+        return given
+    return default if default.exists() or training is None else training
+
+
+def other_training_calibration(training: pathlib.Path | None, reference: pathlib.Path) -> pathlib.Path | None:
+    """`training` where the training subjects use another calibration than the `reference` (e.g. one
+    recovered by `jaxpose.calibrate`), else None (a different spelling of the same file is the same)."""
+    if training is None or training.resolve() == reference.resolve():
+        return None
+    return training
+
+
 def to_json_dict(config: Any) -> Any:
     """A dataclass tree as JSON-ready dicts (paths and tuples become strings and lists)."""
     if dataclasses.is_dataclass(config):

@@ -23,7 +23,7 @@ from typing import Literal
 import numpy as np
 
 from experiments import cli, paper_tables
-from experiments.config import ExperimentConfig, RunConfig, TrainConfig
+from experiments.config import ExperimentConfig, RunConfig, TrainConfig, mocap_calibration, other_training_calibration
 from experiments.runner import Splits
 from jaxpose.config import RESCALED_LOSS, LossConfig, ModelConfig, OptimizerConfig, PseudoLabelConfig
 from jaxpose.data.h36m import DETECTION_FILES, POSES_3D_FILE, TEST_SUBJECTS, TRAIN_SUBJECTS, load_h36m, subject_rigs
@@ -91,10 +91,10 @@ def load_splits(data: H36MData) -> Splits:
         train = np.isin(dataset.labels["subject"], list(data.train_subjects))
         test = ~train
     train_set = dataset.subset(np.flatnonzero(train))
-    if data.cameras_path is not None and data.cameras_path.resolve() != reference.resolve():
-        # Train on another calibration (e.g. one recovered from these detections); the test samples
-        # keep the reference, in whose world frame their ground truth is.
-        train_set = train_set.recalibrated(subject_rigs(data.cameras_path, data.train_subjects))
+    training_calibration = other_training_calibration(data.cameras_path, reference)
+    if training_calibration is not None:
+        # The test samples keep the reference, in whose world frame their ground truth is.
+        train_set = train_set.recalibrated(subject_rigs(training_calibration, data.train_subjects))
     return Splits(
         train=train_set,
         test=dataset.subset(np.flatnonzero(test)),
@@ -105,10 +105,7 @@ def load_splits(data: H36MData) -> Splits:
 
 def reference_calibration(data: H36MData) -> pathlib.Path:
     """The motion capture's calibration (see `H36MData.reference_cameras_path`)."""
-    if data.reference_cameras_path is not None:
-        return data.reference_cameras_path
-    default = data.data_dir / "cameras.h5"
-    return default if default.exists() or data.cameras_path is None else data.cameras_path
+    return mocap_calibration(data.reference_cameras_path, data.data_dir / "cameras.h5", data.cameras_path)
 
 
 def first_trials(subjects: np.ndarray, actions: np.ndarray, sequences: np.ndarray) -> np.ndarray:

@@ -20,10 +20,10 @@ import pathlib
 import numpy as np
 
 from experiments import cli, paper_tables
-from experiments.config import ExperimentConfig, RunConfig, TrainConfig
+from experiments.config import ExperimentConfig, RunConfig, TrainConfig, mocap_calibration, other_training_calibration
 from experiments.runner import Splits
 from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
-from jaxpose.data.humaneva import POSES_3D_FILE, TEST_SUBJECTS, TRAIN_SUBJECTS, load_humaneva
+from jaxpose.data.humaneva import POSES_3D_FILE, TEST_SUBJECTS, TRAIN_SUBJECTS, load_humaneva, subject_rigs
 
 GROUP_LABEL = "action_subject"
 
@@ -37,7 +37,12 @@ class HumanEvaData:
     detections: str = "detectron_pt_coco"
     """2D source: NAME reads data_2d_humaneva15_NAME.npz (detectron_pt_coco: Mask R-CNN, COCO), gt, or a .npz path."""
     cameras_path: pathlib.Path | None = None
-    """jaxpose camera file with subjects S1-S3, cameras C1-C3 (you write it: README); None = <data-dir>/cameras.json."""
+    """Calibration the training subjects are triangulated and trained with: a jaxpose camera file
+    with subjects S1-S3, cameras C1-C3 (README), e.g. one recovered by `python -m jaxpose.calibrate`;
+    None = the reference."""
+    reference_cameras_path: pathlib.Path | None = None
+    """Calibration of the motion capture, for the test samples' ground truth (and --data.detections gt):
+    None = <data-dir>/cameras.json where it exists, else --data.cameras-path."""
     train_subjects: tuple[str, ...] = TRAIN_SUBJECTS
     """Training partition subjects (the protocol: Train/S1 Train/S2 Train/S3, all actions)."""
     test_subjects: tuple[str, ...] = TEST_SUBJECTS
@@ -51,22 +56,33 @@ class HumanEvaData:
 def load_splits(data: HumanEvaData) -> Splits:
     """The Train and Validate partitions; test results grouped by "<action> <subject>"."""
 
+    reference = reference_calibration(data)
+
     def load(split: str, subjects: tuple[str, ...], stride: int):
         return load_humaneva(
             data.data_dir,
             split,
             detections=data.detections,
             subjects=subjects,
-            cameras_path=data.cameras_path,
+            cameras_path=reference,
             stride=stride,
         )
 
     train = load("train", data.train_subjects, data.train_stride)
     test = load("test", data.test_subjects, data.test_stride)
+    training_calibration = other_training_calibration(data.cameras_path, reference)
+    if training_calibration is not None:
+        # The test samples keep the reference, in whose world frame their ground truth is.
+        train = train.recalibrated(subject_rigs(training_calibration, data.train_subjects))
     labels = test.labels
     action_subject = np.array([f"{action} {subject}" for action, subject in zip(labels["action"], labels["subject"])])
     test = dataclasses.replace(test, labels={**labels, GROUP_LABEL: action_subject})
     return Splits(train=train, test=test, group_label=GROUP_LABEL)
+
+
+def reference_calibration(data: HumanEvaData) -> pathlib.Path:
+    """The motion capture's calibration (see `HumanEvaData.reference_cameras_path`)."""
+    return mocap_calibration(data.reference_cameras_path, data.data_dir / "cameras.json", data.cameras_path)
 
 
 def expected_files(data: HumanEvaData) -> str:
@@ -78,13 +94,14 @@ def expected_files(data: HumanEvaData) -> str:
         poses2d = str(data.detections)
     else:
         poses2d = f"{root}/data_2d_humaneva15_{data.detections}.npz (VideoPose3D)"
-    cameras = data.cameras_path or f"{root}/cameras.json"
+    cameras = data.cameras_path or reference_calibration(data)
     return "\n".join(
         [
             f"This run reads HumanEva-I from --data.data-dir {root}:",
             f"  3D poses:  {root}/{POSES_3D_FILE} (VideoPose3D)",
             f"  2D (--data.detections {data.detections}):  {poses2d}",
             f"  cameras (--data.cameras-path):  {cameras} (a jaxpose camera file: subjects S1-S3, cameras C1-C3)",
+            f"  reference cameras (--data.reference-cameras-path):  {reference_calibration(data)}",
             f"  subjects:  {' '.join(data.train_subjects)} (train), {' '.join(data.test_subjects)} (test)",
         ]
     )

@@ -12,9 +12,9 @@ import pytest
 
 from experiments import ablation, cli, h36m, humaneva, mpi_inf_3dhp, paper_tables
 from help_text import assert_every_flag_documented, assert_help_documents_every_field
-from jaxpose.data.camera_file import read_h36m_cameras, save_cameras
+from jaxpose.data.camera_file import load_cameras, read_h36m_cameras, save_cameras
 from jaxpose.data.h36m import CAMERA_NAMES
-from fixtures_real_data import H36M_SUBJECTS, TINY_TRAINING, write_humaneva_files
+from fixtures_real_data import HUMANEVA_CAMERA_NAMES, H36M_SUBJECTS, TINY_TRAINING, write_humaneva_files
 from fixtures_real_data import write_mpi_inf_3dhp_test_set
 from jaxpose.data.mpi_inf_3dhp import camera_intrinsics
 
@@ -187,6 +187,31 @@ def test_h36m_dev_preset_is_the_cpu_recipe_at_a_proportional_budget():
     assert 0 < dev.optimizer.warmup_steps < cpu.optimizer.warmup_steps / 10
     # Every term acts: the recipe's L_con and L_out weights are not the paper's near-zero ones.
     assert cpu.loss.consistency >= 0.01 and cpu.loss.output_triangulation >= 0.1
+
+
+def test_humaneva_trains_on_another_calibration_and_tests_on_the_reference(tmp_path):
+    """As for Human3.6M: --data.cameras-path reaches the Train partition only, and Validate keeps
+    <data-dir>/cameras.json (--data.reference-cameras-path), the frame of its ground truth."""
+    files = write_humaneva_files(tmp_path / "humaneva", subjects=("S1",))
+    reference = load_cameras(files.cameras_path)
+    names, cameras = reference["S1"]
+    moved = cameras.replace(t=cameras.t + np.float32(300.0))
+    recovered = tmp_path / "recovered.json"
+    save_cameras(recovered, {"S1": (names, moved)})
+    data = humaneva.HumanEvaData(data_dir=files.root, train_subjects=("Train/S1",), test_subjects=("Validate/S1",),
+                                 cameras_path=recovered)  # fmt: skip
+    splits = humaneva.load_splits(data)
+    order = [names.index(name) for name in HUMANEVA_CAMERA_NAMES]
+    np.testing.assert_allclose(splits.train.cameras_for(np.arange(2)).t, np.broadcast_to(moved.t[order], (2, 3, 3)))
+    assert splits.train.target3d is None
+    np.testing.assert_allclose(splits.test.cameras_for(np.arange(2)).t, np.broadcast_to(cameras.t[order], (2, 3, 3)))
+    assert splits.test.target3d is not None
+    # The reference named explicitly, and the recovered file as the only calibration.
+    explicit = dataclasses.replace(data, reference_cameras_path=files.cameras_path)
+    assert humaneva.load_splits(explicit).train.target3d is None
+    alone = dataclasses.replace(data, data_dir=files.root, cameras_path=recovered, reference_cameras_path=recovered)
+    assert humaneva.load_splits(alone).train.target3d is not None
+    assert "--data.reference-cameras-path):  " + str(files.cameras_path) in humaneva.expected_files(data)
 
 
 def test_h36m_trains_on_another_calibration_and_tests_on_the_reference(h36m_tree, tmp_path):

@@ -66,7 +66,7 @@ def load_humaneva(
         raise ValueError(f"subjects of the {split} split are {split_subjects}, got {subjects}")
 
     calibration_path = Path(cameras_path) if cameras_path else data_dir / "cameras.json"
-    rigs = _subject_rigs(calibration_path, subjects)
+    rigs = subject_rigs(calibration_path, subjects)
     path3d = data_dir / POSES_3D_FILE
     positions3d = load_positions(path3d, "positions_3d", "VideoPose3D HumanEva-I 3D poses")
     positions2d = None
@@ -124,8 +124,9 @@ def _action(sequence: str) -> str:
     return next((prefix for prefix in _ACTION_PREFIXES if first.startswith(prefix)), first)
 
 
-def _subject_rigs(path: Path, subjects: tuple[str, ...]) -> dict:
-    """Each partition subject ("Train/S1") gets the cameras C1-C3 of its person ("S1")."""
+def subject_rigs(path: Path, subjects: tuple[str, ...]) -> dict:
+    """{person ("S1"): its cameras C1-C3 (numpy `Cameras` [3])} for partition subjects ("Train/S1"),
+    from a jaxpose camera file; the data set's "subject" labels are the persons."""
     calibration = load_cameras(path)
     rigs = {}
     for subject in subjects:
