@@ -6,7 +6,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from jaxpose import metrics
+from jaxpose import evaluation, metrics
 
 
 def numpy_p_mpjpe(pred, target):
@@ -89,3 +89,24 @@ def test_per_joint_metrics_average_to_the_pose_metrics():
     moved = pred.at[:, 5].set(target[:, 5] + jnp.array([100.0, 0.0, 0.0]))
     errors = metrics.per_joint_metrics(moved, target)["mpjpe"]
     np.testing.assert_allclose(errors[:, 5], 100.0, rtol=1e-5)
+
+
+def test_evaluate_poses_over_the_agreeing_joints_ignores_the_others():
+    """The "agreeing_joints" summary aligns and scores the listed joints alone: a joint defined
+    differently by the 2D source (here displaced by 200 mm in every pose) changes the all-joint
+    P-MPJPE but not the agreeing one, which equals the numpy oracle on the sliced poses."""
+    rng = np.random.default_rng(5)
+    target = rng.normal(0, 300, (12, 2, 16, 3)).astype(np.float32)
+    pred = (target + rng.normal(0, 30, target.shape)).astype(np.float32)
+    shifted = pred.copy()
+    shifted[..., 7, :] += np.float32(200.0)
+    agreeing = np.array([j for j in range(16) if j not in (7, 9)])
+    groups = np.array(["a", "b"] * 6)
+    plain = evaluation.evaluate_poses(pred, target, groups, agreeing_joints=agreeing)
+    moved = evaluation.evaluate_poses(shifted, target, groups, agreeing_joints=agreeing)
+    assert moved["overall"]["p_mpjpe"] > plain["overall"]["p_mpjpe"] + 5
+    oracle = numpy_p_mpjpe(pred[..., agreeing, :].reshape(24, -1, 3), target[..., agreeing, :].reshape(24, -1, 3)).mean()
+    for summary in (plain, moved):
+        np.testing.assert_allclose(summary["agreeing_joints"]["overall"]["p_mpjpe"], oracle, rtol=1e-4)
+        assert set(summary["agreeing_joints"]) == {"overall", "group_average"}
+    assert "agreeing_joints" not in evaluation.evaluate_poses(pred, target, groups)
