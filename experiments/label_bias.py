@@ -12,13 +12,15 @@ Its mean per joint over the training half is the detector's *definition bias*: w
 puts a joint on the body against where the motion capture does (Stacked Hourglass was trained on
 MPII: its "Spine" is MPII's thorax).  What is left varies from frame to frame.  The first table
 gives each joint's bias and the pseudo-labels' P-MPJPE with and without it, on the training half
-and, with the training half's bias, on the test half (does the bias carry over?).
+and, with the training half's bias, on the test half (on the development split these are other
+trials of the same subject).
 
 Then the lifter is trained as the chosen preset on three kinds of label, each with all four losses
 and with L_in alone: the pseudo-labels; the definition bias only (ground truth + bias: the labels
 without their frame-to-frame error); the pseudo-labels with the bias removed.  Then the first of
-these lifters (pseudo-labels, all four losses) once more, its output moved by the bias (in the body
-frame of each prediction) from the detector's joint definitions to the ground truth's.  And the
+these lifters (pseudo-labels, all four losses) once more, its output mapped from the detector's
+joint definitions to the ground truth's by a fixed offset per joint in the body frame of each
+prediction (`definition_map`, the mean correction of the training labels in their own body frames).  And the
 supervised twin.  Each row trains in its own sub-directory of --run.run-dir (default runs/label_bias_h36m_<preset>),
 so an interrupted study resumes; the report is <run_dir>/label_bias.md.
 """
@@ -49,7 +51,7 @@ def body_frames(poses: np.ndarray, skeleton: Skeleton) -> np.ndarray:
     """f64[N, 3, 3]: per pose, the body axes (columns x, y, z) in the poses' own frame.
 
     x runs from the right to the left hip, z up the trunk (root to thorax, made orthogonal to x),
-    y = z x x: a right-handed frame that turns and moves with the body.
+    y = z x x points backwards: a right-handed frame that turns and moves with the body.
     """
     joint = skeleton.index
     poses = np.asarray(poses, np.float64)
@@ -61,14 +63,30 @@ def body_frames(poses: np.ndarray, skeleton: Skeleton) -> np.ndarray:
     return np.stack([x, np.cross(z, x), z], axis=-1)
 
 
+def _mean_in_body(vectors: np.ndarray, frames: np.ndarray, taught: np.ndarray) -> np.ndarray:
+    """f64[J, 3]: the mean over the taught ([N, J] mask) of `vectors` [N, J, 3] in the body `frames` [N, 3, 3]."""
+    in_body = np.einsum("nij,nki->nkj", frames, vectors)  # frames^T @ vector
+    weight = np.asarray(taught, np.float64)[..., None]
+    return (in_body * weight).sum(0) / np.maximum(weight.sum(0), 1.0)
+
+
+def _root_relative_error(labels: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    labels, truth = np.asarray(labels, np.float64), np.asarray(truth, np.float64)
+    return (labels - labels[:, :1]) - (truth - truth[:, :1])
+
+
 def definition_bias(labels: np.ndarray, truth: np.ndarray, taught: np.ndarray, skeleton: Skeleton) -> np.ndarray:
     """f64[J, 3]: the mean root-relative error of the taught labels ([N, J] mask) per joint, in the
     body frame of the ground truth (mm; zero at the root)."""
-    labels, truth = np.asarray(labels, np.float64), np.asarray(truth, np.float64)
-    error = (labels - labels[:, :1]) - (truth - truth[:, :1])
-    in_body = np.einsum("nij,nki->nkj", body_frames(truth, skeleton), error)  # frames^T @ error
-    weight = np.asarray(taught, np.float64)[..., None]
-    return (in_body * weight).sum(0) / np.maximum(weight.sum(0), 1.0)
+    return _mean_in_body(_root_relative_error(labels, truth), body_frames(truth, skeleton), taught)
+
+
+def definition_map(labels: np.ndarray, truth: np.ndarray, taught: np.ndarray, skeleton: Skeleton) -> np.ndarray:
+    """f64[J, 3]: the offset, in the body frame of a pose *with the labels' joint definitions*, that
+    moves it onto the ground truth's joints (`moved_in_body(pose, body_frames(pose), offset)`): the
+    mean root-relative correction of the taught labels in their own body frames.  Exact where the
+    two definitions differ by a body-fixed offset, whichever skeleton the frame is built from."""
+    return _mean_in_body(-_root_relative_error(labels, truth), body_frames(labels, skeleton), taught)
 
 
 def moved_in_body(poses: np.ndarray, frames: np.ndarray, offset: np.ndarray) -> np.ndarray:
@@ -93,11 +111,12 @@ def relabelled(kind: str, train: MultiViewDataset) -> MultiViewDataset:
     return dataclasses.replace(train, pseudo3d=labels.astype(np.float32))
 
 
-def label_errors(labels: np.ndarray, truth: np.ndarray, agreeing: np.ndarray) -> tuple[float, float]:
-    """Mean P-MPJPE (mm) of [N, J, 3] labels over all joints and over the `agreeing` joints alone."""
-    everything, _ = evaluation.compute_metrics(labels.astype(np.float32), truth.astype(np.float32))
-    subset, _ = evaluation.compute_metrics(labels[:, agreeing].astype(np.float32), truth[:, agreeing].astype(np.float32))
-    return float(everything["p_mpjpe"].mean()), float(subset["p_mpjpe"].mean())
+def label_errors(dataset: MultiViewDataset, labels: np.ndarray, group_label: str, joints: np.ndarray | None = None) -> float:
+    """P-MPJPE (mm) of [N, J, 3] `labels` against `dataset`'s ground truth over `joints` (default all),
+    averaged over the groups of `group_label`, as the reports average their rows."""
+    joints = np.arange(labels.shape[1]) if joints is None else joints
+    per_pose, _ = evaluation.compute_metrics(labels[:, joints].astype(np.float32), dataset.target3d[:, joints].astype(np.float32))
+    return evaluation.summarize(per_pose, dataset.labels.get(group_label))["group_average"]["p_mpjpe"]
 
 
 def training_bias(train: MultiViewDataset) -> np.ndarray:
@@ -105,12 +124,10 @@ def training_bias(train: MultiViewDataset) -> np.ndarray:
     return definition_bias(train.pseudo3d, train.target3d, train.pseudo3d_weight > 0, train.skeleton)
 
 
-def label_table(splits: Splits, config: ExperimentConfig, bias: np.ndarray) -> str:
-    """Markdown: the definition `bias` per joint, and the labels' P-MPJPE with and without it."""
-    skeleton = splits.train.skeleton
-    names = skeleton.joint_names
-    agreeing = splits.agreeing_joints()
-    agreeing = np.arange(len(names)) if agreeing is None else agreeing
+def label_table(train: MultiViewDataset, test: MultiViewDataset, splits: Splits, bias: np.ndarray) -> str:
+    """Markdown: the definition `bias` per joint, and the pseudo-labels' P-MPJPE (of the labelled
+    `train` and `test` halves) with and without it."""
+    names = train.skeleton.joint_names
     lines = [
         "**Definition bias per joint (body frame, mm; estimated on the training half)**",
         "",
@@ -118,38 +135,42 @@ def label_table(splits: Splits, config: ExperimentConfig, bias: np.ndarray) -> s
         "|" + "---|" * (len(names) + 1),
         "| length | " + " | ".join(f"{v:.0f}" for v in np.linalg.norm(bias, axis=-1)) + " |",
     ]
-    for axis, label in enumerate(("x (to the left hip)", "y (forward)", "z (up the trunk)")):
+    for axis, label in enumerate(("x (to the left hip)", "y (backwards)", "z (up the trunk)")):
         lines.append(f"| {label} | " + " | ".join(f"{v:+.0f}" for v in bias[:, axis]) + " |")
-    excluded = ", ".join(splits.detector_specific_joints) or "none"
+    agreeing = splits.agreeing_joints()
+    header = ["Half", "Pseudo-labels", "Bias removed"]
+    if agreeing is not None:
+        excluded = ", ".join(splits.detector_specific_joints)
+        header += [f"Pseudo-labels, without {excluded}", f"Bias removed, without {excluded}"]
     lines += [
         "",
-        "**Pseudo-labels against the ground truth, P-MPJPE (mm); training half's bias removed from both halves**",
+        f"**Pseudo-labels against the ground truth, P-MPJPE (mm, average over {splits.group_label}s); the training half's bias removed from both halves**",
         "",
-        f"| Half | Pseudo-labels, all joints | Bias removed, all joints | Pseudo-labels, without {excluded} | Bias removed, without {excluded} |",
-        "|---|---|---|---|---|",
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(header),
     ]
-    for half, dataset in (("training", splits.train), ("test", splits.test)):
-        dataset = pseudo_labelling.label(dataset, config.pseudo_labels)
-        truth = dataset.target3d
-        removed = moved_in_body(dataset.pseudo3d, body_frames(truth, skeleton), -bias)
-        raw_all, raw_agreeing = label_errors(dataset.pseudo3d, truth, agreeing)
-        removed_all, removed_agreeing = label_errors(removed, truth, agreeing)
-        lines.append(f"| {half} | {raw_all:.1f} | {removed_all:.1f} | {raw_agreeing:.1f} | {removed_agreeing:.1f} |")
+    for half, dataset in (("training", train), ("test", test)):
+        removed = moved_in_body(dataset.pseudo3d, body_frames(dataset.target3d, dataset.skeleton), -bias)
+        cells = [label_errors(dataset, labels, splits.group_label) for labels in (dataset.pseudo3d, removed)]
+        if agreeing is not None:
+            cells += [label_errors(dataset, labels, splits.group_label, agreeing) for labels in (dataset.pseudo3d, removed)]
+        lines.append(f"| {half} | " + " | ".join(f"{v:.1f}" for v in cells) + " |")
     return "\n".join(lines)
 
 
-def shifted_output_report(run_dir: pathlib.Path, splits: Splits, bias: np.ndarray, label: str) -> dict:
-    """The lifter of `run_dir` evaluated with each output joint moved by -`bias` in the body frame of
-    the prediction itself: the detector's joint definitions mapped to the ground truth's after
-    training.  A report shaped like the runner's, for `ablation.comparison_table`."""
-    lifter = inference.load(run_dir)
+def mapped_output_report(config: ExperimentConfig, splits: Splits, offset: np.ndarray, label: str) -> dict:
+    """The lifter of `config`'s run evaluated with each output joint moved by `offset` (a
+    `definition_map`) in the body frame of the prediction itself: the detector's joint definitions
+    mapped to the ground truth's after training.  A report shaped like the runner's, for
+    `ablation.comparison_table`."""
+    lifter = inference.load(config.run.run_dir)
     test = splits.test
-    pred = evaluation.lift_every_view(lifter.eval_step, lifter.variables, test)
+    pred = evaluation.lift_every_view(lifter.eval_step, lifter.variables, test, config.train.eval_batch_size)
     flat = pred.reshape(-1, *pred.shape[2:])
-    shifted = moved_in_body(flat, body_frames(flat, test.skeleton), -bias).reshape(pred.shape).astype(np.float32)
+    mapped = moved_in_body(flat, body_frames(flat, test.skeleton), offset).reshape(pred.shape).astype(np.float32)
     target = evaluation.poses_in_views(test, test.target3d)
     valid = test.confidence[..., 0] > 0
-    summary = evaluation.evaluate_poses(shifted, target, test.labels.get(splits.group_label), valid, splits.agreeing_joints())
+    summary = evaluation.evaluate_poses(mapped, target, test.labels.get(splits.group_label), valid, splits.agreeing_joints())
     return {"method": label, "results": {label: summary}}
 
 
@@ -166,6 +187,7 @@ def row_configs(base: ExperimentConfig) -> list[tuple[str, str, ExperimentConfig
 
 
 def main(argv: list[str] | None = None) -> str:
+    # "dev" first: the first preset is the default.
     presets = {
         name: dataclasses.replace(preset, run=dataclasses.replace(preset.run, run_dir=pathlib.Path(f"runs/label_bias_h36m_{name}")))
         for name, preset in {"dev": h36m.DEV, **h36m.PRESETS}.items()
@@ -177,16 +199,18 @@ def main(argv: list[str] | None = None) -> str:
     splits = load_splits(base.data)
     if splits.train.target3d is None:
         raise SystemExit("error: the label-bias study needs the training half's 3D ground truth: leave --data.cameras-path unset")
-    bias = training_bias(pseudo_labelling.label(splits.train, base.pseudo_labels))
-    labels = label_table(splits, base, bias)
+    train = pseudo_labelling.label(splits.train, base.pseudo_labels)
+    test = pseudo_labelling.label(splits.test, base.pseudo_labels)
+    labels = label_table(train, test, splits, training_bias(train))
     print(labels, flush=True)
     results: list[tuple[str, dict]] = []
     for label, kind, config in row_configs(base):
         results.append((label, run(config, load_splits, replace_labels=functools.partial(relabelled, kind))))
-    # The first row's lifter, unchanged, with the training half's bias taken off its output.
+    # The first row's lifter, unchanged, its output mapped to the ground truth's joint definitions.
     first_label, _, first_config = row_configs(base)[0]
-    shifted_label = f"{first_label}, output moved by -bias"
-    results.append((shifted_label, shifted_output_report(first_config.run.run_dir, splits, bias, shifted_label)))
+    offset = definition_map(train.pseudo3d, train.target3d, train.pseudo3d_weight > 0, train.skeleton)
+    mapped_label = f"{first_label}, output mapped to the mocap's joints"
+    results.append((mapped_label, mapped_output_report(first_config, splits, offset, mapped_label)))
     results.append((ablation.SUPERVISED_LABEL, run(ablation.supervised_twin(base), load_splits)))
     joint_names = tuple(results[0][1]["joint_names"])
     text = "\n\n".join(

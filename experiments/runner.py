@@ -62,7 +62,7 @@ class Splits:
         if not self.detector_specific_joints:
             return None
         names = self.test.skeleton.joint_names
-        return np.array([i for i, name in enumerate(names) if name not in self.detector_specific_joints])
+        return np.array([i for i, name in enumerate(names) if name not in self.detector_specific_joints], dtype=int)
 
 
 class Interrupted(Exception):

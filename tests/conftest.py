@@ -4,7 +4,6 @@ import hypothesis
 import pytest
 
 from experiments import synthetic as synthetic_job
-from fixtures_real_data import write_h36m_martinez_tree, write_h36m_videopose3d_files
 from jaxpose import inference
 from jaxpose.data.synthetic import SyntheticConfig
 
@@ -30,13 +29,3 @@ def trained_run(tmp_path_factory):
 @pytest.fixture(scope="session")
 def lifter(trained_run):
     return inference.load(trained_run[0])
-
-
-@pytest.fixture(scope="session")
-def h36m_tree(tmp_path_factory):
-    """S1 (train) and S9 (test) with Directions 1, TakingPhoto, WalkingDog 1, Walking 1 in both
-    layouts: <root>/martinez (h36m.zip tree) and <root>/videopose3d (npz files)."""
-    root = tmp_path_factory.mktemp("h36m")
-    fixture = write_h36m_martinez_tree(root / "martinez")
-    write_h36m_videopose3d_files(root / "videopose3d", fixture)
-    return root

@@ -11,15 +11,26 @@ import numpy as np
 import pytest
 
 from experiments import ablation, cli, h36m, humaneva, mpi_inf_3dhp, paper_tables
+from experiments.config import mocap_calibration, other_training_calibration
 from help_text import assert_every_flag_documented, assert_help_documents_every_field
 from jaxpose.data.camera_file import load_cameras, read_h36m_cameras, save_cameras
 from jaxpose.data.h36m import CAMERA_NAMES
 from fixtures_real_data import HUMANEVA_CAMERA_NAMES, H36M_SUBJECTS, TINY_TRAINING, write_humaneva_files
+from fixtures_real_data import write_h36m_martinez_tree, write_h36m_videopose3d_files
 from fixtures_real_data import write_mpi_inf_3dhp_test_set
 from jaxpose.data.mpi_inf_3dhp import camera_intrinsics
 
 TABLE_II_HEADER = "| Method | Dir. | Dis. | Eat | Greet | Phone | Photo | Pose | Purch. | Sit | SitD | Smoke | Wait | WalkD | Walk | WalkT | Avg |"
 TABLE_III_HEADER = "| Method | Walking S1 | Walking S2 | Walking S3 | Jogging S1 | Jogging S2 | Jogging S3 | Avg |"
+
+
+@pytest.fixture(scope="module")
+def h36m_tree(tmp_path_factory):
+    """S1 (train) and S9 (test) with Directions 1, TakingPhoto, WalkingDog 1, Walking 1 in both layouts."""
+    root = tmp_path_factory.mktemp("h36m")
+    fixture = write_h36m_martinez_tree(root / "martinez")
+    write_h36m_videopose3d_files(root / "videopose3d", fixture)
+    return root
 
 
 @pytest.fixture(scope="module")
@@ -206,12 +217,31 @@ def test_humaneva_trains_on_another_calibration_and_tests_on_the_reference(tmp_p
     assert splits.train.target3d is None
     np.testing.assert_allclose(splits.test.cameras_for(np.arange(2)).t, np.broadcast_to(cameras.t[order], (2, 3, 3)))
     assert splits.test.target3d is not None
-    # The reference named explicitly, and the recovered file as the only calibration.
+    assert "--data.reference-cameras-path):  " + str(files.cameras_path) in humaneva.expected_files(data)
+    # The reference named explicitly is the same; the recovered file named as the reference is no recalibration.
     explicit = dataclasses.replace(data, reference_cameras_path=files.cameras_path)
     assert humaneva.load_splits(explicit).train.target3d is None
-    alone = dataclasses.replace(data, data_dir=files.root, cameras_path=recovered, reference_cameras_path=recovered)
-    assert humaneva.load_splits(alone).train.target3d is not None
-    assert "--data.reference-cameras-path):  " + str(files.cameras_path) in humaneva.expected_files(data)
+    assert humaneva.load_splits(dataclasses.replace(data, reference_cameras_path=recovered)).train.target3d is not None
+    # Without <data-dir>/cameras.json, --data.cameras-path alone is the calibration of both halves.
+    files.cameras_path.rename(tmp_path / "elsewhere.json")
+    alone = humaneva.load_splits(data)
+    assert alone.train.target3d is not None
+    np.testing.assert_allclose(alone.test.cameras_for(np.arange(2)).t, np.broadcast_to(moved.t[order], (2, 3, 3)))
+
+
+def test_the_reference_and_the_training_calibration(tmp_path):
+    """`mocap_calibration`: the given file, else the data set's own where it exists, else the
+    training calibration; `other_training_calibration`: None for the reference itself, however spelled."""
+    own, recovered, given = tmp_path / "cameras.h5", tmp_path / "recovered.json", tmp_path / "mocap.json"
+    assert mocap_calibration(given, own, recovered) == given
+    assert mocap_calibration(None, own, recovered) == recovered  # no <data-dir> calibration
+    assert mocap_calibration(None, own, None) == own  # the missing-file error names it later
+    own.write_bytes(b"")
+    assert mocap_calibration(None, own, recovered) == own
+    assert other_training_calibration(recovered, own) == recovered
+    assert other_training_calibration(None, own) is None
+    spelled = pathlib.Path(os.path.relpath(own))
+    assert other_training_calibration(spelled, own) is None
 
 
 def test_h36m_trains_on_another_calibration_and_tests_on_the_reference(h36m_tree, tmp_path):
