@@ -114,7 +114,9 @@ def parse(
     default_preset = next(iter(presets))
     name, rest = choose(argv, "--preset", list(presets), default_preset, prog)
     width = max(len(name) for name in presets)
-    listing = "\n".join(f"  {preset:<{width}}  {experiment.preset_notes[preset]}" for preset in presets)
+    listing = "\n".join(
+        f"  {preset:<{width}}  {experiment.preset_notes[preset]} ({presets[preset].run.run_dir})" for preset in presets
+    )
     text = (
         f"{description.rstrip()}\n\nPresets (--preset NAME, default {default_preset}; the defaults shown"
         f" below are those of --preset {name}):\n{listing}"

@@ -201,9 +201,9 @@ DEV = dataclasses.replace(
 
 PRESETS: dict[str, ExperimentConfig] = {"cpu": CPU, "paper": PAPER, "dev": DEV}
 PRESET_NOTES = {
-    "cpu": "width-512 lifter, batch 128, 30 epochs, cosine schedule, RANSAC pseudo-labels, rescaled loss weights: ~18 min on 2 CPU cores (runs/h36m_cpu)",
-    "paper": "the paper: authors' network, Adam 1e-3 constant, batch 8192, 500 epochs (runs/h36m_paper)",
-    "dev": "development protocol: S1 only, first trial of each action trains, the other tests; SH 2D; cpu recipe (runs/h36m_dev)",
+    "cpu": "width-512 lifter, batch 128, 30 epochs, cosine schedule, RANSAC pseudo-labels, rescaled loss weights: ~18 min on 2 CPU cores",
+    "paper": "the paper: authors' network, Adam 1e-3 constant, batch 8192, 500 epochs",
+    "dev": "development protocol: S1 only, first trial of each action trains, the other tests; SH 2D; cpu recipe",
 }
 DEFAULT = CPU
 EXPERIMENT = cli.Experiment(

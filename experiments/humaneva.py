@@ -139,8 +139,8 @@ PAPER = ExperimentConfig(
 
 PRESETS: dict[str, ExperimentConfig] = {"cpu": CPU, "paper": PAPER}
 PRESET_NOTES = {
-    "cpu": "width-512 lifter, batch 256, 400 epochs, cosine schedule: ~45 min on 2 CPU cores (runs/humaneva_cpu)",
-    "paper": "the paper: authors' network, Adam 1e-3 constant, batch 1600, 5000 epochs (runs/humaneva_paper)",
+    "cpu": "width-512 lifter, batch 256, 400 epochs, cosine schedule: ~45 min on 2 CPU cores",
+    "paper": "the paper: authors' network, Adam 1e-3 constant, batch 1600, 5000 epochs",
 }
 DEFAULT = CPU
 EXPERIMENT = cli.Experiment(

@@ -44,7 +44,7 @@ DEFAULT = ExperimentConfig(
 
 
 PRESETS: dict[str, ExperimentConfig] = {"main": DEFAULT}
-PRESET_NOTES = {"main": "the main job: width-512 lifter, batch 256, 8 epochs, cosine schedule: ~3 min on 2 CPU cores (runs/synthetic)"}
+PRESET_NOTES = {"main": "the main job: width-512 lifter, batch 256, 8 epochs, cosine schedule: ~3 min on 2 CPU cores"}
 
 
 EXPERIMENT = cli.Experiment(name="synthetic", presets=PRESETS, preset_notes=PRESET_NOTES, load_splits=load_splits)

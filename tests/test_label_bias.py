@@ -161,7 +161,10 @@ def test_label_bias_help_and_refusals(capsys):
         label_bias.main(["--help"])
     assert stop.value.code == 0
     text = capsys.readouterr().out
-    assert "runs/label_bias_h36m_dev" in text and "those of --preset dev" in text
+    assert "those of --preset dev" in text
+    presets = text[text.index("Presets (--preset NAME") :].splitlines()[1:4]
+    assert [line.split()[0] for line in presets] == ["dev", "cpu", "paper"]
+    assert all(line.endswith(f"(runs/label_bias_h36m_{line.split()[0]})") for line in presets)  # this study's run directories
     assert_every_flag_documented(text, ["--data.data-dir", "--data.detections", "--run.run-dir", "--train.epochs"])
     with pytest.raises(SystemExit, match="leave --supervision self"):
         label_bias.main(["--supervision", "full"])
