@@ -51,7 +51,8 @@ def main(argv=None) -> list[dict]:
         samples = dataset.where(subject=[subject])
         rig = samples.rigs[int(samples.rig_index[0])]
         R, t = np.asarray(rig.R, np.float64), np.asarray(rig.t, np.float64)
-        detections = from_dataset(samples, subject, names, image_size, intrinsics_known=not args.unknown_intrinsics)
+        detections = from_dataset(samples, subject, names, image_size)
+        detections = detections.without_intrinsics() if args.unknown_intrinsics else detections
         calibration = calibrate(detections, args.calibration)
         comparison = compare_rigs(calibration.cameras.R, calibration.cameras.t, R, t)
         distance = np.linalg.norm(camera_centres(R, t) - np.median(samples.target3d[:, 0], axis=0), axis=-1)

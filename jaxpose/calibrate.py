@@ -67,9 +67,7 @@ def read_input(args: CalibrateArgs) -> RigDetections:
         detections = from_dataset(dataset, args.subject, CAMERA_NAMES, sizes, source=str(args.input))
     else:
         detections = read_detections_npz(args.input)
-    if args.unknown_intrinsics:
-        detections = dataclasses.replace(detections, K=None, dist=None)
-    return detections
+    return detections.without_intrinsics() if args.unknown_intrinsics else detections
 
 
 def read_reference(path: Path, subject: str, camera_names: Sequence[str]) -> Cameras:

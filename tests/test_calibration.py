@@ -95,7 +95,7 @@ def test_synthetic_rig_is_recovered_through_the_command_line(synthetic_subject, 
 
 def test_unknown_focal_lengths_are_estimated(synthetic_subject):
     rig = own_rig(synthetic_subject)
-    detections = from_dataset(synthetic_subject, "S2", NAMES, np.full((4, 2), 1000), intrinsics_known=False)
+    detections = from_dataset(synthetic_subject, "S2", NAMES, np.full((4, 2), 1000)).without_intrinsics()
     calibration = calibrate(detections, FAST)
     assert calibration.focal_estimated
     # The start is 1.2 x 1000 px; the true focal lengths are ~1150 px.

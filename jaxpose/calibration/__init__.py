@@ -161,9 +161,9 @@ def calibrate(detections: RigDetections, config: CalibrationConfig = Calibration
         config.min_frames, config.seed,
     )  # fmt: skip
     adjusted = bundle_adjust(R0, t0, K, pixels, valid, estimate_focal, rounds=config.robust_rounds)
-    reliable = (adjusted.weights > 0.5).sum(1) >= 2  # [F, J]
+    kept = adjusted.weights > 0.5  # [F, C, J] detections the robust adjustment kept
+    reliable = kept.sum(1) >= 2  # [F, J] joints triangulated from two or more of them
     scale = metric_scale(adjusted.points, reliable, detections.skeleton, config.limb_lengths_mm)
-    kept = adjusted.weights > 0.5
     cameras = Cameras(K=adjusted.K, R=adjusted.R, t=adjusted.t * scale.mm_per_unit, dist=detections.dist,
                       distortion_model=detections.distortion_model)  # fmt: skip
     return Calibration(

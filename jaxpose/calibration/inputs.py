@@ -88,9 +88,9 @@ class RigDetections:
         if self.distortion_model not in DISTORTION_MODELS:
             fail("distortion_model", f"one of {DISTORTION_MODELS}", repr(self.distortion_model))
 
-    @property
-    def num_views(self) -> int:
-        return self.keypoints.shape[1]
+    def without_intrinsics(self) -> "RigDetections":
+        """The same detections with K and dist withheld: the uncalibrated case (focal lengths estimated)."""
+        return dataclasses.replace(self, K=None, dist=None)
 
 
 def read_detections_npz(path: str | Path) -> RigDetections:
@@ -119,10 +119,10 @@ def read_detections_npz(path: str | Path) -> RigDetections:
 
 
 def from_dataset(
-    dataset: MultiViewDataset, subject: str, camera_names: tuple[str, ...], image_size: np.ndarray,
-    intrinsics_known: bool = True, source: str = "data set",
+    dataset: MultiViewDataset, subject: str, camera_names: tuple[str, ...], image_size: np.ndarray, source: str = "data set"
 ) -> RigDetections:
-    """One subject of a loaded data set (its "subject" label), keeping its rig's intrinsics if known.
+    """One subject of a loaded data set (its "subject" label), with its rig's intrinsics (see
+    `RigDetections.without_intrinsics` for the uncalibrated case).
 
     The extrinsics of the data set are dropped: they are what calibration recovers.
     """
@@ -139,8 +139,8 @@ def from_dataset(
         camera_names=tuple(camera_names),
         image_size=np.asarray(image_size, np.int64),
         skeleton=dataset.skeleton,
-        K=np.asarray(rig.K, np.float64) if intrinsics_known else None,
-        dist=None if rig.dist is None or not intrinsics_known else np.asarray(rig.dist, np.float64),
+        K=np.asarray(rig.K, np.float64),
+        dist=None if rig.dist is None else np.asarray(rig.dist, np.float64),
         distortion_model=rig.distortion_model,
         source=f"{source} subject {subject}",
     )
