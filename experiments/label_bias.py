@@ -163,13 +163,12 @@ def mapped_output_report(config: ExperimentConfig, splits: Splits, offset: np.nd
     `definition_map`) in the body frame of the prediction itself: the detector's joint definitions
     mapped to the ground truth's after training.  A report shaped like the runner's, for
     `ablation.comparison_table`."""
-    lifter = inference.load(config.run.run_dir)
     test = splits.test
+    target, valid = evaluation.ground_truth_in_views(test)
+    lifter = inference.load(config.run.run_dir)
     pred = evaluation.lift_every_view(lifter.eval_step, lifter.variables, test, config.train.eval_batch_size)
     flat = pred.reshape(-1, *pred.shape[2:])
     mapped = moved_in_body(flat, body_frames(flat, test.skeleton), offset).reshape(pred.shape).astype(np.float32)
-    target = evaluation.poses_in_views(test, test.target3d)
-    valid = test.confidence[..., 0] > 0
     summary = evaluation.evaluate_poses(mapped, target, test.labels.get(splits.group_label), valid, splits.agreeing_joints())
     return {"method": label, "results": {label: summary}}
 

@@ -178,8 +178,7 @@ def periodic_evaluation(config: ExperimentConfig, test: MultiViewDataset, model)
     """variables -> {eval_p_mpjpe, eval_mpjpe} (mm) on `config.train.eval_samples` evenly spaced test samples."""
     rows = np.unique(np.linspace(0, len(test) - 1, min(config.train.eval_samples, len(test))).astype(int))
     subset = test.subset(rows)
-    target = evaluation.poses_in_views(subset, subset.target3d)
-    valid = subset.confidence[..., 0] > 0
+    target, valid = evaluation.ground_truth_in_views(subset)
     eval_step = make_eval_step(model, config.model)
 
     def evaluate(variables) -> dict:
@@ -278,13 +277,10 @@ def evaluate_and_report(
 ) -> dict:
     """Single-view evaluation on every test view, the reference rows, report.{json,md}, plots."""
     test = splits.test
-    if test.target3d is None:
-        raise ValueError("the test split has no 3D ground truth to evaluate against")
+    target, valid = evaluation.ground_truth_in_views(test)  # raises, before any lifting, without ground truth
     eval_step = make_eval_step(model, config.model)
     pred = evaluation.lift_every_view(eval_step, state.variables, test, config.train.eval_batch_size)
-    target = evaluation.poses_in_views(test, test.target3d)
     groups = test.labels.get(splits.group_label)
-    valid = test.confidence[..., 0] > 0  # a view whose root was not detected cannot be lifted
     test_triangulated = pseudo_labelling.label(test, config.pseudo_labels)
     triangulation = evaluation.poses_in_views(test, test_triangulated.pseudo3d)
     mean_pose = np.broadcast_to(evaluation.mean_pose_prediction(splits.train), pred.shape)

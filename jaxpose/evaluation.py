@@ -29,6 +29,14 @@ def poses_in_views(dataset: MultiViewDataset, poses_world: np.ndarray) -> np.nda
     return in_camera - in_camera[..., :1, :]
 
 
+def ground_truth_in_views(dataset: MultiViewDataset) -> tuple[np.ndarray, np.ndarray]:
+    """What single-view evaluation compares with: the 3D ground truth root-relative in every view's
+    camera frame [N, C, J, 3], and bool[N, C]: the views that can be lifted (their root was detected)."""
+    if dataset.target3d is None:
+        raise ValueError("the test split has no 3D ground truth to evaluate against")
+    return poses_in_views(dataset, dataset.target3d), dataset.confidence[..., 0] > 0
+
+
 def lift_every_view(
     eval_step: Callable[..., jax.Array], variables, dataset: MultiViewDataset, batch_size: int = 16384
 ) -> np.ndarray:
