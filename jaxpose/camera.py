@@ -5,10 +5,18 @@ optional distortion `dist = (k1, k2, p1, p2, k3)`.  Every field carries the same
 (usually `[B, C]`: sample, view); functions broadcast those axes against the points' leading axes,
 so points of shape `[..., N, 3]` go with cameras of shape `[...]`.
 
-Two distortion models are supported because the real data need both:
+Three distortion models are supported because the real data need them:
 - "opencv": the Brown-Conrady model as OpenCV implements it.
 - "h36m": the variant Human3.6M's calibration was fitted with (docs/conventions.md), whose tangential
   terms differ from OpenCV's; its `dist` holds (k1, k2, p[0], p[1], k3) in the file's order.
+- "fisheye": OpenCV's fisheye (Kannala-Brandt) model, which Anipose/FreeMoCap calibrations write with
+  `fisheye = true`: with r the distance of the normalized point from the axis, theta = atan(r),
+  theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8), and the point is scaled by
+  theta_d / r.  Its four coefficients are stored as `dist = (k1, k2, k3, k4, 0)` so that every model
+  keeps the 5-vector.  Even with k = 0 this is the equidistant projection, not a pinhole one.
+
+`undistort_points` inverts the "opencv" and "h36m" models by fixed-point iteration and "fisheye" by
+Newton's method on theta (the fixed point converges too slowly at the wide angles fisheye lenses see).
 """
 
 from __future__ import annotations
@@ -19,7 +27,12 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-DistortionModel = Literal["opencv", "h36m"]
+DistortionModel = Literal["opencv", "h36m", "fisheye"]
+
+# Below this squared radius (normalized units) the fisheye scale theta_d / r uses its Taylor expansion
+# 1 + (k1 - 1/3) r^2: the ratio itself is 0/0 at the axis, and `jnp.where` alone would still send NaN
+# through the unused branch's gradient.
+_FISHEYE_AXIS_R2 = 1e-12
 
 # World and camera coordinates are millimetres; the losses work in metres (see jaxpose.losses).
 MM_PER_M = 1000.0
@@ -71,11 +84,30 @@ def rotate_between_cameras(source: Cameras, target: Cameras, vectors: jax.Array)
     return jnp.einsum("...ij,...nj->...ni", relative, vectors)
 
 
+def _fisheye_polynomial(theta: jax.Array, dist: jax.Array) -> jax.Array:
+    """theta_d / theta = 1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8 (dist = (k1, k2, k3, k4, 0))."""
+    k1, k2, k3, k4 = (dist[..., None, i] for i in range(4))
+    t2 = theta * theta
+    return 1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4)))
+
+
+def _fisheye_scale(r2: jax.Array, dist: jax.Array) -> jax.Array:
+    """theta_d / r for squared radii r2 [..., N], finite with finite gradients at r = 0 (double where)."""
+    near_axis = r2 < _FISHEYE_AXIS_R2
+    r = jnp.sqrt(jnp.where(near_axis, 1.0, r2))
+    theta = jnp.arctan(r)
+    far = theta * _fisheye_polynomial(theta, dist) / r
+    near = 1.0 + (dist[..., None, 0] - 1.0 / 3.0) * r2
+    return jnp.where(near_axis, near, far)
+
+
 def _distort(xy: jax.Array, dist: jax.Array, model: str) -> jax.Array:
     """Apply lens distortion to normalized image coordinates xy [..., N, 2]."""
-    k1, k2, p1, p2, k3 = (dist[..., None, i] for i in range(5))
     x, y = xy[..., 0], xy[..., 1]
     r2 = x * x + y * y
+    if model == "fisheye":
+        return xy * _fisheye_scale(r2, dist)[..., None]
+    k1, k2, p1, p2, k3 = (dist[..., None, i] for i in range(5))
     radial = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
     if model == "opencv":
         x_d = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
@@ -85,7 +117,7 @@ def _distort(xy: jax.Array, dist: jax.Array, model: str) -> jax.Array:
         x_d = x * (radial + tangential) + p2 * r2
         y_d = y * (radial + tangential) + p1 * r2
     else:
-        raise ValueError(f"unknown distortion model {model!r}; expected 'opencv' or 'h36m'")
+        raise ValueError(f"unknown distortion model {model!r}; expected 'opencv', 'h36m' or 'fisheye'")
     return jnp.stack([x_d, y_d], axis=-1)
 
 
@@ -149,18 +181,45 @@ def undistort_points(cameras: Cameras, pixels: jax.Array, iterations: int = 20) 
     """Distorted pixels [..., N, 2] -> undistorted pixels, by fixed-point iteration (jittable).
 
     Solves `distort(x) = x_d` with `x <- x_d - (distort(x) - x)`, which converges for the mild
-    distortion of real calibrations (|displacement gradient| < 1 over the image).  Cameras without
-    distortion return the input unchanged.
+    distortion of real calibrations (|displacement gradient| < 1 over the image).  The "fisheye"
+    model is radial, so it is inverted along the radius instead: Newton's method solves
+    theta_d = theta (1 + k1 theta^2 + ...) for theta, and the point is scaled by tan(theta) / theta_d
+    (the fixed-point iteration contracts only by r^2 / (1 + r^2) per step there, too slowly at the
+    image corners of a wide lens).  Cameras without distortion return the input unchanged.
     """
     if cameras.dist is None:
         return pixels
     distorted = _remove_intrinsics(cameras.K, pixels)
+    if cameras.distortion_model == "fisheye":
+        return _apply_intrinsics(cameras.K, _undistort_fisheye(distorted, cameras.dist, iterations))
 
     def refine(_, estimate):
         return distorted - (_distort(estimate, cameras.dist, cameras.distortion_model) - estimate)
 
     undistorted = jax.lax.fori_loop(0, iterations, refine, distorted)
     return _apply_intrinsics(cameras.K, undistorted)
+
+
+def _undistort_fisheye(distorted: jax.Array, dist: jax.Array, iterations: int) -> jax.Array:
+    """Normalized fisheye-distorted points [..., N, 2] -> undistorted normalized points."""
+    r2_d = jnp.sum(distorted * distorted, axis=-1)
+    near_axis = r2_d < _FISHEYE_AXIS_R2
+    theta_d = jnp.sqrt(jnp.where(near_axis, 1.0, r2_d))
+    k1, k2, k3, k4 = (dist[..., None, i] for i in range(4))
+
+    def newton(_, theta):
+        t2 = theta * theta
+        residual = theta * _fisheye_polynomial(theta, dist) - theta_d
+        slope = 1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)))
+        # A slope near 0 means a model past its turning point (far outside any real image); the
+        # clamps keep the iteration finite there and theta inside [0, pi/2), where tan is defined.
+        step = residual / jnp.where(jnp.abs(slope) < 1e-6, 1e-6, slope)
+        return jnp.clip(theta - step, 0.0, 0.5 * jnp.pi - 1e-4)
+
+    theta = jax.lax.fori_loop(0, iterations, newton, jnp.clip(theta_d, 0.0, 0.5 * jnp.pi - 1e-4))
+    # Near the axis tan(theta) / theta_d ~ (1 + theta^2 / 3) / (1 + k1 theta^2) ~ 1 + (1/3 - k1) r_d^2.
+    scale = jnp.where(near_axis, 1.0 + (1.0 / 3.0 - k1) * r2_d, jnp.tan(theta) / theta_d)
+    return distorted * scale[..., None]
 
 
 InputNormalization = Literal["intrinsics", "intrinsics_scale"]

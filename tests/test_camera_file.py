@@ -134,7 +134,7 @@ def test_invalid_field_names_file_subject_camera_and_field(tmp_path, camera, fie
     [
         ({"format": "something else"}, '"format": "jaxpose-cameras"'),
         ({"format": "jaxpose-cameras", "version": 2}, '"version": 1'),
-        ({**_document([]), "distortion_model": "fisheye"}, "distortion_model"),
+        ({**_document([]), "distortion_model": "division"}, "distortion_model"),
         ({**_document([]), "subjects": {}}, "non-empty"),
         (_document([_camera(), _camera()]), "unique"),
         (_document([{"K": []}]), '"name"'),

@@ -6,7 +6,7 @@ Schema (version 1)::
       "format": "jaxpose-cameras",
       "version": 1,
       "comment": "...",                      # optional free text, e.g. how the rig was obtained
-      "distortion_model": "opencv" | "h36m",
+      "distortion_model": "opencv" | "h36m" | "fisheye",
       "subjects": {
         "S1": [
           {
@@ -25,7 +25,8 @@ Schema (version 1)::
 
 `distortion_model` says how `dist` is applied (see `jaxpose.camera`): "opencv" is OpenCV's
 Brown-Conrady model, "h36m" the variant Human3.6M was calibrated with, its `dist` holding
-(k1, k2, p[0], p[1], k3) of `cameras.h5`.  The camera order of a subject is its view order.
+(k1, k2, p[0], p[1], k3) of `cameras.h5`, and "fisheye" OpenCV's fisheye model, its `dist` holding
+(k1, k2, k3, k4, 0).  The camera order of a subject is its view order.
 
 Command line::
 
@@ -51,7 +52,7 @@ from jaxpose.data.files import h5_dataset, open_h5, read_json
 
 FORMAT_NAME = "jaxpose-cameras"
 FORMAT_VERSION = 1
-DISTORTION_MODELS = ("opencv", "h36m")
+DISTORTION_MODELS = ("opencv", "h36m", "fisheye")
 
 # Video resolution (width, height) of the four Human3.6M cameras; cameras.h5 does not store it.
 H36M_IMAGE_SIZES = {
