@@ -3,22 +3,36 @@
     python -m jaxpose.predict --checkpoint runs/synthetic --input detections.json --output poses.json \\
         --image-size 1920 1080 --plot plots/
 
-Inputs (the kind is told by the path):
+Inputs (the kind is told by the path; read by `jaxpose.data.keypoint_files`):
 - COCO keypoint results, a ``.json`` list of {"image_id", "category_id", "keypoints": [x, y, score] * 17,
-  "score"} (what COCO-style detectors write); layout coco17 unless --format says otherwise.
-- OpenPose output, a folder of per-frame ``*_keypoints.json`` files (``--write_json``); every person's
-  ``pose_keypoints_2d`` (BODY_25, 25 * 3 values) is one pose, its image id the file name without
-  ``_keypoints.json``; layout openpose25.  A single such file works too.
+  "score"} (what COCO-style detectors write; AlphaPose's file-name image ids and extra keys too); one pose
+  per entry, in file order; layout coco17 unless --format says otherwise.
+- OpenPose output, a folder of per-frame ``.json`` files (``--write_json``; also Pose2Sim's
+  ``cam01.0010.json`` and ``frame_00001.json``), in frame-number order (the last digits of the name):
+  every person's ``pose_keypoints_2d`` is one pose, its image id the file name without
+  ``_keypoints.json`` (or ``.json``).  75 values per person are read as BODY_25 (layout openpose25;
+  BODY_25B writes as many values in another order and is not supported), 78 as HALPE_26 and 51 as
+  COCO-17 (HALPE_26's first 17 joints are COCO-17's: layout coco17).  A single such file works too.
 - ``.npz`` with ``keypoints`` [N, J, 2] px and optionally ``confidence`` [N, J], ``image_id`` [N] and
   ``K`` [N, 3, 3] (one camera per pose); the keypoints are in the checkpoint's own joint layout unless
   --format names one to convert from.
 COCO-17 and OpenPose BODY_25 are converted to H36M_17 by `jaxpose.keypoint_formats`.
 
-Output, by suffix: ``.json``, a list of {"image_id", "pose3d_mm": [[x, y, z] * J] or null, "joint_names"}
-in input order; or ``.npz`` with ``pose3d_mm`` f32[N, J, 3] (NaN rows), ``valid`` [N], ``image_id`` [N]
-and ``joint_names`` [J].  Poses are root-relative, in mm, in the camera frame (x right, y down,
-z forward).  A pose whose root (the pelvis; for COCO/OpenPose both hips) was not detected cannot be
-lifted: null / NaN.
+Output, by suffix, one pose per input pose, in input order.  Poses are root-relative, in the camera frame
+(x right, y down, z forward), in mm unless said otherwise:
+- ``.json``: a list of {"image_id", "pose3d_mm": [[x, y, z] * J] or null, "joint_names"};
+- ``.npz``: ``pose3d_mm`` f32[N, J, 3] (NaN rows), ``valid`` [N], ``image_id`` [N], ``joint_names`` [J];
+- ``.csv``: a header row ``image_id,<joint>_x_mm,<joint>_y_mm,<joint>_z_mm,...``, then a row per pose with
+  empty cells for a pose that could not be lifted;
+- ``.trc`` (OpenSim markers, `jaxpose.data.trc`): a data row per pose, Frame# from 1, Time = (Frame# - 1)
+  / --fps, a marker per joint (``/`` in a name becomes ``_``), Units m, empty fields for a pose that could
+  not be lifted.  Its axes are OpenSim's for a subject facing the camera (X forward, Y up, Z to the
+  subject's right): X = -z, Y = -y, Z = -x of the camera frame (a rotation of the camera axes), as line 1
+  of the file says after the file name.  A TRC holds one subject: an input with several people per
+  image gives a row per person, one after the other.
+
+A pose whose root (the pelvis; for COCO/OpenPose both hips) was not detected cannot be lifted: it is null,
+NaN or empty in the output.
 
 ``--animation clip.gif`` (or ``.mp4``) animates a sequence, one frame per image id: the 2D input beside
 the lifted 3D pose.
@@ -26,10 +40,12 @@ the lifted 3D pose.
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import json
 import pathlib
 import sys
+import warnings
 from collections.abc import Sequence
 from typing import Annotated, Any, Literal
 
@@ -39,10 +55,17 @@ from tqdm.auto import tqdm
 
 from jaxpose import inference, viz
 from jaxpose.checkpoint import CheckpointError
-from jaxpose.keypoint_formats import FORMATS, OPENPOSE_25_JOINT_NAMES, to_h36m17
+from jaxpose.data import keypoint_files, trc
+from jaxpose.keypoint_formats import FORMATS, to_h36m17
 
-OUTPUT_SUFFIXES = (".json", ".npz")
-OPENPOSE_SUFFIX = "_keypoints.json"
+OUTPUT_SUFFIXES = (".json", ".npz", ".csv", ".trc")
+OPENPOSE_SUFFIX = keypoint_files.OPENPOSE_SUFFIX
+# OpenPose-style values per person -> (layout, joints of the file that layout reads: the first ones).
+OPENPOSE_LAYOUTS = {75: ("openpose25", 25), 78: ("coco17", 17), 51: ("coco17", 17)}
+# The .trc axes from the camera frame's (x right, y down, z forward): X = -z, Y = -y, Z = -x, a rotation
+# (determinant +1) to OpenSim's X forward, Y up, Z right for a subject who faces the camera.
+TRC_AXES = np.array([[0, 0, -1], [0, -1, 0], [-1, 0, 0]], np.float32)
+TRC_NOTE = "(jaxpose: root-relative; X=-z Y=-y Z=-x of the camera's x right y down z forward)"
 # Poses per `Lifter3D.predict` call; inputs larger than this get a progress bar.
 LIFT_BLOCK = 16384
 
@@ -72,58 +95,41 @@ def _load_json(path: pathlib.Path) -> Any:
         raise ValueError(f"{path} is not valid JSON: {error}") from None
 
 
-def _triplets(values: Sequence[float], where: str, expected: int | None = None) -> np.ndarray:
-    """A flat [x, y, score] * J list as f32[J, 3]."""
-    array = np.asarray(values, np.float32)
-    if array.ndim != 1 or len(array) % 3 or (expected is not None and len(array) != 3 * expected):
-        size = "a multiple of 3" if expected is None else f"{3 * expected} (= {expected} joints x [x, y, score])"
-        raise ValueError(f"{where}: expected a flat list of {size} numbers, got shape {array.shape}")
-    return array.reshape(-1, 3)
-
-
-def _from_triplets(
-    triplets: list[np.ndarray], image_ids: list[Any], layout: str, where: str, frame_ids: list[Any] | None = None
+def _from_rows(
+    rows: np.ndarray, image_ids: list[Any], layout: str, where: str, frame_ids: list[Any] | None = None
 ) -> DetectionFile:
-    if not triplets:
+    """rows f32[N, J, 3] of [x, y, score]."""
+    if not len(rows):
         raise ValueError(f"{where}: no poses to lift")
-    if len({len(t) for t in triplets}) > 1:
-        raise ValueError(f"{where}: poses have different numbers of keypoints {sorted({len(t) for t in triplets})}")
-    stacked = np.stack(triplets)
-    return DetectionFile(stacked[..., :2], stacked[..., 2], image_ids, layout, frame_ids=frame_ids)
+    return DetectionFile(rows[..., :2], rows[..., 2], image_ids, layout, frame_ids=frame_ids)
 
 
 def read_coco_results(path: pathlib.Path) -> DetectionFile:
-    """COCO keypoint results: one pose per entry, in file order."""
-    entries = _load_json(path)
-    if not isinstance(entries, list):
-        raise ValueError(f"{path}: expected a COCO keypoint-results list of {{image_id, keypoints, ...}} entries")
-    triplets, image_ids = [], []
-    for index, entry in enumerate(entries):
-        if not isinstance(entry, dict) or "keypoints" not in entry or "image_id" not in entry:
-            raise ValueError(f"{path}: entry {index} lacks 'image_id' or 'keypoints'")
-        triplets.append(_triplets(entry["keypoints"], f"{path}: entry {index} 'keypoints'"))
-        image_ids.append(entry["image_id"])
-    return _from_triplets(triplets, image_ids, "coco17", str(path))
+    """COCO keypoint results: one pose per entry, in file order, the image ids as written."""
+    image_ids, rows = keypoint_files.load_coco_entries(path)
+    return _from_rows(rows, image_ids, "coco17", str(path))
+
+
+def _openpose_image_id(name: str) -> str:
+    return name.removesuffix(OPENPOSE_SUFFIX) if name.endswith(OPENPOSE_SUFFIX) else name.removesuffix(".json")
 
 
 def read_openpose(path: pathlib.Path) -> DetectionFile:
-    """OpenPose JSON: a folder of `*_keypoints.json` frames (sorted by name) or one such file."""
-    files = sorted(path.glob("*" + OPENPOSE_SUFFIX)) if path.is_dir() else [path]
-    if not files:
-        raise FileNotFoundError(f"{path} holds no OpenPose files (*{OPENPOSE_SUFFIX})")
-    joints = len(OPENPOSE_25_JOINT_NAMES)  # BODY_25; OpenPose's COCO-18 model is not supported
-    triplets, image_ids, frame_ids = [], [], []
-    for file in tqdm(files, desc="reading", unit="file", disable=len(files) < 1000):
-        frame = _load_json(file)
-        if not isinstance(frame, dict):
-            raise ValueError(f"{file}: expected an OpenPose frame {{'people': [{{'pose_keypoints_2d': [...]}}, ...]}}")
-        image_id = file.name.removesuffix(OPENPOSE_SUFFIX)
-        frame_ids.append(image_id)
-        for person, entry in enumerate(frame.get("people", [])):
-            values = entry.get("pose_keypoints_2d", [])
-            triplets.append(_triplets(values, f"{file}: person {person} 'pose_keypoints_2d' (BODY_25)", joints))
-            image_ids.append(image_id)
-    return _from_triplets(triplets, image_ids, "openpose25", str(path), frame_ids)
+    """OpenPose JSON: a folder of per-frame files (in frame-number order) or one such file."""
+    detections = keypoint_files.read_openpose_folder(path)
+    names = [path.name] if path.is_file() else [file.name for _, file in keypoint_files.frame_files(path)]
+    frame_ids = [_openpose_image_id(name) for name in names]
+    count = detections.values_per_person
+    if count and count not in OPENPOSE_LAYOUTS:
+        raise ValueError(
+            f"{path}: {count} values per person ({count // 3} joints); predict reads BODY_25 (75 values),"
+            " HALPE_26 (78) and COCO-17 (51)"
+        )
+    layout, joints = OPENPOSE_LAYOUTS.get(count, ("openpose25", 0))
+    present = np.arange(detections.keypoints.shape[1]) < detections.people[:, None]  # [F, P]
+    rows = np.concatenate([detections.keypoints, detections.scores[..., None]], -1)[present][:, :joints]
+    image_ids = np.repeat(np.array(frame_ids, object), detections.people).tolist()
+    return _from_rows(rows, image_ids, layout, str(path), frame_ids)
 
 
 def read_npz(path: pathlib.Path) -> DetectionFile:
@@ -154,7 +160,7 @@ def read_detections(path: pathlib.Path) -> DetectionFile:
     if path.suffix == ".npz":
         return read_npz(path)
     if path.suffix == ".json":
-        return read_coco_results(path)
+        return read_openpose(path) if keypoint_files.is_openpose_frame_file(path) else read_coco_results(path)
     raise ValueError(f"input {path}: expected a COCO results .json, an OpenPose folder or a .npz")
 
 
@@ -185,8 +191,10 @@ def read_intrinsics(values: Sequence[str]) -> tuple[np.ndarray, np.ndarray | Non
     )
 
 
-def write_poses(path: pathlib.Path, poses: np.ndarray, image_ids: list[Any], joint_names: Sequence[str]) -> None:
-    """The output file, JSON or npz by suffix (see the module docstring)."""
+def write_poses(
+    path: pathlib.Path, poses: np.ndarray, image_ids: list[Any], joint_names: Sequence[str], fps: float = 10.0
+) -> None:
+    """The output file, .json, .npz, .csv or .trc by suffix (see the module docstring); `fps` is the TRC's rate."""
     path.parent.mkdir(parents=True, exist_ok=True)
     valid = np.isfinite(poses).all((1, 2))
     if path.suffix == ".npz":
@@ -194,8 +202,25 @@ def write_poses(path: pathlib.Path, poses: np.ndarray, image_ids: list[Any], joi
             path, pose3d_mm=poses, valid=valid, image_id=np.asarray(image_ids), joint_names=np.asarray(joint_names)
         )
         return
-    # 0.01 mm is far below any pose error; float64 first so the JSON holds no float32 round-off digits.
+    if path.suffix == ".trc":
+        if len(set(image_ids)) < len(image_ids):
+            warnings.warn(
+                f"{path}: several poses share an image id; the TRC gets a row per pose, one after the other",
+                stacklevel=2,
+            )
+        metres = np.where(valid[:, None, None], poses, np.nan) @ TRC_AXES.T / 1000.0
+        trc.write_trc(path, metres, joint_names, fps, units="m", path_note=TRC_NOTE)
+        return
+    # 0.01 mm is far below any pose error; float64 first so the text holds no float32 round-off digits.
     rounded = np.round(poses.astype(np.float64), 2)
+    if path.suffix == ".csv":
+        header = ["image_id"] + [f"{joint}_{axis}_mm" for joint in joint_names for axis in "xyz"]
+        with open(path, "w", newline="") as file:
+            writer = csv.writer(file, lineterminator="\n")
+            writer.writerow(header)
+            for image_id, pose, ok in zip(image_ids, rounded, valid):
+                writer.writerow([image_id, *(pose.ravel().tolist() if ok else [""] * pose.size)])
+        return
     records = [
         {"image_id": image_id, "pose3d_mm": pose.tolist() if ok else None, "joint_names": list(joint_names)}
         for image_id, pose, ok in zip(image_ids, rounded, valid)
@@ -258,9 +283,14 @@ class PredictArgs:
     checkpoint: Annotated[pathlib.Path, tyro.conf.arg(metavar="RUN")]
     """Run directory or its checkpoints/ folder; the newest readable step is used."""
     input: Annotated[pathlib.Path, tyro.conf.arg(metavar="FILE")]
-    """COCO keypoint-results .json, OpenPose folder of *_keypoints.json, or .npz (keypoints, confidence, image_id, K)."""
+    """COCO keypoint-results .json, OpenPose folder of per-frame .json files (or one such file), or .npz
+    (keypoints, confidence, image_id, K)."""
     output: Annotated[pathlib.Path, tyro.conf.arg(metavar="FILE")]
-    """Output .json (list of {image_id, pose3d_mm, joint_names}) or .npz (pose3d_mm, valid, image_id, joint_names)."""
+    """Output by suffix, a pose per input pose, root-relative: .json (list of {image_id, pose3d_mm,
+    joint_names}), .npz (pose3d_mm, valid, image_id, joint_names) or .csv (image_id, <joint>_x_mm, ...;
+    empty cells where a pose could not be lifted), all in mm in the camera frame (x right, y down,
+    z forward); or .trc (OpenSim markers in m at --fps, axes X = -z, Y = -y, Z = -x of the camera: X
+    forward, Y up, Z right for a subject facing the camera; empty fields where a pose could not be lifted)."""
     format: Literal[tuple(sorted(FORMATS))] | None = None  # type: ignore[valid-type]
     """Joint layout of the input keypoints (default: coco17 for COCO .json, openpose25 for OpenPose, the
     checkpoint's own layout for .npz)."""
@@ -277,10 +307,10 @@ class PredictArgs:
     animation: Annotated[pathlib.Path | None, tyro.conf.arg(metavar="FILE")] = None
     """Write an animation of the sequence, .gif or .mp4 by suffix (.mp4 needs ffmpeg: on PATH, or pip install
     'jaxpose[video]'): a frame per image id (numbers in numerical order, names as they sort; OpenPose frames
-    in file order, empty ones too), the 2D input beside the lifted 3D pose, at limits fixed over the sequence.
+    in frame-number order, empty ones too), the 2D input beside the lifted 3D pose, at limits fixed over the sequence.
     A frame with several people shows the pose with the highest mean keypoint score, lifted ones first."""
     fps: float = 10.0
-    """Frames per second of --animation."""
+    """Frames per second of --animation, and the DataRate of a .trc --output."""
     batch_size: int = inference.DEFAULT_BATCH_SIZE
     """Most poses per jitted lifter call."""
 
@@ -289,6 +319,8 @@ def run(args: PredictArgs) -> np.ndarray:
     """The whole command: read, convert, lift, write, plot, animate.  Returns the poses f32[N, J, 3]."""
     if args.output.suffix not in OUTPUT_SUFFIXES:
         raise ValueError(f"--output {args.output}: the suffix must be one of {OUTPUT_SUFFIXES}")
+    if args.output.suffix == ".trc" and not args.fps > 0:
+        raise ValueError(f"--fps must be positive for a .trc output, got {args.fps}")
     if args.animation is not None:
         try:  # a wrong suffix, or no encoder for .mp4, fails before the lifting
             viz.check_animation_path(args.animation, args.fps)
@@ -317,7 +349,7 @@ def run(args: PredictArgs) -> np.ndarray:
             per_pose_K = K if K is None or K.ndim == 2 else K[rows]
             poses[rows] = lifter.predict(keypoints[rows], per_pose_K, confidence[rows], dist, image_size)
             bar.update(rows.stop - rows.start)
-    write_poses(args.output, poses, detections.image_ids, lifter.joint_names)
+    write_poses(args.output, poses, detections.image_ids, lifter.joint_names, args.fps)
     lifted = int(np.isfinite(poses).all((1, 2)).sum())
     unliftable = f"; {count - lifted} without a detected root are null" if lifted < count else ""
     print(

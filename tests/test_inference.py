@@ -178,7 +178,7 @@ def test_cli_errors(trained_run, tmp_path):
         (["--input", tmp_path / "j17.npz", "--intrinsics", 1000, 1000, 500], "4 numbers"),
         (["--input", tmp_path / "j17.npz", "--intrinsics", 1000, 1000, 500, 500], "camera per pose"),
         (["--input", tmp_path / "missing.json"], "does not exist"),
-        (["--input", tmp_path / "j17.npz", "--output", tmp_path / "out.csv"], "suffix"),
+        (["--input", tmp_path / "j17.npz", "--output", tmp_path / "out.xlsx"], "suffix"),
     ]  # fmt: skip
     for args, message in cases:
         with pytest.raises(SystemExit, match=message):

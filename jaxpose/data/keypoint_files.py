@@ -1,0 +1,521 @@
+"""Per-camera 2D detection files: OpenPose-style JSON frame folders and COCO keypoint-results files.
+
+Users bring, for each camera of a recording, either
+
+- a folder of OpenPose-style JSON frames, one file per frame: ``{"version": ..., "people": [{"person_id":
+  [-1], "pose_keypoints_2d": [x, y, score] * J, "face_keypoints_2d": ..., ...}, ...]}``, pretty-printed or
+  compact.  Only ``pose_keypoints_2d`` is read.  J is 25 (BODY_25 or BODY_25B: the count cannot tell them
+  apart), 26 (HALPE_26), 17 (COCO-17) or 18 (OpenPose COCO-18); every file of a folder must have the same J.
+  The frame number is the last run of digits of the file name once ``_keypoints.json`` / ``.json`` is
+  removed (``clip_000000000123_keypoints.json``, ``cam01.0010.json``, ``frame_00001.json``); files that
+  are not ``.json`` (or whose name starts with a dot) are ignored; or
+- one COCO keypoint-results file: a list of ``{"image_id", "keypoints": [x, y, score] * J, ...}``, several
+  entries with one image_id being several people in that frame.  ``image_id`` is the frame number, or a
+  file-name string (AlphaPose: ``"out-002.jpg"``) whose last run of digits (extension removed) is.
+
+Both become a `CameraDetections`: every person of every frame in the detector's own joint order, frames
+sorted, padded to the most people in any frame.  A joint written as undetected (0, 0, 0), or with a
+non-finite value, is stored as 0, 0 with score 0.  Malformed input raises `DataFormatError` naming the
+file and the field, before anything is returned.
+
+Folders of many files are parsed by a process pool (`read_openpose_folder`), with orjson when it is
+importable (about 2x faster than the stdlib json on compact frames; never required).  The results of
+`read_camera_detections` are cached beside the input, in ``.jaxpose_cache/<name>.npz`` in the folder that
+holds the camera folder or results file, keyed by the input files' names, sizes and modification times;
+see benchmarks/README.md for the speeds.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+import hashlib
+import json
+import logging
+import multiprocessing
+import os
+import re
+import tempfile
+import warnings
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from jaxpose.data.errors import DataFormatError
+
+try:  # optional fast path: same results, about twice as fast on compact frames
+    import orjson
+
+    _fast_loads = orjson.loads
+except ImportError:  # pragma: no cover - depends on the environment
+    _fast_loads = None
+
+logger = logging.getLogger(__name__)
+
+OPENPOSE_SUFFIX = "_keypoints.json"
+CACHE_DIR = ".jaxpose_cache"
+CACHE_VERSION = 1
+"""Part of every cache key: bump it when the cached arrays change meaning."""
+CHUNK_FILES = 256
+"""Files per pool task."""
+POOL_MIN_FILES = 2000
+"""Below this many files one process parses them all: starting a pool does not pay."""
+POOL_MIN_FILES_SPAWN = 20000
+"""The same where workers are spawned (not forked) and must import jax again (macOS, Windows)."""
+
+_FRAME_EXPECTED = 'an OpenPose JSON frame {"people": [{"pose_keypoints_2d": [x, y, score, ...]}, ...]}'
+_LAST_DIGITS = re.compile(r"(\d+)(?!.*\d)", re.DOTALL)
+
+
+@dataclasses.dataclass(frozen=True)
+class CameraDetections:
+    """Every person detected in every frame of one camera, in the detector's own joint order."""
+
+    frames: np.ndarray
+    """int64[F] frame numbers, sorted ascending, unique (frames whose file lists nobody are kept, with 0 people)."""
+    keypoints: np.ndarray
+    """float32[F, P, J, 2] pixels; P = the most people in any frame; padding rows are 0."""
+    scores: np.ndarray
+    """float32[F, P, J] detector scores as written (may exceed 1: AlphaPose), 0 for padding / undetected."""
+    people: np.ndarray
+    """int32[F] number of people in each frame."""
+    source: str
+    """The folder or file read."""
+
+    @property
+    def values_per_person(self) -> int:
+        """3 * J: the length of one person's [x, y, score] list, for skeleton inference by the caller."""
+        return 3 * self.keypoints.shape[2]
+
+
+# ---------------------------------------------------------------------------------------------
+# Frame numbers
+
+
+def frame_number(name: str) -> int:
+    """The frame number of a file name: its last run of digits once ``_keypoints.json`` / ``.json`` is removed.
+
+    ``clip_000000000123_keypoints.json`` -> 123, ``cam01.0010.json`` -> 10, ``frame_00001.json`` -> 1.
+    """
+    stem = name.removesuffix(OPENPOSE_SUFFIX) if name.endswith(OPENPOSE_SUFFIX) else name.removesuffix(".json")
+    match = _LAST_DIGITS.search(stem)
+    if match is None:
+        raise DataFormatError(name, "a frame number in the file name (e.g. cam01.0010.json)", "no digits")
+    return int(match.group(1))
+
+
+def frame_files(folder: str | Path) -> list[tuple[int, Path]]:
+    """The ``.json`` files of an OpenPose folder as (frame number, path), sorted by frame number.
+
+    Files that are not ``.json``, and hidden files (name starting with a dot), are ignored.  Two files
+    with one frame number, or a name without digits, raise `DataFormatError` naming the files.
+    """
+    return [(frame, Path(entry.path)) for frame, entry in _frame_entries(Path(folder))]
+
+
+def _frame_entries(folder: Path) -> list[tuple[int, os.DirEntry]]:
+    return _numbered(folder, _json_entries(folder))
+
+
+def _json_entries(folder: Path) -> list[os.DirEntry]:
+    if not folder.is_dir():
+        found = "a file" if folder.exists() else "nothing there"
+        raise DataFormatError(folder, "a folder of OpenPose JSON frames (one .json file per frame)", found)
+    with os.scandir(folder) as listing:
+        entries = [e for e in listing if e.name.endswith(".json") and not e.name.startswith(".") and e.is_file()]
+    if not entries:
+        raise DataFormatError(folder, "OpenPose JSON frames (*.json files)", "no .json file")
+    return entries
+
+
+def _numbered(folder: Path, entries: list[os.DirEntry]) -> list[tuple[int, os.DirEntry]]:
+    numbered = []
+    for entry in entries:
+        try:
+            numbered.append((frame_number(entry.name), entry))
+        except DataFormatError as error:
+            raise DataFormatError(entry.path, error.expected, error.found) from None
+    numbered.sort(key=lambda item: item[0])
+    for (frame, entry), (next_frame, next_entry) in zip(numbered, numbered[1:]):
+        if frame == next_frame:
+            raise DataFormatError(
+                folder, "one file per frame number", f"{entry.name} and {next_entry.name} both have frame number {frame}"
+            )
+    return numbered
+
+
+# ---------------------------------------------------------------------------------------------
+# Parsing (pure functions of file contents; the pool runs `_parse_chunk`)
+
+
+def _loads(data: bytes) -> Any:
+    """Parse JSON with orjson when available; the stdlib decides (and words the error) when orjson refuses."""
+    if _fast_loads is not None:
+        try:
+            return _fast_loads(data)
+        except ValueError:  # orjson refuses NaN / Infinity, which the stdlib accepts
+            pass
+    return json.loads(data)
+
+
+def _person_values(person: Any, index: int) -> list:
+    """One person's ``pose_keypoints_2d`` list; raises _FieldError with the reason."""
+    field = f"people[{index}].pose_keypoints_2d"
+    if not isinstance(person, dict):
+        raise _FieldError(field, f"people[{index}] is a {type(person).__name__}, not an object")
+    values = person.get("pose_keypoints_2d")
+    if not isinstance(values, list):
+        raise _FieldError(field, f"no 'pose_keypoints_2d' list (keys: {sorted(person)})")
+    if not values or len(values) % 3:
+        raise _FieldError(field, f"{len(values)} values, not a positive multiple of 3")
+    return values
+
+
+class _FieldError(Exception):
+    def __init__(self, field: str, found: str):
+        super().__init__(field, found)
+        self.field, self.found = field, found
+
+
+def _parse_chunk(paths: Sequence[str]) -> tuple:
+    """Parse OpenPose frames: ("ok", people int32[n], lengths int32[persons], values f32[sum(lengths)])
+    or ("error", where, expected, found) for the first bad file (DataFormatError does not pickle)."""
+    people, lengths, flat = [], [], []
+    for path in paths:
+        try:
+            with open(path, "rb") as file:
+                data = file.read()
+        except OSError as error:
+            return "error", path, "a readable OpenPose JSON frame", f"{type(error).__name__}: {error.strerror}"
+        try:
+            frame = _loads(data)
+        except ValueError as error:  # json.JSONDecodeError and UnicodeDecodeError are ValueErrors
+            return "error", path, _FRAME_EXPECTED, f"invalid JSON: {error}"
+        if not isinstance(frame, dict) or not isinstance(frame.get("people"), list):
+            found = f"a JSON {type(frame).__name__}" if not isinstance(frame, dict) else (
+                f"no 'people' list (keys: {sorted(frame)})")  # fmt: skip
+            return "error", path, _FRAME_EXPECTED, found
+        try:
+            for index, person in enumerate(frame["people"]):
+                values = _person_values(person, index)
+                lengths.append(len(values))
+                flat.extend(values)
+        except _FieldError as error:
+            return "error", path, f"{_FRAME_EXPECTED} (field {error.field})", error.found
+        people.append(len(frame["people"]))
+    try:
+        values = np.array(flat, np.float32)
+        if values.ndim != 1:
+            raise ValueError("nested lists")
+    except (TypeError, ValueError):
+        return _first_non_numeric(paths)
+    return "ok", np.array(people, np.int32), np.array(lengths, np.int32), values
+
+
+def _first_non_numeric(paths: Sequence[str]) -> tuple:
+    """The error of the first file whose keypoints are not all numbers (the slow path of a bad chunk)."""
+    for path in paths:
+        with open(path, "rb") as file:
+            frame = _loads(file.read())
+        for index, person in enumerate(frame["people"]):
+            bad = [v for v in person["pose_keypoints_2d"] if v is not None and not isinstance(v, int | float)]
+            if bad:
+                return "error", path, f"numbers in people[{index}].pose_keypoints_2d", f"{bad[0]!r}"
+    raise AssertionError("a chunk failed to convert but every file holds numbers")  # pragma: no cover
+
+
+def _assemble(
+    frames: np.ndarray, people: np.ndarray, lengths: np.ndarray, values: np.ndarray, source: str, owners: Sequence[str]
+) -> CameraDetections:
+    """CameraDetections from per-frame counts and the persons' flat [x, y, score] lists, in frame order.
+
+    `owners[k]` names where frame k came from, for the error when persons have different lengths.
+    """
+    if len(lengths) and (lengths != lengths[0]).any():
+        raise _length_error(people, lengths, source, owners)
+    per_person = int(lengths[0]) if len(lengths) else 0
+    joints = per_person // 3
+    rows = values.reshape(len(lengths), joints, 3)
+    rows = np.where(np.isfinite(rows).all(-1, keepdims=True), rows, np.float32(0))
+    most = int(people.max()) if len(people) else 0
+    keypoints = np.zeros((len(frames), most, joints, 2), np.float32)
+    scores = np.zeros((len(frames), most, joints), np.float32)
+    frame_of = np.repeat(np.arange(len(frames)), people)
+    slot = np.arange(len(lengths)) - np.repeat(np.cumsum(people) - people, people)
+    keypoints[frame_of, slot] = rows[..., :2]
+    scores[frame_of, slot] = rows[..., 2]
+    return CameraDetections(np.asarray(frames, np.int64), keypoints, scores, people.astype(np.int32), source)
+
+
+def _length_error(people: np.ndarray, lengths: np.ndarray, source: str, owners: Sequence[str]) -> DataFormatError:
+    frame_of = np.repeat(np.arange(len(people)), people)
+    by_length: dict[int, list[str]] = {}
+    for length in dict.fromkeys(lengths.tolist()):
+        by_length[length] = list(dict.fromkeys(owners[k] for k in frame_of[lengths == length]))
+    first = int(lengths[0])
+    other = next(length for length in by_length if length != first)
+
+    def listed(names: list[str]) -> str:
+        shown = ", ".join(names[:3])
+        return shown + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+
+    counts = "; ".join(
+        f"{length} values ({length // 3} joints) in {len(names)} file(s): {listed(names)}"
+        for length, names in by_length.items()
+    )
+    return DataFormatError(
+        by_length[other][0],
+        f"pose_keypoints_2d with the same number of values in every person of every file ({first} as in "
+        f"{by_length[first][0]})",
+        f"{other} values; of {source}: {counts}",
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# OpenPose folders
+
+
+def read_openpose_folder(folder: str | Path, progress: bool = True, workers: int | None = None) -> CameraDetections:
+    """Read an OpenPose-style folder of per-frame JSON files (or one such file) as `CameraDetections`.
+
+    A single file's frame number is that of its name, or 0 when the name has no digits.
+
+    `workers` processes parse chunks of `CHUNK_FILES` files (default ``os.cpu_count()``; one process below
+    `POOL_MIN_FILES` files, where a pool does not pay).  `progress` shows a tqdm bar for long reads.
+    """
+    path = Path(folder)
+    if path.is_file():
+        frame = frame_number(path.name) if re.search(r"\d", path.name) else 0
+        return _read_openpose([frame], [str(path)], str(path), False, 1)
+    entries = _frame_entries(path)
+    return _read_openpose([f for f, _ in entries], [e.path for _, e in entries], str(path), progress, workers)
+
+
+def _pool_context() -> tuple[Any, int]:
+    """Fork where the platform has it (workers start in milliseconds; they run json and numpy only, so
+    a parent's JAX threads do not matter), else the default start method with a higher threshold."""
+    if "fork" in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("fork"), POOL_MIN_FILES
+    return None, POOL_MIN_FILES_SPAWN
+
+
+def _read_openpose(
+    frames: list[int], paths: list[str], source: str, progress: bool, workers: int | None
+) -> CameraDetections:
+    chunks = [paths[i : i + CHUNK_FILES] for i in range(0, len(paths), CHUNK_FILES)]
+    context, threshold = _pool_context()
+    workers = min(workers or os.cpu_count() or 1, len(chunks))
+    parts, executor = [], None
+    try:
+        if workers > 1 and len(paths) >= threshold:
+            executor = concurrent.futures.ProcessPoolExecutor(workers, mp_context=context)
+            with warnings.catch_warnings():  # the workers fork at the first submit, inside map
+                # JAX (when the caller started it) warns at every fork; these workers never touch JAX.
+                for category in (RuntimeWarning, DeprecationWarning):
+                    warnings.filterwarnings("ignore", r".*(os\.fork|use of fork)", category)
+                results = executor.map(_parse_chunk, chunks)
+        else:
+            results = map(_parse_chunk, chunks)
+        with tqdm(total=len(paths), desc=f"reading {Path(source).name}", unit="file", disable=not progress,
+                  delay=0.5) as bar:  # fmt: skip
+            for chunk, result in zip(chunks, results):
+                if result[0] == "error":
+                    raise DataFormatError(*result[1:])
+                parts.append(result[1:])
+                bar.update(len(chunk))
+    finally:
+        if executor is not None:
+            executor.shutdown(wait=True, cancel_futures=True)
+    people, lengths, values = (np.concatenate(column) for column in zip(*parts))
+    owners = [os.path.basename(p) for p in paths]
+    return _assemble(np.array(frames, np.int64), people, lengths, values, source, owners)
+
+
+# ---------------------------------------------------------------------------------------------
+# COCO keypoint results
+
+
+def load_coco_entries(path: str | Path) -> tuple[list[Any], np.ndarray]:
+    """The entries of a COCO keypoint-results file in file order: (image ids as written, f32[N, J, 3]).
+
+    Each entry must be an object with ``image_id`` (int or string) and ``keypoints`` ([x, y, score] * J,
+    the same J for all); other keys (``score`` above 1, AlphaPose's ``box`` and ``idx``) are ignored.
+    """
+    path = Path(path)
+    expected = 'a COCO keypoint-results list [{"image_id": ..., "keypoints": [x, y, score, ...]}, ...]'
+    try:
+        entries = _loads(path.read_bytes())
+    except OSError as error:
+        raise DataFormatError(path, expected, f"{type(error).__name__}: {error.strerror}") from None
+    except ValueError as error:
+        raise DataFormatError(path, expected, f"invalid JSON: {error}") from None
+    if not isinstance(entries, list):
+        found = f"a JSON {type(entries).__name__}" + (f" (keys: {sorted(entries)[:8]})" if isinstance(entries, dict) else "")
+        raise DataFormatError(path, expected, found)
+    image_ids, flat, length = [], [], None
+    for index, entry in enumerate(entries):
+        if not isinstance(entry, dict) or "image_id" not in entry or "keypoints" not in entry:
+            found = f"entry {index} is " + (
+                f"an object without 'image_id' or 'keypoints' (keys: {sorted(entry)})"
+                if isinstance(entry, dict) else f"a {type(entry).__name__}")  # fmt: skip
+            raise DataFormatError(path, expected, found)
+        image_id, values = entry["image_id"], entry["keypoints"]
+        if isinstance(image_id, bool) or not isinstance(image_id, int | str):
+            raise DataFormatError(path, "image_id an integer or a file-name string", f"entry {index}: {image_id!r}")
+        if not isinstance(values, list) or not values or len(values) % 3:
+            found = f"{len(values)} values" if isinstance(values, list) else f"a {type(values).__name__}"
+            raise DataFormatError(path, "keypoints a list of [x, y, score] * J values", f"entry {index}: {found}")
+        if length is None:
+            length = len(values)
+        elif len(values) != length:
+            raise DataFormatError(
+                path, f"keypoints of the same length in every entry ({length} in entry 0)",
+                f"{len(values)} values in entry {index} (image_id {image_id!r})",
+            )  # fmt: skip
+        image_ids.append(image_id)
+        flat.append(values)
+    try:
+        keypoints = np.array(flat, np.float32).reshape(len(flat), (length or 0) // 3, 3)
+    except (TypeError, ValueError):
+        index = next(i for i, v in enumerate(flat) if not all(x is None or isinstance(x, int | float) for x in v))
+        raise DataFormatError(path, "numbers in keypoints", f"entry {index}: {flat[index][:6]}...") from None
+    return image_ids, keypoints
+
+
+def image_frame_number(image_id: int | str) -> int:
+    """The frame number of a COCO image_id: the int itself, or the last digit run of a file-name string
+    with its extension removed (``"out-002.jpg"`` -> 2)."""
+    if isinstance(image_id, int):
+        return image_id
+    stem = os.path.splitext(image_id)[0] or image_id
+    match = _LAST_DIGITS.search(stem)
+    if match is None:
+        raise DataFormatError(repr(image_id), "an image_id with a frame number (digits)", "no digits")
+    return int(match.group(1))
+
+
+def read_coco_results(path: str | Path) -> CameraDetections:
+    """Read a COCO keypoint-results file as `CameraDetections`: entries grouped by frame, in file order."""
+    image_ids, keypoints = load_coco_entries(path)
+    numbers: dict[Any, int] = {}
+    named: dict[int, Any] = {}
+    for image_id in dict.fromkeys(image_ids):
+        try:
+            number = image_frame_number(image_id)
+        except DataFormatError as error:
+            raise DataFormatError(path, "image_id an integer or a string with a frame number", error.where) from None
+        if number in named:
+            raise DataFormatError(
+                path, "one image_id per frame number", f"image ids {named[number]!r} and {image_id!r} are both frame {number}"
+            )
+        numbers[image_id], named[number] = number, image_id
+    frame_of_entry = np.array([numbers[i] for i in image_ids], np.int64)
+    order = np.argsort(frame_of_entry, kind="stable")
+    frames, people = np.unique(frame_of_entry, return_counts=True)
+    values = keypoints[order].reshape(-1)
+    lengths = np.full(len(image_ids), keypoints.shape[1] * 3, np.int32)
+    return _assemble(frames, people.astype(np.int32), lengths, values, str(path), [])
+
+
+# ---------------------------------------------------------------------------------------------
+# Dispatch and cache
+
+
+def read_camera_detections(path: str | Path, progress: bool = True, cache: bool = True) -> CameraDetections:
+    """One camera's detections: a folder -> OpenPose frames, a ``.json`` file -> COCO results (or, when
+    the file holds one JSON object, a single OpenPose frame).
+
+    With `cache`, the arrays are kept in ``.jaxpose_cache/<name>.npz`` in the folder that holds `path` and
+    reused while no input file was added, removed or modified (names, sizes and modification times);
+    a corrupt or unwritable cache is ignored with a warning.
+    """
+    path = Path(path)
+    if path.is_dir():
+        listing = _json_entries(path)
+        stats = [(e.name, e.stat()) for e in listing]  # the frame numbers only when the cache misses
+
+        def parse() -> CameraDetections:
+            entries = _numbered(path, listing)
+            return _read_openpose([f for f, _ in entries], [e.path for _, e in entries], str(path), progress, None)
+
+    elif path.is_file() and path.suffix == ".json":
+        stats = [(path.name, path.stat())]
+
+        def parse() -> CameraDetections:
+            return read_openpose_folder(path) if is_openpose_frame_file(path) else read_coco_results(path)
+
+    else:
+        found = "nothing there" if not path.exists() else f"a {path.suffix or 'suffix-less'} file"
+        raise DataFormatError(path, "a folder of OpenPose JSON frames or a COCO keypoint-results .json file", found)
+    if not cache:
+        return parse()
+    key = _cache_key(stats)
+    cache_file = path.parent / CACHE_DIR / f"{path.name}.npz"
+    cached = _load_cache(cache_file, key, str(path))
+    if cached is not None:
+        return cached
+    detections = parse()
+    _save_cache(cache_file, key, detections)
+    return detections
+
+
+def is_openpose_frame_file(path: str | Path) -> bool:
+    """Whether a ``.json`` file holds one JSON object (an OpenPose frame) rather than a list (COCO results)."""
+    with open(path, "rb") as file:
+        start = file.read(4096).lstrip(b"\xef\xbb\xbf \t\r\n")
+    return start.startswith(b"{")
+
+
+def _cache_key(stats: Iterable[tuple[str, os.stat_result]]) -> str:
+    digest = hashlib.sha256(f"jaxpose keypoint cache v{CACHE_VERSION}\n".encode())
+    for name, stat in sorted(stats, key=lambda item: item[0]):
+        digest.update(f"{name}\t{stat.st_size}\t{stat.st_mtime_ns}\n".encode())
+    return digest.hexdigest()
+
+
+def _load_cache(cache_file: Path, key: str, source: str) -> CameraDetections | None:
+    if not cache_file.exists():
+        return None
+    try:
+        with np.load(cache_file, allow_pickle=False) as data:
+            if str(data["key"]) != key or int(data["version"]) != CACHE_VERSION:
+                logger.info("%s changed since %s was written: reading it again", source, cache_file)
+                return None
+            detections = CameraDetections(
+                np.asarray(data["frames"], np.int64), np.asarray(data["keypoints"], np.float32),
+                np.asarray(data["scores"], np.float32), np.asarray(data["people"], np.int32), source,
+            )  # fmt: skip
+        frames, people = len(detections.frames), detections.keypoints.shape[1]
+        if (detections.scores.shape != detections.keypoints.shape[:3] or detections.keypoints.shape[-1] != 2
+                or detections.people.shape != (frames,) or (detections.people > people).any()):  # fmt: skip
+            raise ValueError(f"inconsistent shapes {detections.keypoints.shape}, {detections.scores.shape}")
+    except Exception as error:  # noqa: BLE001 - any unreadable cache is only a missed shortcut
+        warnings.warn(f"ignoring the unreadable cache {cache_file} ({type(error).__name__}: {error})", stacklevel=3)
+        return None
+    logger.info("read %s from the cache %s", source, cache_file)
+    return detections
+
+
+def _save_cache(cache_file: Path, key: str, detections: CameraDetections) -> None:
+    temporary = None
+    try:
+        cache_file.parent.mkdir(exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=cache_file.parent, prefix=cache_file.name, suffix=".tmp",
+                                         delete=False) as file:  # fmt: skip
+            temporary = file.name
+            np.savez(
+                file, key=np.str_(key), version=np.int64(CACHE_VERSION), frames=detections.frames,
+                keypoints=detections.keypoints, scores=detections.scores, people=detections.people,
+            )  # fmt: skip
+        os.replace(temporary, cache_file)
+        logger.info("cached %s as %s", detections.source, cache_file)
+    except OSError as error:
+        warnings.warn(f"could not write the cache {cache_file} ({error}); reading without it", stacklevel=3)
+        if temporary is not None:
+            try:
+                os.unlink(temporary)
+            except OSError:
+                pass
