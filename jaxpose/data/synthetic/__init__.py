@@ -15,7 +15,8 @@ Everything is numpy and vectorized over time; randomness comes from generators k
 (seed, stream, subject), so one subject's motion, a rig or the detector can be regenerated alone.
 
 The modules, in the order the data is made: `config` (what to simulate, random streams), `body`,
-`motion`, `rig`, `detector`, `dataset` (`generate`).  Their public names are re-exported here.
+`motion`, `rig`, `detector`, `dataset` (`generate`); `project` writes an example rig project (a
+calibration file, OpenPose JSON frames, ground truth) from them.  Their public names are re-exported here.
 """
 
 from jaxpose.data.synthetic.body import (
@@ -34,7 +35,21 @@ from jaxpose.data.synthetic.rig import make_rig, project_points
 
 __all__ = [
     "ANGLE_NAMES", "ANKLE_HEIGHT_MM", "DETECTOR_SIGMA_PX", "JOINT_LIMITS_DEG", "MOTION_FAMILIES", "NOMINAL_BONE_MM",
-    "Motion", "SimulatedDetections", "SubjectMotion", "SyntheticConfig", "angle_limits", "detector_sigma",
-    "forward_kinematics", "generate", "make_rig", "project_points", "sample_bone_lengths", "sample_motion",
-    "simulate_detector", "simulate_subject",
+    "Motion", "ExampleProjectConfig", "SimulatedDetections", "SubjectMotion", "SyntheticConfig", "angle_limits",
+    "detector_sigma", "forward_kinematics", "generate", "keypoints3d", "make_rig", "project_points",
+    "rig_calibration", "sample_bone_lengths", "sample_motion", "simulate_detector", "simulate_subject",
+    "write_rig_project",
 ]  # fmt: skip
+
+# `project`'s names are imported on first use (PEP 562), so that `python -m jaxpose.data.synthetic.project`
+# does not find its module already imported by this package, and the simulator alone does not import
+# the calibration readers.
+_PROJECT_NAMES = ("ExampleProjectConfig", "keypoints3d", "rig_calibration", "write_rig_project")
+
+
+def __getattr__(name: str):
+    if name in _PROJECT_NAMES:
+        from jaxpose.data.synthetic import project
+
+        return getattr(project, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
