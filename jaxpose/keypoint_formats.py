@@ -42,14 +42,10 @@ from typing import Callable
 
 import numpy as np
 
-from jaxpose.skeleton import COCO_17, H36M_17
+from jaxpose.skeleton import BODY_25_LAYOUT, COCO_17, DETECTOR_LAYOUTS, H36M_17, SKELETONS, DetectorLayout, Skeleton
 
 # OpenPose BODY_25 keypoint order.
-OPENPOSE_25_JOINT_NAMES = (
-    "Nose", "Neck", "RShoulder", "RElbow", "RWrist", "LShoulder", "LElbow", "LWrist", "MidHip",
-    "RHip", "RKnee", "RAnkle", "LHip", "LKnee", "LAnkle", "REye", "LEye", "REar", "LEar",
-    "LBigToe", "LSmallToe", "LHeel", "RBigToe", "RSmallToe", "RHeel",
-)
+OPENPOSE_25_JOINT_NAMES = BODY_25_LAYOUT.joint_names
 
 # Where the spine joint sits on the pelvis -> thorax segment (see module docstring).
 SPINE_FRACTION = 0.5
@@ -105,15 +101,18 @@ class _Adapter:
 
     name: str
     num_sources: int
-    weights: np.ndarray  # [17, num_sources]
-    uses: np.ndarray  # bool [17, num_sources]
+    weights: np.ndarray  # [num_targets, num_sources]
+    uses: np.ndarray  # bool [num_targets, num_sources]
 
     @classmethod
-    def compile(cls, name: str, source_names: tuple[str, ...], recipe: dict[str, Combination]) -> "_Adapter":
-        weights = np.zeros((H36M_17.num_joints, len(source_names)), np.float64)
+    def compile(
+        cls, name: str, source_names: tuple[str, ...], recipe: dict[str, Combination], target: Skeleton = H36M_17
+    ) -> "_Adapter":
+        """`recipe[joint]` for every joint of `target`, in terms of `source_names`."""
+        weights = np.zeros((target.num_joints, len(source_names)), np.float64)
         for joint, combination in recipe.items():
             for source, weight in combination.items():
-                weights[H36M_17.index(joint), source_names.index(source)] = weight
+                weights[target.index(joint), source_names.index(source)] = weight
         return cls(name, len(source_names), weights, weights != 0.0)
 
     def __call__(self, keypoints: np.ndarray, scores: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -155,7 +154,7 @@ _COCO17 = _Adapter.compile(
 )
 
 _OPENPOSE25 = _Adapter.compile(
-    "openpose25",
+    "body25",
     OPENPOSE_25_JOINT_NAMES,
     _h36m17_recipe(
         {
@@ -197,9 +196,16 @@ def h36m17_to_h36m17(keypoints: np.ndarray, scores: np.ndarray | None) -> tuple[
 
 Converter = Callable[[np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray]]
 
+def halpe26_to_h36m17(keypoints: np.ndarray, scores: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """HALPE-26 detections -> H36M_17 through their first 17 keypoints, which are COCO-17's."""
+    keypoints = np.asarray(keypoints)
+    return coco17_to_h36m17(keypoints[..., :17, :], None if scores is None else np.asarray(scores)[..., :17])
+
+
 FORMATS: dict[str, Converter] = {
     "coco17": coco17_to_h36m17,
-    "openpose25": openpose25_to_h36m17,
+    "body25": openpose25_to_h36m17,
+    "halpe26": halpe26_to_h36m17,
     "h36m17": h36m17_to_h36m17,
 }
 
@@ -211,3 +217,96 @@ def to_h36m17(fmt: str, keypoints: np.ndarray, scores: np.ndarray | None) -> tup
     except KeyError:
         raise ValueError(f"unknown keypoint format {fmt!r}; known: {sorted(FORMATS)}") from None
     return converter(keypoints, scores)
+
+
+# --- Lifting on the detector's own joints (`jaxpose.skeleton.DetectorLayout`) ---------------------------
+
+
+def _lifting_adapter(name: str, source_names: tuple[str, ...], skeleton: Skeleton, layout: DetectorLayout | None) -> _Adapter:
+    recipe = {joint: _point(joint) for joint in skeleton.joint_names}
+    if layout is not None and layout.root_from is not None:
+        recipe[layout.root] = _mean(*layout.root_from)
+    return _Adapter.compile(name, source_names, recipe, skeleton)
+
+
+# Every detector layout to its lifting skeleton, and every lifting skeleton of `jaxpose.skeleton` to
+# itself (e.g. an .npz of Human3.6M's 16 Stacked Hourglass joints), keyed by the layout's name.
+_LIFTING: dict[str, _Adapter] = {
+    **{
+        name: _lifting_adapter(name, layout.joint_names, layout.lifting_skeleton, layout)
+        for name, layout in DETECTOR_LAYOUTS.items()
+    },
+    **{
+        name: _lifting_adapter(name, skeleton.joint_names, skeleton, None)
+        for name, skeleton in SKELETONS.items()
+        if name not in DETECTOR_LAYOUTS
+    },
+}
+LAYOUTS = tuple(sorted(_LIFTING))
+"""Every keypoint layout a rig project's detections may be in: detector layouts and jaxpose skeletons."""
+
+# The layout of detector JSON output (OpenPose frames, COCO results) by keypoints per person, where the
+# count alone decides it.  25 does not: OpenPose's BODY_25 and BODY_25B both write 25.
+_LAYOUT_BY_COUNT = {17: "coco17", 18: "coco18", 26: "halpe26"}
+
+
+def layout_joint_names(layout: str) -> tuple[str, ...]:
+    """The keypoint order of `layout` (a name of `LAYOUTS`)."""
+    if layout in DETECTOR_LAYOUTS:
+        return DETECTOR_LAYOUTS[layout].joint_names
+    return lifting_skeleton(layout).joint_names
+
+
+def lifting_skeleton(layout: str) -> Skeleton:
+    """The skeleton a lifter of detections in `layout` works on: the detector's own joints, root first."""
+    if layout in DETECTOR_LAYOUTS:
+        return DETECTOR_LAYOUTS[layout].lifting_skeleton
+    if layout not in _LIFTING:
+        raise ValueError(f"unknown keypoint layout {layout!r}; known: {list(LAYOUTS)}")
+    return SKELETONS[layout]
+
+
+def to_lifting_skeleton(layout: str, keypoints: np.ndarray, scores: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Detections in `layout` [..., J_layout, 2] (scores [..., J_layout]) -> the `lifting_skeleton`'s
+    joints (keypoints f32[..., J, 2], confidence f32[..., J] in [0, 1]).
+
+    A derived root (the hips' midpoint, for layouts without a mid-hip) is only as confident as the
+    less confident hip; missing keypoints (score 0, non-finite) get confidence 0 and coordinates 0.
+    """
+    if layout not in _LIFTING:
+        raise ValueError(f"unknown keypoint layout {layout!r}; known: {list(LAYOUTS)}")
+    return _LIFTING[layout](keypoints, scores)
+
+
+def infer_layout(values_per_person: int, where: str) -> str:
+    """The detector layout of JSON keypoints with `values_per_person` numbers (x, y, score per joint),
+    where the count decides it; otherwise a ValueError naming `where` and the candidates."""
+    joints, remainder = divmod(values_per_person, 3)
+    if remainder == 0 and joints in _LAYOUT_BY_COUNT:
+        return _LAYOUT_BY_COUNT[joints]
+    if remainder == 0 and joints == 25:
+        raise ValueError(
+            f"{where}: 75 values per person are OpenPose BODY_25 or BODY_25B (Pose2Sim's default), which the"
+            " count cannot tell apart; pass --data.skeleton body25 or --data.skeleton body25b"
+        )
+    known = ", ".join(f"{3 * count} ({name})" for count, name in sorted(_LAYOUT_BY_COUNT.items()))
+    raise ValueError(
+        f"{where}: cannot infer the keypoint layout from {values_per_person} values per person (known: {known},"
+        f" 75 (body25 / body25b)); pass --data.skeleton with one of {list(LAYOUTS)}"
+    )
+
+
+def to_skeleton(layout: str, skeleton: Skeleton, keypoints: np.ndarray, scores: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Detections in `layout` as the input of a lifter of `skeleton`: the layout's own lifting skeleton
+    (`to_lifting_skeleton`), or H36M_17 through the recipes of this module's docstring (`FORMATS`)."""
+    if layout in _LIFTING and lifting_skeleton(layout) == skeleton:
+        return to_lifting_skeleton(layout, keypoints, scores)
+    if skeleton == H36M_17 and layout in FORMATS:
+        return FORMATS[layout](keypoints, scores)
+    takes = f"{sorted(FORMATS)}" if skeleton == H36M_17 else f"{[name for name in LAYOUTS if lifting_skeleton(name) == skeleton]}"
+    raise ValueError(f"a lifter of skeleton {skeleton.name!r} cannot take keypoints in layout {layout!r}; it takes {takes}")
+
+
+def layout_of(skeleton: Skeleton) -> str | None:
+    """The detector layout whose own joints `skeleton` is (a `<layout>_lifting` skeleton), else None."""
+    return next((name for name, layout in DETECTOR_LAYOUTS.items() if layout.lifting_skeleton == skeleton), None)

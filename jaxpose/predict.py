@@ -10,13 +10,15 @@ Inputs (the kind is told by the path; read by `jaxpose.data.keypoint_files`):
 - OpenPose output, a folder of per-frame ``.json`` files (``--write_json``; also Pose2Sim's
   ``cam01.0010.json`` and ``frame_00001.json``), in frame-number order (the last digits of the name):
   every person's ``pose_keypoints_2d`` is one pose, its image id the file name without
-  ``_keypoints.json`` (or ``.json``).  75 values per person are read as BODY_25 (layout openpose25;
-  BODY_25B writes as many values in another order and is not supported), 78 as HALPE_26 and 51 as
-  COCO-17 (HALPE_26's first 17 joints are COCO-17's: layout coco17).  A single such file works too.
+  ``_keypoints.json`` (or ``.json``).  78 values per person are HALPE_26, 54 COCO-18, 51 COCO-17, and
+  75 BODY_25, or BODY_25B where the checkpoint was trained on it (the count cannot tell them apart;
+  --format body25b otherwise).  A single such file works too.
 - ``.npz`` with ``keypoints`` [N, J, 2] px and optionally ``confidence`` [N, J], ``image_id`` [N] and
   ``K`` [N, 3, 3] (one camera per pose); the keypoints are in the checkpoint's own joint layout unless
   --format names one to convert from.
-COCO-17 and OpenPose BODY_25 are converted to H36M_17 by `jaxpose.keypoint_formats`.
+The keypoints are converted to the checkpoint's joints by `jaxpose.keypoint_formats.to_skeleton`: a lifter
+trained on a rig project (`experiments.rig`) takes its detector's own layout, and the H36M_17 lifters of
+the benchmarks take COCO-17, BODY_25 and HALPE_26 (through its COCO-17 keypoints).
 
 Output, by suffix, one pose per input pose, in input order.  Poses are root-relative, in the camera frame
 (x right, y down, z forward), in mm unless said otherwise:
@@ -56,12 +58,12 @@ from tqdm.auto import tqdm
 from jaxpose import inference, viz
 from jaxpose.checkpoint import CheckpointError
 from jaxpose.data import keypoint_files, trc
-from jaxpose.keypoint_formats import FORMATS, to_h36m17
+from jaxpose.keypoint_formats import LAYOUTS, layout_joint_names, layout_of, to_skeleton
 
 OUTPUT_SUFFIXES = (".json", ".npz", ".csv", ".trc")
 OPENPOSE_SUFFIX = keypoint_files.OPENPOSE_SUFFIX
 # OpenPose-style values per person -> (layout, joints of the file that layout reads: the first ones).
-OPENPOSE_LAYOUTS = {75: ("openpose25", 25), 78: ("coco17", 17), 51: ("coco17", 17)}
+OPENPOSE_LAYOUTS = {75: "body25", 78: "halpe26", 51: "coco17", 54: "coco18"}
 # The .trc axes from the camera frame's (x right, y down, z forward): X = -z, Y = -y, Z = -x, a rotation
 # (determinant +1) to OpenSim's X forward, Y up, Z right for a subject who faces the camera.
 TRC_AXES = np.array([[0, 0, -1], [0, -1, 0], [-1, 0, 0]], np.float32)
@@ -122,12 +124,12 @@ def read_openpose(path: pathlib.Path) -> DetectionFile:
     count = detections.values_per_person
     if count and count not in OPENPOSE_LAYOUTS:
         raise ValueError(
-            f"{path}: {count} values per person ({count // 3} joints); predict reads BODY_25 (75 values),"
-            " HALPE_26 (78) and COCO-17 (51)"
+            f"{path}: {count} values per person ({count // 3} joints); predict reads BODY_25 or BODY_25B (75 values),"
+            " HALPE_26 (78), COCO-18 (54) and COCO-17 (51)"
         )
-    layout, joints = OPENPOSE_LAYOUTS.get(count, ("openpose25", 0))
+    layout = OPENPOSE_LAYOUTS.get(count, "body25")
     present = np.arange(detections.keypoints.shape[1]) < detections.people[:, None]  # [F, P]
-    rows = np.concatenate([detections.keypoints, detections.scores[..., None]], -1)[present][:, :joints]
+    rows = np.concatenate([detections.keypoints, detections.scores[..., None]], -1)[present]
     image_ids = np.repeat(np.array(frame_ids, object), detections.people).tolist()
     return _from_rows(rows, image_ids, layout, str(path), frame_ids)
 
@@ -276,6 +278,16 @@ def save_animation(
     return viz.save_pose_animation(path, poses, skeleton, keypoints, confidence, image_size, titles, fps)
 
 
+def input_layout(skeleton, detections: DetectionFile) -> str | None:
+    """The layout the input is read in: the checkpoint's own detector layout (`<layout>_lifting`) where
+    the file's keypoint count fits it (so BODY_25B reads as such for a lifter trained on it), else the
+    file's (None: the checkpoint's own joints)."""
+    own = layout_of(skeleton)
+    if own is not None and detections.layout is not None and detections.keypoints.shape[1] == len(layout_joint_names(own)):
+        return own
+    return detections.layout
+
+
 @dataclasses.dataclass(frozen=True)
 class PredictArgs:
     """The command's flags."""
@@ -291,9 +303,10 @@ class PredictArgs:
     empty cells where a pose could not be lifted), all in mm in the camera frame (x right, y down,
     z forward); or .trc (OpenSim markers in m at --fps, axes X = -z, Y = -y, Z = -x of the camera: X
     forward, Y up, Z right for a subject facing the camera; empty fields where a pose could not be lifted)."""
-    format: Literal[tuple(sorted(FORMATS))] | None = None  # type: ignore[valid-type]
-    """Joint layout of the input keypoints (default: coco17 for COCO .json, openpose25 for OpenPose, the
-    checkpoint's own layout for .npz)."""
+    format: Literal[LAYOUTS] | None = None  # type: ignore[valid-type]
+    """Joint layout of the input keypoints (default: the checkpoint's own detector layout where it was
+    trained on one and the file's keypoint count fits it; else coco17 for COCO .json, by the keypoint count
+    for OpenPose (75: body25), the checkpoint's own joints for .npz)."""
     intrinsics: Annotated[tuple[str, ...] | None, tyro.conf.arg(metavar="VALUE [VALUE ...]")] = None
     """Camera intrinsics in pixels: four values fx fy cx cy, or one JSON camera file {K, dist, image_size}
     (dist: OpenCV k1 k2 p1 p2 k3, undistorted before lifting); default: focal length max(W, H) and the
@@ -327,11 +340,12 @@ def run(args: PredictArgs) -> np.ndarray:
         except ValueError as error:
             raise ValueError(f"--animation {error}") from None
     detections = read_detections(args.input)
-    layout = args.format or detections.layout
+    lifter = inference.load(args.checkpoint, batch_size=args.batch_size)
+    layout = args.format or input_layout(lifter.skeleton, detections)
     if layout is None:
         keypoints, confidence = detections.keypoints, detections.scores
     else:
-        keypoints, confidence = to_h36m17(layout, detections.keypoints, detections.scores)
+        keypoints, confidence = to_skeleton(layout, lifter.skeleton, detections.keypoints, detections.scores)
     if confidence is None:
         confidence = np.ones(keypoints.shape[:2], np.float32)
     K, dist, image_size = (None, None, None) if args.intrinsics is None else read_intrinsics(args.intrinsics)
@@ -340,7 +354,6 @@ def run(args: PredictArgs) -> np.ndarray:
             raise ValueError(f"{args.input} holds a camera per pose ('K'); do not pass --intrinsics as well")
         K = detections.intrinsics
     image_size = args.image_size or image_size
-    lifter = inference.load(args.checkpoint, batch_size=args.batch_size)
     count = len(keypoints)
     poses = np.empty((count, lifter.num_joints, 3), np.float32)
     with tqdm(total=count, desc="lifting", unit="pose", disable=count <= LIFT_BLOCK) as bar:

@@ -123,7 +123,158 @@ COCO_17 = Skeleton(
     left_right_pairs=((1, 2), (3, 4), (5, 6), (7, 8), (9, 10), (11, 12), (13, 14), (15, 16)),
 )
 
-SKELETONS: dict[str, Skeleton] = {s.name: s for s in (H36M_17, H36M_16, HUMANEVA_15, MPI_INF_3DHP_17, COCO_17)}
+
+@dataclasses.dataclass(frozen=True)
+class DetectorLayout:
+    """A 2D detector's keypoint order, and the lifting skeleton made of the detector's own joints.
+
+    A lifter trained on a user's rig (`experiments.rig`) lifts the detector's keypoints as they are,
+    rather than converting them to a mocap skeleton: nothing is invented, and a self-supervised lifter
+    learns the detector's joint definitions anyway.  Its skeleton (`lifting_skeleton`, named
+    "<layout>_lifting") has the layout's `root` first, then the other keypoints in the detector's
+    order.  Where the detector has no pelvis, the root is derived: the midpoint of `root_from`
+    (the two hips), named `root`.
+    """
+
+    name: str
+    joint_names: tuple[str, ...]
+    root: str
+    """The lifting root: a joint of the layout (its mid-hip), or the name of the derived one."""
+    parents: tuple[tuple[str, str], ...]
+    """(child, parent) by name for every joint of the lifting skeleton but the root."""
+    root_from: tuple[str, str] | None = None
+    """The two hips whose midpoint is the root, for a layout without a mid-hip keypoint."""
+
+    @property
+    def lifting_skeleton(self) -> Skeleton:
+        names = (self.root, *(name for name in self.joint_names if name != self.root))
+        parent_of = dict(self.parents)
+        missing = [name for name in names[1:] if name not in parent_of]
+        if missing:
+            raise ValueError(f"layout {self.name}: no parent for {missing}")
+        pairs = []
+        for left in names:
+            right = _mirror_name(left)
+            if right != left and right in names and left.lower().startswith("l"):
+                pairs.append((names.index(left), names.index(right)))
+        return Skeleton(
+            name=f"{self.name}_lifting",
+            joint_names=names,
+            parents=(-1, *(names.index(parent_of[name]) for name in names[1:])),
+            left_right_pairs=tuple(pairs),
+        )
+
+
+def _mirror_name(name: str) -> str:
+    """The joint on the other side: LEye <-> REye, left_eye <-> right_eye; other names unchanged."""
+    for left, right in (("left_", "right_"), ("L", "R")):
+        if name.startswith(left):
+            return right + name[len(left):]
+        if name.startswith(right):
+            return left + name[len(right):]
+    return name
+
+
+def _tree(*chains: str) -> tuple[tuple[str, str], ...]:
+    """(child, parent) pairs from chains written "parent>child>grandchild"."""
+    pairs = []
+    for chain in chains:
+        names = chain.split(">")
+        pairs += [(child, parent) for parent, child in zip(names, names[1:])]
+    return tuple(pairs)
+
+
+def _limbs(prefix_left: str, prefix_right: str, root: str, neck: str, names: dict[str, str]) -> tuple[str, ...]:
+    """The arm and leg chains of both sides, for layouts whose limb joints follow one naming scheme."""
+    chains = []
+    for side in (prefix_left, prefix_right):
+        chains.append(f"{root}>{side}{names['hip']}>{side}{names['knee']}>{side}{names['ankle']}")
+        chains.append(f"{neck}>{side}{names['shoulder']}>{side}{names['elbow']}>{side}{names['wrist']}")
+    return tuple(chains)
+
+
+_OPENPOSE_LIMBS = {"hip": "Hip", "knee": "Knee", "ankle": "Ankle", "shoulder": "Shoulder", "elbow": "Elbow", "wrist": "Wrist"}
+_COCO_LIMBS = {"hip": "hip", "knee": "knee", "ankle": "ankle", "shoulder": "shoulder", "elbow": "elbow", "wrist": "wrist"}
+_OPENPOSE_FEET = ("LAnkle>LBigToe>LSmallToe", "LAnkle>LHeel", "RAnkle>RBigToe>RSmallToe", "RAnkle>RHeel")
+_OPENPOSE_FACE = ("Nose>LEye>LEar", "Nose>REye>REar")
+
+COCO_17_LAYOUT = DetectorLayout(
+    name="coco17",
+    joint_names=COCO_17.joint_names,
+    root="pelvis",
+    root_from=("left_hip", "right_hip"),
+    # COCO has no neck: the shoulders and the head hang from the pelvis (drawing only).
+    parents=_tree(
+        *_limbs("left_", "right_", "pelvis", "pelvis", _COCO_LIMBS),
+        "pelvis>nose>left_eye>left_ear", "nose>right_eye>right_ear",
+    ),
+)
+# OpenPose's COCO model (18 keypoints, 54 values per person).
+COCO_18_LAYOUT = DetectorLayout(
+    name="coco18",
+    joint_names=(
+        "Nose", "Neck", "RShoulder", "RElbow", "RWrist", "LShoulder", "LElbow", "LWrist", "RHip", "RKnee",
+        "RAnkle", "LHip", "LKnee", "LAnkle", "REye", "LEye", "REar", "LEar",
+    ),
+    root="MidHip",
+    root_from=("LHip", "RHip"),
+    parents=_tree(*_limbs("L", "R", "MidHip", "Neck", _OPENPOSE_LIMBS), "MidHip>Neck>Nose", *_OPENPOSE_FACE),
+)
+BODY_25_LAYOUT = DetectorLayout(
+    name="body25",
+    joint_names=(
+        "Nose", "Neck", "RShoulder", "RElbow", "RWrist", "LShoulder", "LElbow", "LWrist", "MidHip",
+        "RHip", "RKnee", "RAnkle", "LHip", "LKnee", "LAnkle", "REye", "LEye", "REar", "LEar",
+        "LBigToe", "LSmallToe", "LHeel", "RBigToe", "RSmallToe", "RHeel",
+    ),
+    root="MidHip",
+    parents=_tree(
+        *_limbs("L", "R", "MidHip", "Neck", _OPENPOSE_LIMBS), "MidHip>Neck>Nose", *_OPENPOSE_FACE, *_OPENPOSE_FEET
+    ),
+)
+# OpenPose's experimental BODY_25B (Pose2Sim's default): COCO-like order, then neck, head top and feet.
+# Also 75 values per person, so it cannot be told from BODY_25 by the count.
+BODY_25B_LAYOUT = DetectorLayout(
+    name="body25b",
+    joint_names=(
+        "Nose", "LEye", "REye", "LEar", "REar", "LShoulder", "RShoulder", "LElbow", "RElbow", "LWrist",
+        "RWrist", "LHip", "RHip", "LKnee", "RKnee", "LAnkle", "RAnkle", "Neck", "HeadTop",
+        "LBigToe", "LSmallToe", "LHeel", "RBigToe", "RSmallToe", "RHeel",
+    ),
+    root="MidHip",
+    root_from=("LHip", "RHip"),
+    parents=_tree(
+        *_limbs("L", "R", "MidHip", "Neck", _OPENPOSE_LIMBS), "MidHip>Neck>HeadTop", "Neck>Nose", *_OPENPOSE_FACE,
+        *_OPENPOSE_FEET,
+    ),
+)
+# HALPE-26 (AlphaPose, RTMPose): COCO-17's keypoints under OpenPose-style names, then head top, neck,
+# a mid-hip ("Hip") and the feet.
+HALPE_26_LAYOUT = DetectorLayout(
+    name="halpe26",
+    joint_names=(
+        "Nose", "LEye", "REye", "LEar", "REar", "LShoulder", "RShoulder", "LElbow", "RElbow", "LWrist",
+        "RWrist", "LHip", "RHip", "LKnee", "RKnee", "LAnkle", "RAnkle", "Head", "Neck", "Hip",
+        "LBigToe", "RBigToe", "LSmallToe", "RSmallToe", "LHeel", "RHeel",
+    ),
+    root="Hip",
+    parents=_tree(
+        *_limbs("L", "R", "Hip", "Neck", _OPENPOSE_LIMBS), "Hip>Neck>Head", "Neck>Nose", *_OPENPOSE_FACE,
+        *_OPENPOSE_FEET,
+    ),
+)
+
+DETECTOR_LAYOUTS: dict[str, DetectorLayout] = {
+    layout.name: layout for layout in (COCO_17_LAYOUT, COCO_18_LAYOUT, BODY_25_LAYOUT, BODY_25B_LAYOUT, HALPE_26_LAYOUT)
+}
+
+SKELETONS: dict[str, Skeleton] = {
+    s.name: s
+    for s in (
+        H36M_17, H36M_16, HUMANEVA_15, MPI_INF_3DHP_17, COCO_17,
+        *(layout.lifting_skeleton for layout in DETECTOR_LAYOUTS.values()),
+    )
+}  # fmt: skip
 
 
 def get_skeleton(name: str) -> Skeleton:

@@ -7,11 +7,13 @@ from jaxpose.keypoint_formats import (
     FORMATS,
     OPENPOSE_25_JOINT_NAMES,
     coco17_to_h36m17,
+    halpe26_to_h36m17,
     h36m17_to_h36m17,
     openpose25_to_h36m17,
     to_h36m17,
 )
-from jaxpose.skeleton import COCO_17, H36M_17
+from jaxpose.keypoint_formats import infer_layout, layout_of, lifting_skeleton, to_lifting_skeleton, to_skeleton
+from jaxpose.skeleton import COCO_17, DETECTOR_LAYOUTS, H36M_17, get_skeleton
 
 H = H36M_17.index
 
@@ -166,7 +168,9 @@ def test_batch_dims_match_single_samples():
 
 def test_registry_dispatches_and_identity_keeps_h36m():
     keypoints, scores = arrays(COCO_POINTS, COCO_17.joint_names)
-    assert FORMATS == {"coco17": coco17_to_h36m17, "openpose25": openpose25_to_h36m17, "h36m17": h36m17_to_h36m17}
+    assert FORMATS == {
+        "coco17": coco17_to_h36m17, "body25": openpose25_to_h36m17, "halpe26": halpe26_to_h36m17, "h36m17": h36m17_to_h36m17,
+    }  # fmt: skip
     for got, expected in zip(to_h36m17("coco17", keypoints, scores), coco17_to_h36m17(keypoints, scores)):
         np.testing.assert_array_equal(got, expected)
     h36m, confidence = coco17_to_h36m17(keypoints, scores)
@@ -184,8 +188,8 @@ def test_unknown_format_is_a_value_error():
     "fmt, keypoints_shape, scores_shape, message",
     [
         ("coco17", (18, 2), (18,), r"coco17: expected keypoints of shape \[\.\.\., 17, 2\], got \(18, 2\)"),
-        ("openpose25", (4, 17, 2), (4, 17),
-         r"openpose25: expected keypoints of shape \[\.\.\., 25, 2\], got \(4, 17, 2\)"),
+        ("body25", (4, 17, 2), (4, 17),
+         r"body25: expected keypoints of shape \[\.\.\., 25, 2\], got \(4, 17, 2\)"),
         ("coco17", (17, 3), (17,), r"coco17: expected keypoints .* got \(17, 3\)"),
         ("h36m17", (17,), (17,), r"h36m17: expected keypoints .* got \(17,\)"),
         ("coco17", (2, 17, 2), (17,), r"coco17: expected scores of shape \(2, 17\).* got \(17,\)"),
@@ -194,3 +198,48 @@ def test_unknown_format_is_a_value_error():
 def test_wrong_shapes_name_format_expected_and_got(fmt, keypoints_shape, scores_shape, message):
     with pytest.raises(ValueError, match=message):
         to_h36m17(fmt, np.zeros(keypoints_shape), np.ones(scores_shape))
+
+
+# --- Lifting on the detector's own joints ---------------------------------------------------------
+
+
+@pytest.mark.parametrize("layout", sorted(DETECTOR_LAYOUTS))
+def test_lifting_skeleton_is_the_detectors_joints_root_first(layout):
+    detector = DETECTOR_LAYOUTS[layout]
+    skeleton = lifting_skeleton(layout)
+    assert skeleton.joint_names[0] == detector.root and get_skeleton(skeleton.name) == skeleton
+    assert set(skeleton.joint_names) - {detector.root} == set(detector.joint_names) - {detector.root}
+    rng = np.random.default_rng(0)
+    keypoints = rng.uniform(0, 1000, (3, len(detector.joint_names), 2))
+    scores = rng.uniform(0.1, 1.0, (3, len(detector.joint_names)))
+    scores[0, 2] = 0.0  # one missing keypoint
+    out, confidence = to_lifting_skeleton(layout, keypoints, scores)
+    for j, name in enumerate(skeleton.joint_names):
+        if name in detector.joint_names:
+            source = detector.joint_names.index(name)
+            np.testing.assert_allclose(out[:, j], np.where(scores[:, source, None] > 0, keypoints[:, source], 0.0), rtol=1e-6)
+            np.testing.assert_allclose(confidence[:, j], scores[:, source], rtol=1e-6)
+        else:  # the derived root: the hips' midpoint, as confident as the less confident hip
+            left, right = (detector.joint_names.index(hip) for hip in detector.root_from)
+            np.testing.assert_allclose(out[:, j], (keypoints[:, left] + keypoints[:, right]) / 2, rtol=1e-5)
+            np.testing.assert_allclose(confidence[:, j], np.minimum(scores[:, left], scores[:, right]), rtol=1e-6)
+    # Left/right pairs mirror each other's names.
+    for left, right in skeleton.left_right_pairs:
+        assert skeleton.joint_names[left].lower().replace("left_", "l").lstrip("l") == (
+            skeleton.joint_names[right].lower().replace("right_", "r").lstrip("r")
+        )
+
+
+def test_layout_inference_and_the_lifters_input():
+    assert infer_layout(51, "x") == "coco17" and infer_layout(78, "x") == "halpe26" and infer_layout(54, "x") == "coco18"
+    with pytest.raises(ValueError, match="BODY_25 or BODY_25B.*--data.skeleton body25"):
+        infer_layout(75, "cam01_json")
+    with pytest.raises(ValueError, match="cam01_json: cannot infer the keypoint layout from 60 values"):
+        infer_layout(60, "cam01_json")
+    keypoints, scores = arrays(COCO_POINTS, COCO_17.joint_names)
+    for got, expected in zip(to_skeleton("coco17", lifting_skeleton("coco17"), keypoints, scores),
+                             to_lifting_skeleton("coco17", keypoints, scores)):  # fmt: skip
+        np.testing.assert_array_equal(got, expected)
+    with pytest.raises(ValueError, match="skeleton 'body25b_lifting' cannot take keypoints in layout 'coco17'"):
+        to_skeleton("coco17", lifting_skeleton("body25b"), keypoints, scores)
+    assert layout_of(lifting_skeleton("halpe26")) == "halpe26" and layout_of(H36M_17) is None
