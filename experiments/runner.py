@@ -20,7 +20,7 @@ import shutil
 import signal
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import jax
@@ -28,7 +28,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from experiments.config import ExperimentConfig, dumps, to_json_dict
-from jaxpose import checkpoint, evaluation, parallel, pseudo_labelling, viz
+from jaxpose import checkpoint, evaluation, parallel, pseudo_labelling, validation, viz
 from jaxpose.data.batch import validate_batch
 from jaxpose.data.dataset import MultiViewDataset, steps_per_epoch
 from jaxpose.losses import TERMS
@@ -56,6 +56,17 @@ class Splits:
     """Joints that the 2D source defines differently from the 3D ground truth (e.g. Stacked
     Hourglass's MPII "Spine" and "Head" on Human3.6M).  The report adds every metric over the other
     joints (Procrustes-aligned on those joints alone), where the definitions agree."""
+    camera_names: tuple[str, ...] = ()
+    """The views' names, for the per-camera tables (default: view 0, 1, ...)."""
+    notes: tuple[str, ...] = ()
+    """Paragraphs for the top of the report: what the loader did to the data (e.g. a rig project's
+    calibration, frame offsets and person choices)."""
+    artifacts: Mapping[str, Callable[[pathlib.Path], None]] = dataclasses.field(default_factory=dict)
+    """Files the loader made for the run directory: file name -> a function writing it to a path
+    (e.g. the rig `jaxpose.calibrate` recovered)."""
+
+    def view_names(self) -> tuple[str, ...]:
+        return self.camera_names or tuple(f"view {c}" for c in range(self.test.num_views))
 
     def agreeing_joints(self) -> np.ndarray | None:
         """Indices of the joints not in `detector_specific_joints`; None when every joint agrees."""
@@ -175,16 +186,27 @@ class RunLog:
 
 
 def periodic_evaluation(config: ExperimentConfig, test: MultiViewDataset, model) -> Callable[[Any], dict]:
-    """variables -> {eval_p_mpjpe, eval_mpjpe} (mm) on `config.train.eval_samples` evenly spaced test samples."""
+    """variables -> metrics on `config.train.eval_samples` evenly spaced test samples: the ground-truth-free
+    `jaxpose.validation` measures (eval_disagreement_mm, eval_reprojection_px,
+    eval_triangulation_p_mpjpe_mm) and, where the test split has 3D ground truth, eval_p_mpjpe / eval_mpjpe (mm)."""
     rows = np.unique(np.linspace(0, len(test) - 1, min(config.train.eval_samples, len(test))).astype(int))
-    subset = test.subset(rows)
-    target, valid = evaluation.ground_truth_in_views(subset)
+    subset = pseudo_labelling.label(test.subset(rows), config.pseudo_labels)  # its views' triangulation, once
+    truth = None
+    if subset.target3d is not None:
+        joints = evaluation.ground_truth_joints(subset)
+        target, valid = evaluation.ground_truth_in_views(subset)
+        truth = (joints, target[..., joints, :], valid)
     eval_step = make_eval_step(model, config.model)
 
     def evaluate(variables) -> dict:
         pred = evaluation.lift_every_view(eval_step, variables, subset, config.train.eval_batch_size)
-        overall = evaluation.evaluate_poses(pred, target, None, valid)["overall"]
-        return {"eval_p_mpjpe": overall["p_mpjpe"], "eval_mpjpe": overall["mpjpe"]}
+        record = {}
+        if truth is not None:
+            joints, target, valid = truth
+            overall = evaluation.evaluate_poses(pred[..., joints, :], target, None, valid)["overall"]
+            record = {"eval_p_mpjpe": overall["p_mpjpe"], "eval_mpjpe": overall["mpjpe"]}
+        consistency = validation.self_consistency(pred, subset, subset.pseudo3d, subset.pseudo3d_weight > 0)
+        return record | {f"eval_{name}": values["overall"] for name, values in consistency.items()}
 
     return evaluate
 
@@ -275,31 +297,44 @@ def evaluate_and_report(
     method_name: str,
     wall_time: float,
 ) -> dict:
-    """Single-view evaluation on every test view, the reference rows, report.{json,md}, plots."""
+    """Single-view evaluation on every test view: the ground-truth-free measures (`jaxpose.validation`)
+    always; where the test split has 3D ground truth, the metrics against it with the reference rows;
+    report.{json,md}, plots."""
     test = splits.test
-    target, valid = evaluation.ground_truth_in_views(test)  # raises, before any lifting, without ground truth
     eval_step = make_eval_step(model, config.model)
     pred = evaluation.lift_every_view(eval_step, state.variables, test, config.train.eval_batch_size)
     groups = test.labels.get(splits.group_label)
     test_triangulated = pseudo_labelling.label(test, config.pseudo_labels)
     triangulation = evaluation.poses_in_views(test, test_triangulated.pseudo3d)
-    mean_pose = np.broadcast_to(evaluation.mean_pose_prediction(splits.train), pred.shape)
-    predictions = {
-        method_name: pred,
-        "Input triangulation (multi-view, reference)": triangulation,
-        "Mean pose (baseline)": np.ascontiguousarray(mean_pose),
-    }
+    consistency = validation.self_consistency(pred, test_triangulated, test_triangulated.pseudo3d, test_triangulated.pseudo3d_weight > 0)
     excluded = splits.detector_specific_joints
-    agreeing = splits.agreeing_joints()
-    rows = {name: evaluation.evaluate_poses(poses, target, groups, valid, agreeing) for name, poses in predictions.items()}
+    rows, joint_names = {}, test.skeleton.joint_names
+    if test.target3d is not None:
+        joints = evaluation.ground_truth_joints(test)
+        joint_names = tuple(joint_names[j] for j in joints)
+        target, valid = evaluation.ground_truth_in_views(test)
+        mean_pose = np.broadcast_to(evaluation.mean_pose_prediction(splits.train), pred.shape)
+        predictions = {
+            method_name: pred,
+            "Input triangulation (multi-view, reference)": triangulation,
+            "Mean pose (baseline)": np.ascontiguousarray(mean_pose),
+        }
+        agreeing = splits.agreeing_joints()
+        rows = {
+            name: evaluation.evaluate_poses(poses[..., joints, :], target[..., joints, :], groups, valid, agreeing)
+            for name, poses in predictions.items()
+        }
     history = _read_jsonl(run_dir / "metrics.jsonl")
     last_train = next((r for r in reversed(history) if "loss" in r), {})
     shares = {k.removeprefix(GRADIENT_SHARE_PREFIX): v for k, v in last_train.items() if k.startswith(GRADIENT_SHARE_PREFIX)}
     report = {
         "method": method_name,
         "results": rows,
-        "joint_names": list(test.skeleton.joint_names),
+        "ground_truth_free": consistency,
+        "camera_names": list(splits.view_names()),
+        "joint_names": list(joint_names),
         "detector_specific_joints": list(excluded),
+        "notes": list(splits.notes),
         "final_gradient_shares": shares,
         "train_steps": int(state.step),
         "wall_time_s": wall_time,
@@ -308,21 +343,37 @@ def evaluate_and_report(
     }
     if jax.process_index() == 0:
         (run_dir / "report.json").write_text(json.dumps(report, indent=2))
-        tables = [
-            evaluation.markdown_table(rows, "p_mpjpe", f"P-MPJPE (mm) per {splits.group_label}"),
-            evaluation.markdown_table(rows, "mpjpe", f"MPJPE (mm) per {splits.group_label}"),
-            evaluation.markdown_table(rows, "n_mpjpe", f"N-MPJPE (mm) per {splits.group_label}"),
-            *(
-                [agreeing_joints_table(rows, excluded, splits.group_label)] if excluded else []
-            ),
-            evaluation.per_joint_table(rows, "p_mpjpe", test.skeleton.joint_names, "P-MPJPE (mm) per joint"),
-            evaluation.per_joint_table(rows, "mpjpe", test.skeleton.joint_names, "MPJPE (mm) per joint"),
-        ]
+        tables = list(splits.notes)
+        if rows:
+            tables += [
+                evaluation.markdown_table(rows, "p_mpjpe", f"P-MPJPE (mm) per {splits.group_label}"),
+                evaluation.markdown_table(rows, "mpjpe", f"MPJPE (mm) per {splits.group_label}"),
+                evaluation.markdown_table(rows, "n_mpjpe", f"N-MPJPE (mm) per {splits.group_label}"),
+                *([agreeing_joints_table(rows, excluded, splits.group_label)] if excluded else []),
+                evaluation.per_joint_table(rows, "p_mpjpe", joint_names, "P-MPJPE (mm) per joint"),
+                evaluation.per_joint_table(rows, "mpjpe", joint_names, "MPJPE (mm) per joint"),
+            ]
+        tables.append(ground_truth_free_table(consistency, splits.view_names()))
         if shares:
             tables.append(gradient_share_table(shares, int(state.step)))
         (run_dir / "report.md").write_text("\n\n".join(tables) + "\n")
-        _plots(config, test, pred, target, run_dir)
+        reference = target if rows and len(joint_names) == test.skeleton.num_joints else triangulation
+        _plots(config, test, pred, reference, run_dir)
     return report
+
+
+def ground_truth_free_table(consistency: dict, camera_names: tuple[str, ...]) -> str:
+    """Markdown: the `jaxpose.validation` measures per lifted camera and overall."""
+    lines = [
+        "**Without ground truth (jaxpose.validation): single-view predictions against the other views**",
+        "",
+        "| Lifted view | disagreement with the other views (mm) | reprojection into the other views (px) | P-MPJPE vs triangulation (mm) |",
+        "|---|---|---|---|",
+    ]
+    for c, name in enumerate(camera_names):
+        lines.append("| " + " | ".join([name, *(f"{consistency[m]['per_camera'][c]:.1f}" for m in validation.METRICS)]) + " |")
+    lines.append("| all | " + " | ".join(f"{consistency[m]['overall']:.1f}" for m in validation.METRICS) + " |")
+    return "\n".join(lines)
 
 
 def agreeing_joints_table(rows: dict, excluded: tuple[str, ...], group_label: str) -> str:
@@ -351,13 +402,26 @@ def gradient_share_table(shares: dict[str, float], step: int) -> str:
     return "\n".join(lines)
 
 
+# The periodic evaluation's measures and their plot labels.
+EVALUATION_LABELS = {
+    "p_mpjpe": "P-MPJPE (mm)",
+    "mpjpe": "MPJPE (mm)",
+    "disagreement_mm": "disagreement between views (mm)",
+    "reprojection_px": "reprojection into other views (px)",
+    "triangulation_p_mpjpe_mm": "P-MPJPE vs triangulation (mm)",
+}
+
+
 def _plots(config, test: MultiViewDataset, pred, target, run_dir: pathlib.Path) -> None:
     records = _read_jsonl(run_dir / "metrics.jsonl")
     history = [r for r in records if "loss" in r]
-    evaluations = [r for r in records if "eval_p_mpjpe" in r]
+    evaluations = [r for r in records if any(key.startswith("eval_") for key in r)]
     if evaluations:
-        curves = {name: [(r["step"], r[f"eval_{key}"]) for r in evaluations] for key, name in (("p_mpjpe", "P-MPJPE (mm)"), ("mpjpe", "MPJPE (mm)"))}
-        figure = viz.figure_loss_curves(curves, log_y=False, overlay=True)
+        labels = {f"eval_{name}": label for name, label in EVALUATION_LABELS.items()}
+        curves = {
+            label: [(r["step"], r[key]) for r in evaluations if key in r] for key, label in labels.items() if key in evaluations[-1]
+        }
+        figure = viz.figure_loss_curves(curves, log_y=False)
         figure.suptitle("periodic evaluation on a test subset (monitoring only; the report is the final checkpoint)")
         viz.save_figure(figure, run_dir / "plots" / "periodic_evaluation.png")
     if history:
@@ -395,6 +459,9 @@ def run(
     # --run.overwrite start does not delete the previous run before the data are known to load).
     splits = load_data(config.data)
     run_dir = prepare_run_dir(config)
+    if jax.process_index() == 0:
+        for name, write in splits.artifacts.items():
+            write(run_dir / name)
     log.info("data: %d train / %d test samples, %d views, %d joints", len(splits.train), len(splits.test), splits.train.num_views, splits.train.skeleton.num_joints)
     usable = splits.train.usable_view_count() >= config.pseudo_labels.min_views
     if not usable.all():

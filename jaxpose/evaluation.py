@@ -29,12 +29,24 @@ def poses_in_views(dataset: MultiViewDataset, poses_world: np.ndarray) -> np.nda
     return in_camera - in_camera[..., :1, :]
 
 
+def ground_truth_joints(dataset: MultiViewDataset) -> np.ndarray:
+    """Indices of the joints the 3D ground truth gives: every joint, unless it covers fewer (a rig
+    project's ground truth shares only some joint names with the detector's skeleton; NaN elsewhere)."""
+    finite = np.isfinite(dataset.target3d).all(-1)  # [N, J]
+    rows = finite.any(-1)
+    return np.flatnonzero(finite[rows].all(0)) if rows.any() else np.arange(dataset.skeleton.num_joints)
+
+
 def ground_truth_in_views(dataset: MultiViewDataset) -> tuple[np.ndarray, np.ndarray]:
     """What single-view evaluation compares with: the 3D ground truth root-relative in every view's
-    camera frame [N, C, J, 3], and bool[N, C]: the views that can be lifted (their root was detected)."""
+    camera frame [N, C, J, 3], and bool[N, C]: the views that can be lifted (their root was detected)
+    and have ground truth (0 where an instant has none; joints without any are NaN, see
+    `ground_truth_joints`)."""
     if dataset.target3d is None:
         raise ValueError("the test split has no 3D ground truth to evaluate against")
-    return poses_in_views(dataset, dataset.target3d), dataset.confidence[..., 0] > 0
+    has_truth = np.isfinite(dataset.target3d[:, ground_truth_joints(dataset)]).all((-2, -1))  # [N]
+    target = np.where(has_truth[:, None, None], dataset.target3d, 0.0)
+    return poses_in_views(dataset, target), (dataset.confidence[..., 0] > 0) & has_truth[:, None]
 
 
 def lift_every_view(

@@ -1,0 +1,152 @@
+"""Your rig, your lifter: train a single-view 3D lifter from your own multi-camera recordings.
+
+    python -m experiments.rig --data.root PROJECT                 # preset cpu: the recipe for 2 CPU cores
+    python -m experiments.rig                                     # the embedded example project (written on first use)
+    python -m experiments.rig --data.root PROJECT --data.sync auto               # cameras not started together
+    python -m experiments.rig --data.root PROJECT --supervision full             # the twin, where ground truth covers training
+    python -m experiments.rig --help                                             # every flag
+
+PROJECT holds one folder per recording, each with the detections of every camera (OpenPose JSON
+folders, COCO results per camera, or a detections.npz), and optionally a calibration (Anipose /
+Pose2Sim / FreeMoCap TOML, EasyMocap intri.yml + extri.yml, or a jaxpose camera file); without one
+the rig is recovered from the recordings.  The layout and every option: `jaxpose.data.rig_project`
+and README "Train on your own rig".
+
+The lifter is trained on the detector's own joints (root first: its mid-hip, derived from the hips
+where the detector has none).  A held-out part (--data.validation-recordings, or the last
+--data.validation-fraction of every recording) is evaluated without ground truth (`jaxpose.validation`:
+how the views' predictions agree), and with it where a recording has a ground_truth.npz.  The run
+directory is used by `jaxpose.predict` and `jaxpose.export` like any other.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import pathlib
+
+from experiments import cli
+from experiments.config import ExperimentConfig, RunConfig, TrainConfig
+from experiments.runner import Splits
+from jaxpose.config import RESCALED_LOSS, LossConfig, ModelConfig, OptimizerConfig, PseudoLabelConfig
+from jaxpose.data.camera_file import save_cameras
+from jaxpose.data.rig_project import RigProject, RigProjectConfig, load_rig_project
+
+log = logging.getLogger("jaxpose")
+
+EXAMPLE_ROOT = RigProjectConfig().root
+RECOVERED_CALIBRATION = "recovered_cameras.json"
+
+
+def load_splits(data: RigProjectConfig) -> Splits:
+    """The project's training recordings and its held-out part; the embedded example is written first
+    when --data.root is left at its default and does not exist yet."""
+    if data.root == EXAMPLE_ROOT and not data.root.exists():
+        from jaxpose.data.synthetic.project import write_rig_project
+
+        log.info("writing the embedded example project to %s", data.root)
+        write_rig_project(data.root)
+    project = load_rig_project(data)
+    artifacts = {}
+    if project.recovered_calibration is not None:
+        calibration = project.recovered_calibration
+
+        def write_calibration(path: pathlib.Path) -> None:
+            sizes = {"rig": [tuple(int(v) for v in size) for size in calibration.image_size]}
+            comment = f"Recovered by jaxpose.calibrate from the recordings of {data.root}."
+            save_cameras(path, {"rig": (list(calibration.camera_names), calibration.cameras)}, sizes, comment)
+
+        artifacts[RECOVERED_CALIBRATION] = write_calibration
+    return Splits(
+        train=project.train,
+        test=project.validation,
+        group_label="recording",
+        camera_names=project.camera_names,
+        notes=project_notes(project, data),
+        artifacts=artifacts,
+    )
+
+
+def project_notes(project: RigProject, data: RigProjectConfig) -> tuple[str, ...]:
+    """The report's account of the data: per recording what loading found and did; the recovered rig."""
+    lines = [
+        f"**Rig project {data.root}: {len(project.recordings)} recordings, cameras {', '.join(project.camera_names)},"
+        f" keypoint layout {project.layout}**",
+        "",
+        "| Recording | instants | cameras | frame offsets | instants with a choice of person | views without the person | ground-truth instants | calibration |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in project.recordings:
+        offsets = ", ".join(f"{camera} {offset:+d}" for camera, offset in r.offsets.items() if offset) or "none"
+        if r.offsets_estimated:
+            offsets += " (estimated" + ("" if r.sync_reliable else ", UNRELIABLE: too little motion") + ")"
+        lines.append(
+            f"| {r.name} | {r.instants} | {len(r.cameras)} | {offsets} | {r.instants_with_choice} | {r.views_without_match}"
+            f" | {r.ground_truth_instants} | {r.calibration} |"
+        )
+    notes = ["\n".join(lines)]
+    held_out = ", ".join(data.validation_recordings) or f"the last {data.validation_fraction:.0%} of every recording"
+    truth = (
+        f"Ground truth over the joints {', '.join(project.ground_truth_joints)}."
+        if project.ground_truth_joints
+        else "No ground truth: the validation is the ground-truth-free table below."
+    )
+    notes.append(f"Training: {len(project.train)} instants; validation ({held_out}): {len(project.validation)} instants. {truth}")
+    if project.recovered_calibration is not None:
+        from jaxpose.calibrate import report as calibration_report
+
+        notes.append(
+            f"No calibration file: the rig was recovered from the recordings and written to {RECOVERED_CALIBRATION}"
+            f" in the run directory.\n\n{calibration_report(project.recovered_calibration, None, None)}"
+        )
+    return tuple(notes)
+
+
+# Preset "cpu": the Human3.6M cpu recipe (`experiments.h36m`), measured there: a width-512 lifter,
+# dropout 0.1, batch 128, cosine schedule, RANSAC pseudo-labels with a pseudo-Huber label penalty,
+# the rescaled loss weights; 30 epochs over whatever the project holds.  The warm-up is short
+# (a small project has few steps).  The periodic evaluation tracks the ground-truth-free measures.
+CPU = ExperimentConfig(
+    data=RigProjectConfig(),
+    model=ModelConfig(width=512, dropout_rate=0.1),
+    loss=dataclasses.replace(RESCALED_LOSS, label_robust_scale_mm=50.0),
+    pseudo_labels=PseudoLabelConfig(method="ransac"),
+    optimizer=OptimizerConfig(schedule="cosine", warmup_steps=64),
+    train=TrainConfig(batch_size=128, epochs=30, checkpoint_every=2000, eval_every=500),
+    run=RunConfig(run_dir=pathlib.Path("runs/rig")),
+)
+
+# Preset "paper": Sec. IV-A of the paper on your recordings (the authors' network, Adam 1e-3, the
+# paper's loss weights, batch 8192); an accelerator's job on a large project.
+PAPER = ExperimentConfig(
+    data=RigProjectConfig(),
+    model=ModelConfig(),
+    loss=LossConfig(),
+    optimizer=OptimizerConfig(learning_rate=1e-3, schedule="constant"),
+    train=TrainConfig(batch_size=8192, epochs=500, checkpoint_every=250),
+    run=RunConfig(run_dir=pathlib.Path("runs/rig_paper")),
+)
+
+PRESETS: dict[str, ExperimentConfig] = {"cpu": CPU, "paper": PAPER}
+PRESET_NOTES = {
+    "cpu": "the Human3.6M cpu recipe (width 512, batch 128, 30 epochs, RANSAC pseudo-labels, rescaled losses)",
+    "paper": "the paper: authors' network, Adam 1e-3 constant, batch 8192, 500 epochs",
+}
+EXPERIMENT = cli.Experiment(
+    name="rig",
+    presets=PRESETS,
+    preset_notes=PRESET_NOTES,
+    load_splits=load_splits,
+    expected_files=lambda data: (
+        f"This run reads the rig project {data.root}: see `python -m experiments.rig --help` and README"
+        ' "Train on your own rig" for its layout.'
+    ),
+)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    return cli.main(EXPERIMENT, argv, __doc__)
+
+
+if __name__ == "__main__":
+    main()

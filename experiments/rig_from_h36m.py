@@ -1,0 +1,115 @@
+"""Write a Human3.6M subject as a rig project, to measure `experiments.rig` where the truth is known.
+
+    python -m experiments.rig_from_h36m --data-dir ../shared/data/h36m_s1 --output runs/h36m_s1_rig
+    python -m experiments.rig --data.root runs/h36m_s1_rig --data.validation-recordings ... (printed)
+
+One recording per sequence (e.g. "Walking 1"), every frame at 50 fps:
+- `detections.npz`: the 2D of the four cameras (`--detections`: sh, the Stacked Hourglass files, or
+  gt, the ground truth projected), as detected (distorted), with the skeleton name and image sizes;
+- `ground_truth.npz`: the 3D ground truth of the same joints (world mm, frames, joint names);
+- `calibration.toml` at the project root (omitted with `--no-calibration`): cameras.h5 of the
+  subject in the Anipose / Pose2Sim layout in metres.  Human3.6M's distortion has no exact OpenCV
+  equivalent; the closest OpenCV coefficients are written and their largest pixel difference is
+  printed (`jaxpose.data.calibration_formats.opencv_from_h36m_distortion`).
+
+The development protocol of `experiments.h36m --preset dev` (the first trial of each action trains,
+the other tests, every 5th frame) is then `--data.validation-recordings <the other trials>
+--data.train-stride 5 --data.validation-stride 5`, printed at the end.  `--shift CAMERA=N` moves
+one camera's frames by N (its frame f then shows the others' frame f + N), to test
+`--data.sync auto`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+import re
+from collections.abc import Sequence
+
+import numpy as np
+import tyro
+
+from experiments.h36m import first_trials
+from jaxpose.data.calibration_formats import opencv_rig_from_h36m, read_rig_calibration, write_anipose_toml
+from jaxpose.data.camera_file import H36M_IMAGE_SIZES
+from jaxpose.data.h36m import CAMERA_NAMES, load_h36m
+from jaxpose.data.rig_project import DETECTIONS_NPZ, GROUND_TRUTH_NPZ
+
+
+@dataclasses.dataclass(frozen=True)
+class Args:
+    """Write a Human3.6M subject as a rig project (see the module docstring)."""
+
+    data_dir: pathlib.Path
+    """The Human3.6M folder (h36m.zip tree with cameras.h5)."""
+    output: pathlib.Path
+    """The project folder to write."""
+    subject: str = "S1"
+    """The subject written."""
+    detections: str = "sh"
+    """2D source: sh (Stacked Hourglass, 16 joints) or gt (the ground truth projected, 17 joints)."""
+    calibration: bool = True
+    """Write calibration.toml (--no-calibration: the rig must then be recovered from the recordings)."""
+    shift: tuple[str, ...] = ()
+    """CAMERA=N: that camera's frame f shows the other cameras' frame f + N (frames without a
+    counterpart are dropped)."""
+
+
+def write_project(args: Args) -> list[str]:
+    """Write the project; returns the recordings of the development protocol's test half."""
+    dataset = load_h36m(args.data_dir, detections=args.detections, subjects=(args.subject,), train_stride=1, test_stride=1)
+    shifts = {}
+    for value in args.shift:
+        match = re.fullmatch(r"(\w+)=([+-]?\d+)", value)
+        if match is None or match[1] not in CAMERA_NAMES:
+            raise SystemExit(f"--shift {value!r}: expected CAMERA=N with CAMERA one of {CAMERA_NAMES}")
+        shifts[match[1]] = int(match[2])
+    args.output.mkdir(parents=True, exist_ok=True)
+    if args.calibration:
+        rig = read_rig_calibration(args.data_dir / "cameras.h5", subject=args.subject).select(CAMERA_NAMES, "Human3.6M cameras")
+        rig = dataclasses.replace(rig, image_size=np.array([H36M_IMAGE_SIZES[name] for name in CAMERA_NAMES]))
+        rig, error_px = opencv_rig_from_h36m(rig)
+        write_anipose_toml(args.output / "calibration.toml", rig, unit="m")
+        print(f"calibration.toml: Human3.6M's distortion as OpenCV's, largest difference {error_px:.3f} px")
+    sequences = dataset.labels["sequence"]
+    train = first_trials(dataset.labels["subject"], dataset.labels["action"], sequences)
+    image_size = np.array([H36M_IMAGE_SIZES[name] for name in CAMERA_NAMES])
+    for sequence in sorted(set(sequences.tolist())):
+        rows = np.flatnonzero(sequences == sequence)
+        frames = dataset.labels["frame"][rows].astype(np.int64)
+        keypoints = dataset.keypoints2d[rows].copy()
+        confidence = dataset.confidence[rows].copy()
+        for camera, shift in shifts.items():
+            c = CAMERA_NAMES.index(camera)
+            # Camera c's frame f shows the instant of the others' frame f + shift.
+            source = np.clip(np.arange(len(rows)) + shift, 0, len(rows) - 1)
+            keypoints[:, c] = keypoints[source, c]
+            outside = (np.arange(len(rows)) + shift < 0) | (np.arange(len(rows)) + shift >= len(rows))
+            confidence[outside, c] = 0.0
+        folder = args.output / sequence
+        folder.mkdir(exist_ok=True)
+        np.savez(
+            folder / DETECTIONS_NPZ,
+            keypoints=keypoints, confidence=confidence, camera_names=np.array(CAMERA_NAMES), image_size=image_size,
+            skeleton=np.array(dataset.skeleton.name), frames=frames,
+        )  # fmt: skip
+        np.savez(
+            folder / GROUND_TRUTH_NPZ,
+            points3d=dataset.target3d[rows], frames=frames, joint_names=np.array(dataset.skeleton.joint_names),
+        )  # fmt: skip
+    return sorted(set(sequences[~train].tolist()))
+
+
+def main(argv: Sequence[str] | None = None) -> list[str]:
+    args = tyro.cli(Args, args=argv, prog="python -m experiments.rig_from_h36m", description=__doc__.split("\n\n")[0])
+    held_out = write_project(args)
+    quoted = " ".join(f"'{name}'" for name in held_out)
+    print(
+        f"wrote {args.output}. The development protocol:\n  python -m experiments.rig --data.root {args.output}"
+        f" --data.train-stride 5 --data.validation-stride 5 --data.validation-recordings {quoted}"
+    )
+    return held_out
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,253 @@
+"""Frame offsets between cameras that were not started together, estimated from the detections.
+
+Convention: a camera's offset o means that its frame f shows the instant f + o of the recording
+(the frame numbering of the cameras with offset 0).  Two cameras c and r then show the same instant
+in their frames f and f + (o_c - o_r).
+
+Only joints that move tell offsets apart (in a reaching motion the legs stand still), so every
+score below is over the moving half of a camera's detections (by image speed), a mean of pixel
+distances each clipped at `CLIP_PX`, so that gross detection errors weigh no more than a
+moderate miss.  A person standing still makes every offset alike: the estimate then says it is
+unreliable.
+
+With a calibration (`estimate_offsets` given projection matrices): each camera in turn is left
+out, the person is triangulated from the other cameras, and the camera's detections at frame
+f - d are compared with that triangulation's projection at instant f, for every d in
+[-max_offset, max_offset].  The camera that gains most by moving to its best d (at least
+`MIN_GAIN`) moves, and all are measured again: the other cameras' curves were taken against a
+triangulation that the out-of-sync camera spoiled, so only the clearest move is trusted per round.  Both image
+directions count, where two views alone would only see motion across the epipolar lines (a
+person walking along a pair's baseline shows none).
+
+Without one: for every pair of cameras and offset d, the joints of camera c's frame f and camera
+r's frame f + d are correspondences when d is right, scored by their distance to the epipolar
+lines of a fundamental matrix fitted robustly to them (OpenCV's MAGSAC++; a wrong d fits worse
+too).  Each pair's best d, weighted by how clearly it wins, gives the offsets by least squares.
+
+Either way the offsets are then shifted so that most cameras have offset 0.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import warnings
+
+import numpy as np
+
+MIN_CORRESPONDENCES = 50
+CLIP_PX = 20.0
+RELIABLE_MARGIN = 0.1  # an offset is trusted where it fits 10% better than any two or more frames away
+MIN_GAIN = 0.05  # a camera's offset moves only where that fits its detections 5% better
+
+
+@dataclasses.dataclass(frozen=True)
+class SyncEstimate:
+    """Estimated offsets and the evidence for them."""
+
+    offsets: np.ndarray
+    """int[C] frames: camera c's frame f shows instant f + offsets[c]."""
+    scores: dict[str, np.ndarray]
+    """Per camera ("2": camera 2 against the others' triangulation) or per pair ("0-2": epipolar) ->
+    f[2 * max_offset + 1] the mean clipped distance (px) at each offset -max..max."""
+    reliable: bool
+    """Whether every curve's best offset clearly beats those two or more frames away (by `RELIABLE_MARGIN`):
+    a person who moves enough for the frames to be told apart."""
+
+
+def epipolar_distances(F: np.ndarray, points_a: np.ndarray, points_b: np.ndarray) -> np.ndarray:
+    """Symmetric point-to-epipolar-line distance (px) of correspondences [M, 2] (mean of both images)."""
+    a = np.concatenate([points_a, np.ones((len(points_a), 1))], 1)
+    b = np.concatenate([points_b, np.ones((len(points_b), 1))], 1)
+    lines_b = a @ F.T  # epipolar lines in image b
+    lines_a = b @ F  # in image a
+    residual = np.abs(np.sum(b * lines_b, 1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        distance_b = residual / np.linalg.norm(lines_b[:, :2], axis=1)
+        distance_a = residual / np.linalg.norm(lines_a[:, :2], axis=1)
+    return 0.5 * (distance_a + distance_b)
+
+
+def _fitted_fundamental(points_a: np.ndarray, points_b: np.ndarray, seed: int) -> np.ndarray | None:
+    import cv2  # the calibrate extra; only needed without a calibration
+
+    cv2.setRNGSeed(seed)
+    F, _ = cv2.findFundamentalMat(points_a, points_b, cv2.USAC_MAGSAC, 3.0, 0.999, 2000)
+    return None if F is None or F.shape != (3, 3) else F
+
+
+def _image_speed(frames: np.ndarray, keypoints: np.ndarray, valid: np.ndarray, reach: int = 3) -> np.ndarray:
+    """f[F, J] pixels per frame of each detection: the median over k = 1..reach of its displacement
+    between frames f - k and f + k over 2k (a gross error in one neighbouring frame does not make a
+    joint look fast); 0 where no such pair was detected."""
+    F = len(frames)
+    estimates = np.full((reach, *valid.shape), np.nan)
+    for k in range(1, reach + 1):
+        if F <= 2 * k:
+            break
+        consecutive = (frames[2 * k :] - frames[: -2 * k]) == 2 * k
+        seen = valid[2 * k :] & valid[: -2 * k] & consecutive[:, None]
+        moved = np.linalg.norm(keypoints[2 * k :] - keypoints[: -2 * k], axis=-1) / (2 * k)
+        estimates[k - 1, k : F - k] = np.where(seen, moved, np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN: no neighbours detected
+        return np.nan_to_num(np.nanmedian(estimates, axis=0), nan=0.0)
+
+
+def _correspondences(frames_a, keypoints_a, moving_a, frames_b, keypoints_b, valid_b, shift: int, limit: int, rng):
+    """Moving joints of camera a's frame f seen in camera b's frame f + shift: ([M, 2], [M, 2])."""
+    _, index_a, index_b = np.intersect1d(frames_a + shift, frames_b, assume_unique=True, return_indices=True)
+    both = moving_a[index_a] & valid_b[index_b]  # [n, J]
+    frame, joint = np.nonzero(both)
+    if len(frame) > limit:
+        keep = np.sort(rng.choice(len(frame), limit, replace=False))
+        frame, joint = frame[keep], joint[keep]
+    return keypoints_a[index_a[frame], joint].astype(np.float64), keypoints_b[index_b[frame], joint].astype(np.float64)
+
+
+def _moving_detections(frames, keypoints, valid) -> list[np.ndarray]:
+    """bool[F, J] per camera: the detections at least as fast in the image as the camera's median one."""
+    moving = []
+    for camera_frames, camera_keypoints, camera_valid in zip(frames, keypoints, valid):
+        speed = _image_speed(camera_frames, camera_keypoints, camera_valid)
+        threshold = np.median(speed[speed > 0]) if (speed > 0).any() else np.inf
+        moving.append(camera_valid & (speed >= threshold))
+    return moving
+
+
+def _reliability(scores: np.ndarray) -> float:
+    """How clearly a curve's minimum wins: the best distance two or more frames away from it over the
+    minimum, less 1 (0 for a flat curve)."""
+    if not np.isfinite(scores).any():
+        return 0.0
+    best = int(np.argmin(scores))
+    away = np.abs(np.arange(len(scores)) - best) >= 2
+    if not np.isfinite(scores[away]).any():
+        return 0.0
+    return max(float(np.min(scores[away]) / max(scores[best], 1e-6)) - 1.0, 0.0)
+
+
+def estimate_offsets(
+    frames: list[np.ndarray],
+    keypoints: list[np.ndarray],
+    confidence: list[np.ndarray],
+    projections: np.ndarray | None,
+    max_offset: int = 10,
+    min_confidence: float = 0.3,
+    max_instants: int = 3000,
+    seed: int = 0,
+) -> SyncEstimate:
+    """Offsets of C cameras from one person's detections (see the module docstring).
+
+    Per camera c: frames int[F_c] (its own frame numbers), keypoints f[F_c, J, 2] undistorted pixels
+    (one person per frame), confidence f[F_c, J].  projections: f[C, 3, 4] of a calibration, or None
+    to fit a fundamental matrix per pair and offset.  At most `max_instants` instants (evenly spread)
+    are scored.
+    """
+    valid = [(c > min_confidence) & np.isfinite(k).all(-1) for c, k in zip(confidence, keypoints)]
+    moving = _moving_detections(frames, keypoints, valid)
+    shifts = np.arange(-max_offset, max_offset + 1)
+    if projections is not None:
+        return _offsets_by_triangulation(frames, keypoints, valid, moving, projections, shifts, max_instants)
+    return _offsets_by_epipolar_fit(frames, keypoints, valid, moving, shifts, 20000, seed)
+
+
+def _offsets_by_triangulation(frames, keypoints, valid, moving, projections, shifts, max_instants) -> SyncEstimate:
+    import jax.numpy as jnp
+
+    from jaxpose.triangulation import triangulate
+
+    C, J = len(frames), keypoints[0].shape[1]
+    offsets = np.zeros(C, np.int64)
+    for _ in range(C + 1):
+        scores = {str(c): _camera_curve(c, frames, keypoints, valid, moving, projections, offsets, shifts, max_instants, triangulate, jnp)
+                  for c in range(C)}  # fmt: skip
+        # Move only the camera that gains most, then look again: the others' curves were measured
+        # against a triangulation that the out-of-sync camera still spoiled.
+        gains = np.array([_gain(scores[str(c)], shifts, offsets[c]) for c in range(C)])
+        worst = int(np.argmax(gains))
+        if gains[worst] <= MIN_GAIN:
+            break
+        offsets[worst] = shifts[int(np.argmin(scores[str(worst)]))]
+    values, counts = np.unique(offsets, return_counts=True)
+    reliable = all(_reliability(curve) > RELIABLE_MARGIN for curve in scores.values())
+    return SyncEstimate(offsets=offsets - values[np.argmax(counts)], scores=scores, reliable=reliable)
+
+
+def _gain(curve: np.ndarray, shifts: np.ndarray, current: int) -> float:
+    """How much a camera's curve improves from its current offset to its best, relative (0 if it cannot)."""
+    if not np.isfinite(curve).any():
+        return 0.0
+    at_current = curve[np.flatnonzero(shifts == current)[0]] if current in shifts else np.inf
+    return float(at_current / np.min(curve) - 1.0) if np.isfinite(at_current) else float(np.inf)
+
+
+def _camera_curve(c, frames, keypoints, valid, moving, projections, offsets, shifts, max_instants, triangulate, jnp) -> np.ndarray:
+    """Camera c's mean clipped distance (px) to the other cameras' triangulation at each offset in `shifts`."""
+    C, J = len(frames), keypoints[0].shape[1]
+    others = [v for v in range(C) if v != c]
+    instants = np.unique(np.concatenate([frames[v] + offsets[v] for v in others]))
+    instants = instants[np.linspace(0, len(instants) - 1, min(max_instants, len(instants))).round().astype(int)]
+    points = np.zeros((len(instants), len(others), J, 2))
+    weights = np.zeros((len(instants), len(others), J))
+    for slot, v in enumerate(others):
+        _, rows, own = np.intersect1d(instants, frames[v] + offsets[v], assume_unique=True, return_indices=True)
+        points[rows, slot], weights[rows, slot] = keypoints[v][own], valid[v][own]
+    seen = weights.sum(1) >= 2  # [n, J] triangulable without camera c
+    X = np.asarray(triangulate(jnp.asarray(projections[others], jnp.float32), jnp.asarray(points, jnp.float32),
+                               jnp.asarray(weights * seen[:, None], jnp.float32), method="svd"))  # fmt: skip
+    projected = np.concatenate([X, np.ones_like(X[..., :1])], -1) @ projections[c].T  # [n, J, 3]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        pixels = projected[..., :2] / projected[..., 2:]
+    curve = np.full(len(shifts), np.inf)
+    for i, shift in enumerate(shifts):
+        # With offset `shift`, camera c's frame f shows instant f + shift.
+        _, rows, own = np.intersect1d(instants, frames[c] + shift, assume_unique=True, return_indices=True)
+        use = moving[c][own] & seen[rows] & (projected[rows, :, 2] > 0)
+        if use.sum() >= MIN_CORRESPONDENCES:
+            distance = np.linalg.norm(pixels[rows] - keypoints[c][own], axis=-1)
+            curve[i] = np.minimum(distance[use], CLIP_PX).mean()
+    return curve
+
+
+def _offsets_by_epipolar_fit(frames, keypoints, valid, moving, shifts, max_correspondences, seed) -> SyncEstimate:
+    C = len(frames)
+    rng = np.random.default_rng(seed)
+    scores, pair_offsets, weights = {}, {}, {}
+    for a, b in itertools.combinations(range(C), 2):
+        curve = np.full(len(shifts), np.inf)
+        for i, shift in enumerate(shifts):
+            points_a, points_b = _correspondences(
+                frames[a], keypoints[a], moving[a], frames[b], keypoints[b], valid[b], int(shift), max_correspondences, rng
+            )
+            if len(points_a) < MIN_CORRESPONDENCES:
+                continue
+            F = _fitted_fundamental(points_a, points_b, seed)
+            if F is not None:
+                curve[i] = np.nanmean(np.minimum(epipolar_distances(F, points_a, points_b), CLIP_PX))
+        scores[f"{a}-{b}"] = curve
+        if np.isfinite(curve).any():
+            # o_a - o_b: camera a's frame f shows what camera b's frame f + shift shows.
+            pair_offsets[a, b] = int(shifts[int(np.argmin(curve))])
+            weights[a, b] = _reliability(curve)
+    reliable = bool(pair_offsets) and all(weight > RELIABLE_MARGIN for weight in weights.values())
+    return SyncEstimate(offsets=_solve_offsets(C, pair_offsets, weights), scores=scores, reliable=reliable)
+
+
+def _solve_offsets(C: int, pair_offsets: dict[tuple[int, int], int], weights: dict[tuple[int, int], float]) -> np.ndarray:
+    """Integer offsets o with o_a - o_b ~ pair_offsets[a, b] (weighted least squares), most cameras at 0."""
+    rows, targets = [], []
+    for (a, b), offset in pair_offsets.items():
+        w = np.sqrt(max(weights.get((a, b), 0.0), 1e-3))
+        row = np.zeros(C)
+        row[a], row[b] = w, -w
+        rows.append(row)
+        targets.append(w * offset)
+    if not rows:
+        return np.zeros(C, np.int64)
+    # Offsets are relative: fix their sum with one more equation, then move the most common to 0.
+    system = np.vstack([*rows, np.ones(C)])
+    solution = np.linalg.lstsq(system, np.array([*targets, 0.0]), rcond=None)[0]
+    offsets = np.round(solution).astype(np.int64)
+    values, counts = np.unique(offsets, return_counts=True)
+    return offsets - values[np.argmax(counts)]

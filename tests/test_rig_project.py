@@ -1,0 +1,261 @@
+"""Training on your own rig (`experiments.rig`, `jaxpose.data.rig_project`): the example project end to
+end, the person choice, frame offsets, the ground-truth-free measures, and every refusal."""
+
+import dataclasses
+import json
+import shutil
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from help_text import assert_every_flag_documented
+
+from experiments import rig as rig_job
+from jaxpose import predict, validation
+from jaxpose import camera
+from jaxpose.camera import Cameras, projection_matrices
+from jaxpose.data.calibration_formats import read_rig_calibration, write_anipose_toml
+from jaxpose.data.errors import DataFormatError
+from jaxpose.data.people import choose_person
+from jaxpose.data.rig_project import RigProjectConfig, load_rig_project
+from jaxpose.data.sync import estimate_offsets
+from jaxpose.data.synthetic.project import ExampleProjectConfig, write_rig_project
+from jaxpose.data.trc import read_trc
+
+SMALL = ExampleProjectConfig(recordings=2, frames_per_recording=240)
+
+
+@pytest.fixture(scope="module")
+def project(tmp_path_factory):
+    return write_rig_project(tmp_path_factory.mktemp("rig") / "project", SMALL)
+
+
+@pytest.fixture()
+def project_copy(project, tmp_path):
+    """A copy to break."""
+    copy = tmp_path / "project"
+    shutil.copytree(project, copy, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    return copy
+
+
+def _ring_cameras(count: int) -> Cameras:
+    """`count` cameras 4 m from the origin, 1.5 m up, looking at it."""
+    K, R, t = [], [], []
+    for c in range(count):
+        angle = 2 * np.pi * c / count + 0.3
+        centre = np.array([4000 * np.cos(angle), 4000 * np.sin(angle), 1500.0])
+        z = -centre / np.linalg.norm(centre)
+        x = np.cross(z, [0.0, 0.0, 1.0])
+        x /= np.linalg.norm(x)
+        rotation = np.stack([x, np.cross(z, x), z])
+        K.append([[1000.0, 0, 500], [0, 1000.0, 500], [0, 0, 1]])
+        R.append(rotation)
+        t.append(-rotation @ centre)
+    return Cameras(K=np.array(K, np.float32), R=np.array(R, np.float32), t=np.array(t, np.float32))
+
+
+def _pixels(cameras: Cameras, points: np.ndarray) -> np.ndarray:
+    """World points [N, J, 3] -> pixels [N, C, J, 2]."""
+    return np.asarray(camera.project(cameras[None], jnp.asarray(points, jnp.float32)[:, None]))
+
+
+def test_example_project_trains_resumes_and_lifts(project, tmp_path):
+    run_dir = tmp_path / "run"
+    flags = [
+        "--data.root", str(project), "--data.sync", "auto", "--run.run-dir", str(run_dir), "--model.width", "64",
+        "--train.batch-size", "32", "--train.epochs", "2", "--train.max-steps", "20", "--train.eval-every", "10",
+        "--train.eval-samples", "50",
+        "--run.no-progress", "--run.plot-samples", "1", "--run.no-tensorboard",
+    ]  # fmt: skip
+    report = rig_job.main(flags)
+    truth = json.loads((project / "example_truth.json").read_text())
+    camera = truth["desynchronized_camera"]
+    # The out-of-sync camera was found (the walking recording moves enough) and the passer-by met.
+    assert any(f"{camera} +{truth['desync_offset_frames']} (estimated" in note for note in report["notes"])
+    assert report["camera_names"] == truth["cameras"]
+    # Ground truth over the joints it shares with the detector's skeleton (COCO-17 + the pelvis root).
+    assert report["joint_names"][0] == "pelvis" and len(report["joint_names"]) == 18
+    ours = report["results"]["Lifter, self-supervised (ours)"]["overall"]
+    assert np.isfinite(ours["p_mpjpe"]) and ours["count"] > 0
+    for name in validation.METRICS:
+        values = report["ground_truth_free"][name]
+        assert np.isfinite(values["overall"]) and len(values["per_camera"]) == 4
+    evaluations = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines() if "eval_" in line]
+    assert [r["step"] for r in evaluations] == [10, 20]
+    assert {"eval_p_mpjpe", "eval_disagreement_mm", "eval_reprojection_px", "eval_triangulation_p_mpjpe_mm"} <= set(evaluations[-1])
+    assert "Without ground truth" in (run_dir / "report.md").read_text()
+    # Resuming the finished run trains no further step and reports the same.
+    again = rig_job.main(flags)
+    assert again["train_steps"] == 20
+    assert again["results"]["Lifter, self-supervised (ours)"]["overall"]["p_mpjpe"] == pytest.approx(ours["p_mpjpe"], abs=1e-4)
+    # predict takes the run as it takes any other: one camera's OpenPose folder, in the detector's layout.
+    recording = sorted(p for p in project.iterdir() if p.is_dir() and not p.name.startswith("."))[0]
+    out = tmp_path / "poses.trc"
+    poses = predict.main(["--checkpoint", str(run_dir), "--input", str(recording / "cam01_json"), "--output", str(out),
+                          "--intrinsics", str(_camera_json(project, tmp_path)), "--fps", "50"])  # fmt: skip
+    trc = read_trc(out)
+    assert poses.shape[1] == 18 and trc.marker_names[0] == "pelvis" and trc.units == "m"
+
+
+def _camera_json(project, tmp_path):
+    """cam01's intrinsics as predict's --intrinsics JSON."""
+    rig = read_rig_calibration(project / "calibration.toml").select(["cam01"], "test")
+    path = tmp_path / "cam01.json"
+    path.write_text(json.dumps({"K": rig.cameras.K[0].tolist(), "dist": rig.cameras.dist[0].tolist(), "image_size": rig.image_size[0].tolist()}))
+    return path
+
+
+def test_help_documents_every_data_flag(capsys):
+    with pytest.raises(SystemExit) as stop:
+        rig_job.main(["--help"])
+    assert stop.value.code == 0
+    flags = ["--data." + field.name.replace("_", "-") for field in dataclasses.fields(RigProjectConfig)]
+    assert_every_flag_documented(capsys.readouterr().out, flags)
+
+
+def test_the_person_the_views_agree_on():
+    """Two people: the subject in every instant, a passer-by in some, listed first at random, and in
+    one camera the passer-by alone for a while (the subject occluded there)."""
+    rng = np.random.default_rng(0)
+    cameras = _ring_cameras(4)
+    N, J = 60, 17
+    subject = rng.normal(0, 300, (N, J, 3)) + [0, 0, 1000]
+    passer = rng.normal(0, 300, (N, J, 3)) + [1500, 800, 1000]
+    subject[:, 0], passer[:, 0] = [0, 0, 1000], [1500, 800, 1000]
+    seen_subject, seen_passer = _pixels(cameras, subject), _pixels(cameras, passer)
+    keypoints = np.zeros((N, 4, 2, J, 2), np.float32)
+    confidence = np.zeros((N, 4, 2, J), np.float32)
+    first = rng.random((N, 4)) < 0.5
+    for n in range(N):
+        for c in range(4):
+            s, p = (1, 0) if first[n, c] else (0, 1)
+            keypoints[n, c, s] = seen_subject[n, c] + rng.normal(0, 2, (J, 2))
+            confidence[n, c, s] = 1
+            if n < 15:
+                keypoints[n, c, p] = seen_passer[n, c] + rng.normal(0, 2, (J, 2))
+                confidence[n, c, p] = 1
+    keypoints[:10, 3], confidence[:10, 3] = 0, 0
+    keypoints[:10, 3, 0], confidence[:10, 3, 0] = seen_passer[:10, 3], 1  # camera 3 sees only the passer-by
+    choice = choose_person(np.asarray(projection_matrices(cameras)), keypoints, confidence)
+    kept = choice.confidence > 0
+    assert np.abs(choice.keypoints - seen_subject)[kept].max() < 15  # always the subject
+    assert kept[10:].all() and not kept[:10, 3].any() and kept[:10, :3].all()
+    assert choice.instants_with_choice == 15 and choice.views_without_match == 10
+
+
+def _moving_person(cameras: Cameras, frames: int, offsets: np.ndarray, rng):
+    """One person walking about, seen by every camera with `offsets` (camera c's frame f shows instant f + offsets[c])."""
+    t = np.arange(frames) / 50.0
+    body = rng.normal(0, 250, (17, 3))
+    path = np.stack([1500 * np.sin(0.7 * t), 1200 * np.sin(0.5 * t + 1), 1000 + 0 * t], 1)
+    points = body[None] + path[:, None] + 100 * np.sin(3 * t)[:, None, None] * rng.normal(size=(1, 17, 3))
+    pixels = _pixels(cameras, points) + rng.normal(0, 2, (frames, len(offsets), 17, 2))
+    per_camera = []
+    for c, offset in enumerate(offsets):
+        instants = np.arange(max(0, offset), frames + min(0, offset))
+        per_camera.append((instants - offset, pixels[instants, c], np.ones((len(instants), 17))))
+    return [list(values) for values in zip(*per_camera)]
+
+
+@pytest.mark.parametrize("calibrated", [True, False])
+def test_frame_offsets_are_recovered(calibrated):
+    cameras = _ring_cameras(4)
+    truth = np.array([0, 0, 3, 0])
+    frames, keypoints, confidence = _moving_person(cameras, 400, truth, np.random.default_rng(1))
+    P = np.asarray(projection_matrices(cameras), np.float64) if calibrated else None
+    estimate = estimate_offsets(frames, keypoints, confidence, P, max_offset=6)
+    np.testing.assert_array_equal(estimate.offsets, truth)
+    assert estimate.reliable
+
+
+def test_a_still_person_gives_an_unreliable_sync():
+    cameras = _ring_cameras(3)
+    rng = np.random.default_rng(2)
+    still = rng.normal(0, 250, (1, 17, 3)) + [0, 0, 1000]
+    pixels = _pixels(cameras, np.repeat(still, 200, 0)) + rng.normal(0, 2, (200, 3, 17, 2))
+    estimate = estimate_offsets([np.arange(200)] * 3, [pixels[:, c] for c in range(3)], [np.ones((200, 17))] * 3,
+                                np.asarray(projection_matrices(cameras), np.float64), max_offset=4)  # fmt: skip
+    assert not estimate.reliable
+
+
+def test_ground_truth_free_measures_against_an_oracle(project):
+    data = load_rig_project(RigProjectConfig(root=project, frame_offsets=("cam03=3",)), progress=False)
+    from jaxpose import evaluation, pseudo_labelling
+    from jaxpose.config import PseudoLabelConfig
+
+    test = pseudo_labelling.label(data.validation, PseudoLabelConfig(method="ransac"))
+    truth, _ = evaluation.ground_truth_in_views(test)
+    exact = validation.self_consistency(truth, test, test.pseudo3d, test.pseudo3d_weight > 0)
+    assert exact["disagreement_mm"]["overall"] < 1e-2  # one pose seen from every camera
+    # The reprojection of the true pose is the detector's error (a few px), that of the true pose
+    # against the triangulation the triangulation's error.
+    assert 1 < exact["reprojection_px"]["overall"] < 15 and exact["triangulation_p_mpjpe_mm"]["overall"] < 40
+    # Depth guessed wrong in one view: that view disagrees and reprojects worse, the others less so.
+    flattened = truth.copy()
+    flattened[:, 1, :, 2] *= 0.2
+    worse = validation.self_consistency(flattened, test, test.pseudo3d, test.pseudo3d_weight > 0)
+    assert worse["disagreement_mm"]["per_camera"][1] > 50 > exact["disagreement_mm"]["per_camera"][1]
+    assert worse["reprojection_px"]["per_camera"][1] > 2 * exact["reprojection_px"]["per_camera"][1]
+    assert worse["reprojection_px"]["per_camera"][0] == pytest.approx(exact["reprojection_px"]["per_camera"][0])
+
+
+def _raises(match, root, **config):
+    with pytest.raises((DataFormatError, ValueError), match=match):
+        load_rig_project(RigProjectConfig(root=root, **config), progress=False)
+
+
+def test_refusals_name_the_file_and_field(project_copy, tmp_path):
+    recordings = sorted(p for p in project_copy.iterdir() if p.is_dir() and not p.name.startswith("."))
+    # A camera of the calibration with no detections in any recording.
+    for index, recording in enumerate(recordings):
+        shutil.move(recording / "cam04_json", tmp_path / f"spare{index}")
+    _raises(r"calibration.toml: expected a detection folder for each of its cameras .*cam04.* no detections", project_copy)
+    for index, recording in enumerate(recordings):
+        shutil.move(tmp_path / f"spare{index}", recording / "cam04_json")
+    # Detections of a camera the calibration lacks.
+    recording = recordings[0]
+    shutil.copytree(recording / "cam01_json", recording / "cam09_json")
+    _raises(r"calibration.toml: expected a camera for every name .*lack \['cam09'\]", project_copy)
+    shutil.rmtree(recording / "cam09_json")
+    # A calibration whose unit makes the rig implausible.
+    _raises(r"calibration.toml.*--data.calibration-unit", project_copy, calibration_unit="mm")
+    # A JSON frame that is not OpenPose's.
+    frame = sorted((recording / "cam01_json").glob("*.json"))[5]
+    frame.write_text(json.dumps({"persons": []}))
+    _raises(rf"{frame.name}.*people", project_copy)
+    frame.unlink()
+    # A recording with fewer than two cameras.
+    for camera in ("cam02_json", "cam03_json", "cam04_json"):
+        shutil.rmtree(recording / camera)
+    _raises(rf"{recording.name}: expected detections of at least 2 cameras", project_copy)
+
+
+def test_a_body25_project_needs_its_layout_named(tmp_path):
+    root = write_rig_project(tmp_path / "body25", dataclasses.replace(SMALL, layout="body25", recordings=1, frames_per_recording=60))
+    _raises(r"75 values per person are OpenPose BODY_25 or BODY_25B .*--data.skeleton body25", root)
+    data = load_rig_project(RigProjectConfig(root=root, skeleton="body25"), progress=False)
+    assert data.layout == "body25" and data.train.skeleton.joint_names[0] == "MidHip"
+
+
+def test_a_project_without_calibration_recovers_the_rig(tmp_path):
+    """No calibration file: the rig is recovered from the recordings (jaxpose.calibrate), and the
+    ground truth is brought into its world frame for evaluation."""
+    root = write_rig_project(tmp_path / "uncalibrated", dataclasses.replace(SMALL, recordings=1, frames_per_recording=400, desync_camera=-1))
+    reference = read_rig_calibration(root / "calibration.toml")
+    (root / "calibration.toml").unlink()
+    _raises(r"--data.image-size W H", root)
+    data = load_rig_project(RigProjectConfig(root=root, image_size=(1920, 1080), recovery_frames=120), progress=False)
+    recovered = data.recovered_calibration
+    assert recovered is not None and np.median(recovered.reprojection_median_px) < 10
+    # The ground truth, turned into the recovered world, has the triangulation's orientation in every
+    # camera: root-relative and up to the recovered rig's scale error (the limb prior's misfit: N-MPJPE's
+    # scale alignment), the two agree to the triangulation's error, not to a rotation's.
+    from jaxpose import evaluation, pseudo_labelling
+
+    test = pseudo_labelling.label(data.validation)
+    truth, valid = evaluation.ground_truth_in_views(test)
+    triangulated = evaluation.poses_in_views(test, test.pseudo3d)
+    labelled = valid & (test.pseudo3d_weight > 0).all(-1)[:, None]
+    assert labelled.sum() > 100 and reference.camera_names == data.camera_names
+    scale = (triangulated * truth).sum((-2, -1), keepdims=True) / (triangulated**2).sum((-2, -1), keepdims=True)
+    assert np.median(np.linalg.norm(truth - scale * triangulated, axis=-1).mean(-1)[labelled]) < 30
