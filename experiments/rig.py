@@ -25,10 +25,9 @@ import dataclasses
 import logging
 import pathlib
 
-from experiments import cli
-from experiments.config import ExperimentConfig, RunConfig, TrainConfig
+from experiments import cli, h36m
+from experiments.config import ExperimentConfig, RunConfig
 from experiments.runner import Splits
-from jaxpose.config import RESCALED_LOSS, LossConfig, ModelConfig, OptimizerConfig, PseudoLabelConfig
 from jaxpose.data.camera_file import save_cameras
 from jaxpose.data.rig_project import RigProject, RigProjectConfig, load_rig_project
 
@@ -102,30 +101,22 @@ def project_notes(project: RigProject, data: RigProjectConfig) -> tuple[str, ...
     return tuple(notes)
 
 
-# Preset "cpu": the Human3.6M cpu recipe (`experiments.h36m`), measured there: a width-512 lifter,
-# dropout 0.1, batch 128, cosine schedule, RANSAC pseudo-labels with a pseudo-Huber label penalty,
-# the rescaled loss weights; 30 epochs over whatever the project holds.  The warm-up is short
-# (a small project has few steps).  The periodic evaluation tracks the ground-truth-free measures.
-CPU = ExperimentConfig(
+# Preset "cpu": the Human3.6M cpu recipe (`experiments.h36m`, each choice measured there): a width-512
+# lifter, dropout 0.1, batch 128, cosine schedule, RANSAC pseudo-labels with a pseudo-Huber label
+# penalty, the rescaled loss weights, 30 epochs over whatever the project holds.  The warm-up is that
+# of the development preset (a small project has few steps), and the periodic evaluation tracks the
+# ground-truth-free measures.
+CPU = dataclasses.replace(
+    h36m.CPU,
     data=RigProjectConfig(),
-    model=ModelConfig(width=512, dropout_rate=0.1),
-    loss=dataclasses.replace(RESCALED_LOSS, label_robust_scale_mm=50.0),
-    pseudo_labels=PseudoLabelConfig(method="ransac"),
-    optimizer=OptimizerConfig(schedule="cosine", warmup_steps=64),
-    train=TrainConfig(batch_size=128, epochs=30, checkpoint_every=2000, eval_every=500),
+    optimizer=h36m.DEV.optimizer,
+    train=dataclasses.replace(h36m.CPU.train, eval_every=500),
     run=RunConfig(run_dir=pathlib.Path("runs/rig")),
 )
 
 # Preset "paper": Sec. IV-A of the paper on your recordings (the authors' network, Adam 1e-3, the
-# paper's loss weights, batch 8192); an accelerator's job on a large project.
-PAPER = ExperimentConfig(
-    data=RigProjectConfig(),
-    model=ModelConfig(),
-    loss=LossConfig(),
-    optimizer=OptimizerConfig(learning_rate=1e-3, schedule="constant"),
-    train=TrainConfig(batch_size=8192, epochs=500, checkpoint_every=250),
-    run=RunConfig(run_dir=pathlib.Path("runs/rig_paper")),
-)
+# paper's loss weights, batch 8192): an accelerator's job on a large project.
+PAPER = dataclasses.replace(h36m.PAPER, data=RigProjectConfig(), run=RunConfig(run_dir=pathlib.Path("runs/rig_paper")))
 
 PRESETS: dict[str, ExperimentConfig] = {"cpu": CPU, "paper": PAPER}
 PRESET_NOTES = {

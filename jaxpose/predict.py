@@ -169,15 +169,23 @@ def read_detections(path: pathlib.Path) -> DetectionFile:
 def read_intrinsics(values: Sequence[str]) -> tuple[np.ndarray, np.ndarray | None, tuple[float, float] | None]:
     """--intrinsics as (K [3, 3], OpenCV distortion [5] or None, image size or None).
 
-    Four numbers fx fy cx cy, or a JSON file holding one camera in the fields of a jaxpose camera
-    file entry: {"K": [[fx, s, cx], [0, fy, cy], [0, 0, 1]], "dist": [k1, k2, p1, p2, k3] or null,
-    "image_size": [width, height] or null}; other fields (R, t, name) are ignored.
+    Four numbers fx fy cx cy; a calibration file and a camera name (a rig's calibration as
+    `jaxpose.data.calibration_formats` reads it: Anipose / Pose2Sim / FreeMoCap TOML, EasyMocap
+    intri.yml, a jaxpose camera file), e.g. `calibration.toml cam01`; or a JSON file holding one camera
+    in the fields of a jaxpose camera file entry: {"K": [[fx, s, cx], [0, fy, cy], [0, 0, 1]], "dist":
+    [k1, k2, p1, p2, k3] or null, "image_size": [width, height] or null}; other fields (R, t, name) are
+    ignored.
     """
     if len(values) == 4:
         fx, fy, cx, cy = (float(v) for v in values)
         return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], np.float32), None, None
+    if len(values) == 2:
+        return _calibration_intrinsics(pathlib.Path(values[0]), values[1])
     if len(values) != 1:
-        raise ValueError(f"--intrinsics takes 4 numbers (fx fy cx cy) or one JSON file, got {len(values)} values")
+        raise ValueError(
+            f"--intrinsics takes 4 numbers (fx fy cx cy), a calibration file and a camera name, or one JSON camera"
+            f" file; got {len(values)} values"
+        )
     path = pathlib.Path(values[0])
     if not path.is_file():
         raise FileNotFoundError(f"--intrinsics file {path} does not exist")
@@ -191,6 +199,21 @@ def read_intrinsics(values: Sequence[str]) -> tuple[np.ndarray, np.ndarray | Non
         None if dist is None else np.asarray(dist, np.float32),
         None if size is None else tuple(size),
     )
+
+
+def _calibration_intrinsics(path: pathlib.Path, camera: str) -> tuple[np.ndarray, np.ndarray | None, tuple[float, float] | None]:
+    """One camera of a rig calibration file as (K, OpenCV dist or None, image size or None)."""
+    from jaxpose.data.calibration_formats import read_rig_calibration
+
+    rig = read_rig_calibration(path).select([camera], f"--intrinsics {path} {camera}")
+    cameras = rig.cameras
+    if cameras.dist is not None and cameras.distortion_model != "opencv":
+        raise ValueError(
+            f"--intrinsics {path} {camera}: its {cameras.distortion_model!r} lens model is not OpenCV's, which predict"
+            " undistorts with; undistort the keypoints first and pass the camera's fx fy cx cy"
+        )
+    size = None if rig.image_size is None else tuple(float(v) for v in rig.image_size[0])
+    return np.asarray(cameras.K[0], np.float32), None if cameras.dist is None else np.asarray(cameras.dist[0], np.float32), size
 
 
 def write_poses(
@@ -308,9 +331,10 @@ class PredictArgs:
     trained on one and the file's keypoint count fits it; else coco17 for COCO .json, by the keypoint count
     for OpenPose (75: body25), the checkpoint's own joints for .npz)."""
     intrinsics: Annotated[tuple[str, ...] | None, tyro.conf.arg(metavar="VALUE [VALUE ...]")] = None
-    """Camera intrinsics in pixels: four values fx fy cx cy, or one JSON camera file {K, dist, image_size}
-    (dist: OpenCV k1 k2 p1 p2 k3, undistorted before lifting); default: focal length max(W, H) and the
-    image centre of --image-size."""
+    """Camera intrinsics in pixels: four values fx fy cx cy; a rig calibration file and a camera name (e.g.
+    calibration.toml cam01: Anipose / Pose2Sim / FreeMoCap TOML, EasyMocap intri.yml, jaxpose camera file);
+    or one JSON camera file {K, dist, image_size}.  An OpenCV distortion (k1 k2 p1 p2 k3) is undone before
+    lifting.  Default: focal length max(W, H) and the image centre of --image-size."""
     image_size: Annotated[tuple[float, float] | None, tyro.conf.arg(metavar="W H")] = None
     """Image width and height in pixels: the default intrinsics, and the frame of the plots."""
     plot: Annotated[pathlib.Path | None, tyro.conf.arg(metavar="DIR")] = None

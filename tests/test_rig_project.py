@@ -92,17 +92,9 @@ def test_example_project_trains_resumes_and_lifts(project, tmp_path):
     recording = sorted(p for p in project.iterdir() if p.is_dir() and not p.name.startswith("."))[0]
     out = tmp_path / "poses.trc"
     poses = predict.main(["--checkpoint", str(run_dir), "--input", str(recording / "cam01_json"), "--output", str(out),
-                          "--intrinsics", str(_camera_json(project, tmp_path)), "--fps", "50"])  # fmt: skip
+                          "--intrinsics", str(project / "calibration.toml"), "cam01", "--fps", "50"])  # fmt: skip
     trc = read_trc(out)
     assert poses.shape[1] == 18 and trc.marker_names[0] == "pelvis" and trc.units == "m"
-
-
-def _camera_json(project, tmp_path):
-    """cam01's intrinsics as predict's --intrinsics JSON."""
-    rig = read_rig_calibration(project / "calibration.toml").select(["cam01"], "test")
-    path = tmp_path / "cam01.json"
-    path.write_text(json.dumps({"K": rig.cameras.K[0].tolist(), "dist": rig.cameras.dist[0].tolist(), "image_size": rig.image_size[0].tolist()}))
-    return path
 
 
 def test_help_documents_every_data_flag(capsys):
