@@ -251,3 +251,15 @@ def test_a_project_without_calibration_recovers_the_rig(tmp_path):
     assert labelled.sum() > 100 and reference.camera_names == data.camera_names
     scale = (triangulated * truth).sum((-2, -1), keepdims=True) / (triangulated**2).sum((-2, -1), keepdims=True)
     assert np.median(np.linalg.norm(truth - scale * triangulated, axis=-1).mean(-1)[labelled]) < 30
+
+
+def test_ground_truth_for_some_recordings_serves_evaluation_only(project_copy):
+    from jaxpose import evaluation
+
+    recordings = sorted(p for p in project_copy.iterdir() if p.is_dir() and not p.name.startswith("."))
+    (recordings[0] / "ground_truth.npz").unlink()
+    data = load_rig_project(RigProjectConfig(root=project_copy, frame_offsets=("cam03=3",)), progress=False)
+    assert data.train.target3d is None  # no supervised twin on partial ground truth
+    _, valid = evaluation.ground_truth_in_views(data.validation)
+    with_truth = data.validation.labels["recording"] != recordings[0].name
+    assert valid[with_truth].any() and not valid[~with_truth].any()

@@ -597,9 +597,13 @@ def load_rig_project(config: RigProjectConfig, progress: bool = True) -> RigProj
             held_out = position >= int(round(len(instants) * (1.0 - config.validation_fraction)))
         train.append(dataset.subset(np.flatnonzero(~held_out & (position % config.train_stride == 0))))
         validation.append(dataset.subset(np.flatnonzero(held_out & (position % config.validation_stride == 0))))
-    validation_set = _concatenate(validation)
+    validation_set, train_set = _concatenate(validation), _concatenate(train)
+    if train_set.target3d is not None and not np.isfinite(train_set.target3d).all():
+        # Ground truth for only some joints or recordings serves evaluation, not the supervised twin.
+        log.info("the ground truth does not cover every training instant and joint: no --supervision full")
+        train_set = dataclasses.replace(train_set, target3d=None)
     return RigProject(
-        train=_concatenate(train),
+        train=train_set,
         validation=validation_set,
         camera_names=tuple(camera_order),
         layout=layout,
