@@ -263,3 +263,32 @@ def test_ground_truth_for_some_recordings_serves_evaluation_only(project_copy):
     _, valid = evaluation.ground_truth_in_views(data.validation)
     with_truth = data.validation.labels["recording"] != recordings[0].name
     assert valid[with_truth].any() and not valid[~with_truth].any()
+
+
+SHARED_FORMATS = __import__("pathlib").Path(__file__).resolve().parents[2] / "shared" / "data" / "formats"
+
+
+@pytest.mark.skipif(not SHARED_FORMATS.is_dir(), reason="needs ../shared/data/formats (real sample files)")
+def test_the_real_pose2sim_demo_as_a_rig_project(tmp_path):
+    """Pose2Sim's demo as it is: 4 cameras of OpenPose BODY_25B JSON (a second person in two of them),
+    cameras named "cam_01" in its calibration (metres) and "cam01_json" on disk.  The person the views
+    agree on, triangulated, is the one Pose2Sim itself triangulated (its TRC, in OpenSim's y-up axes):
+    25 mm apart at the median joint."""
+    from jaxpose import pseudo_labelling
+    from jaxpose.config import PseudoLabelConfig
+
+    root = tmp_path / "demo"
+    shutil.copytree(SHARED_FORMATS / "openpose-json" / "pose2sim_demo_balancing_body25b", root / "balancing")
+    shutil.copy(SHARED_FORMATS / "pose2sim-calib-toml" / "pose2sim_demo_Calib_qualisys.toml", root / "Calib_qualisys.toml")
+    _raises(r"75 values per person are OpenPose BODY_25 or BODY_25B", root)
+    data = load_rig_project(RigProjectConfig(root=root, skeleton="body25b", validation_fraction=0.5), progress=False)
+    summary = data.recordings[0]
+    assert summary.instants == 20 and summary.instants_with_choice == 20 and data.camera_names == ("cam01", "cam02", "cam03", "cam04")
+    labelled = pseudo_labelling.label(data.train, PseudoLabelConfig(method="ransac"))
+    trc = read_trc(SHARED_FORMATS / "trc" / "pose2sim_demo_BalancingTrial_0-100.trc")
+    names = [name for name in trc.marker_names if name in labelled.skeleton.joint_names]
+    joints = [labelled.skeleton.index(name) for name in names]
+    rows = trc.markers[labelled.labels["frame"]][:, [trc.marker_names.index(name) for name in names]]  # row f: frame f
+    theirs = 1000.0 * np.stack([rows[..., 2], rows[..., 0], rows[..., 1]], axis=-1)  # OpenSim's (Y, Z, X) -> z-up mm
+    error = np.linalg.norm(labelled.pseudo3d[:, joints] - theirs, axis=-1)[labelled.pseudo3d_weight[:, joints] > 0]
+    assert len(names) == 20 and len(error) > 150 and np.median(error) < 40, np.median(error)

@@ -16,7 +16,8 @@ A project folder::
 
 Calibrations (`jaxpose.data.calibration_formats`): a jaxpose camera file, an Anipose / Pose2Sim /
 FreeMoCap TOML, or EasyMocap's intri.yml + extri.yml, found in a folder by their content.  Cameras
-are matched to the detection folders by name (a folder's name without `_json`).  Without any
+are matched to the detection folders by name (a folder's name without `_json`), ignoring case,
+separators and leading zeros where that matches them one to one ("cam_01" is folder "cam01_json").  Without any
 calibration the rig is recovered from the recordings (`jaxpose.calibrate`).
 
 What loading does to each recording, in order:
@@ -305,13 +306,38 @@ def parse_frame_offsets(values: Sequence[str], recordings: Sequence[_Recording])
     return offsets
 
 
+def _camera_key(name: str) -> str:
+    """A camera name without case, separators and leading zeros: "cam_01", "Cam1", "cam01" -> "cam1"."""
+    return re.sub(r"\d+", lambda digits: str(int(digits.group())), re.sub(r"[^0-9a-z]", "", name.lower()))
+
+
+def _named_as_detections(calibration: RigCalibration, detection_names: set[str]) -> RigCalibration:
+    """The calibration with its cameras named as the detection folders where the names differ only in
+    case, separators or leading zeros and match one to one (Pose2Sim's calibrations call the cameras of
+    its `cam01_json` folders "cam_01")."""
+    if detection_names <= set(calibration.camera_names):
+        return calibration
+    by_key = {_camera_key(name): name for name in detection_names}
+    keys = [_camera_key(name) for name in calibration.camera_names]
+    if len(set(keys)) != len(keys) or len(by_key) != len(detection_names) or not set(by_key) <= set(keys):
+        return calibration  # no one-to-one match: the exact names decide, and their mismatch is reported
+    renamed = tuple(by_key.get(key, name) for key, name in zip(keys, calibration.camera_names))
+    log.info("%s: cameras %s matched to the detection folders %s", calibration.source, calibration.camera_names, renamed)
+    return dataclasses.replace(calibration, camera_names=renamed)
+
+
 def _calibrations(config: RigProjectConfig, recordings: Sequence[_Recording]) -> RigCalibration | None:
     """Attach each recording's calibration; returns the project-wide one (None: none anywhere)."""
     project_file = config.calibration or find_calibration(config.root)
     project = None if project_file is None else read_rig_calibration(project_file, config.calibration_unit)
+    if project is not None:
+        project = _named_as_detections(project, set().union(*(recording.cameras for recording in recordings)))
     for recording in recordings:
         own = find_calibration(recording.folder)
-        recording.calibration = project if own is None else read_rig_calibration(own, config.calibration_unit)
+        if own is None:
+            recording.calibration = project
+        else:
+            recording.calibration = _named_as_detections(read_rig_calibration(own, config.calibration_unit), set(recording.cameras))
     if project is not None:
         used = set().union(*(recording.cameras for recording in recordings if recording.calibration is project))
         unused = [name for name in project.camera_names if name not in used]
