@@ -1,6 +1,6 @@
 """A PyTorch equivalent of `jaxpose.train`'s train step, for speed comparisons on the same machine.
 
-Written from the paper (Sec. III) and README "Method choices", with the conventions of
+Written from the paper (Sec. III) and docs/method.md "Method choices", with the conventions of
 `jaxpose.losses` (metres / focal-normalized units, means over valid entries, root excluded,
 stop-gradient targets for L_con and L_out): the same network (2 stages x 2 residual blocks of
 Linear-BatchNorm-ReLU-Dropout(0.5), width 1024, all C views as one batch of B*C poses), the four

@@ -14,7 +14,7 @@ A preset flag rather than tyro subcommands: with subcommands, the flags would ha
 subcommand name and the top-level `--help` would not list them.
 
 Data errors.  A missing or malformed data file ends the program with one message (what was expected
-where, what was found, the files this run reads, and the README section "Getting the data") and a
+where, what was found, the files this run reads, and the manual's "Getting the data", docs/data.md) and a
 non-zero exit status, not a traceback.  The runner loads the data before it creates the run
 directory, so a failed start leaves nothing behind.
 """

@@ -66,7 +66,7 @@ class RunConfig:
 
 @dataclasses.dataclass(frozen=True)
 class ParallelConfig:
-    """Data parallelism over devices and hosts (see README, "Training on several devices and hosts").
+    """Data parallelism over devices and hosts (see docs/scaling.md, "Training on several devices and hosts").
 
     The train state is replicated, every batch is split by samples over the devices, and BatchNorm
     statistics are taken over the whole (global) batch; `train.batch_size` is that global batch and

@@ -8,7 +8,7 @@ S9 and S11, P-MPJPE per action (the paper's Tables I and II).
     python -m experiments.h36m --supervision full ...                      # the same network on 3D ground truth
     python -m experiments.h36m --preset paper --help                       # every flag, with that preset's values
 
-Where to get the files and how to lay them out: README section "Getting the data".  The run
+Where to get the files and how to lay them out: docs/data.md ("Getting the data").  The run
 directory holds the runner's report.md/report.json and table_paper_layout.md, the P-MPJPE per action
 in the column order of the paper's Table II next to the paper's rows.  A run trained with 17 joints
 (detections cpn or gt) can be evaluated on MPI-INF-3DHP with `python -m experiments.mpi_inf_3dhp`.
@@ -37,7 +37,7 @@ SH_MPII_JOINTS = ("Spine", "Head")
 
 @dataclasses.dataclass(frozen=True)
 class H36MData:
-    """Human3.6M files and protocol (see jaxpose.data.h36m and the README section "Getting the data")."""
+    """Human3.6M files and protocol (see jaxpose.data.h36m and docs/data.md)."""
 
     data_dir: pathlib.Path = pathlib.Path("data/h36m")
     """Folder of the Human3.6M files: the h36m.zip tree of Martinez et al. and/or VideoPose3D's npz files."""
@@ -155,14 +155,14 @@ def expected_files(data: H36MData) -> str:
 # - A width-512 lifter trains at ~2,200 samples/s on 2 cores, at batch 128 as at 512 (a width-1024
 #   one at about a third of that): 30 epochs = 2.3M samples = ~17 min.  With loading, pseudo-labels
 #   and evaluation, a stand-in of the benchmark's size took 17 min 38 s: room for a slower machine.
-# - Each choice below was measured on the development split (preset "dev", README "Development
+# - Each choice below was measured on the development split (preset "dev", docs/benchmarks.md "Development
 #   protocol"): batch 128 rather than 512 (4x the steps for the same samples at the same
 #   samples/s: -2.3 mm P-MPJPE self-supervised at 256, -3.6 mm at 128); dropout 0.1 rather than the
 #   authors' 0.5 (a 30-epoch run is far from over-fitting: -14 mm self-supervised, -20 mm
 #   supervised); RANSAC pseudo-labels with a pseudo-Huber label penalty (Stacked Hourglass and
 #   CPN detections carry no usable confidence, and a left/right swap in two views otherwise
 #   becomes a label: -1.9 mm); `RESCALED_LOSS`, so that L_con and L_out act at all (their accuracy
-#   effect there is within the seed spread; README "Development protocol").  Frames per epoch: every 5th frame (10 fps) for 30 epochs
+#   effect there is within the seed spread; docs/benchmarks.md "Development protocol").  Frames per epoch: every 5th frame (10 fps) for 30 epochs
 #   was as good as every frame for 6 epochs (84.2 vs 84.0 mm) and triangulates 5x fewer frames.
 # - Cosine decay after a warm-up of ~4% of the steps ends the short run at a low learning rate.
 CPU = ExperimentConfig(

@@ -6,8 +6,8 @@ evaluation on Validate/S1-S3 Walking and Jogging, P-MPJPE per action and subject
     python -m experiments.humaneva --supervision full ...                         # the network on 3D ground truth
     python -m experiments.humaneva --preset paper --help                          # every flag, that preset's values
 
-The files (VideoPose3D's npz files plus a camera file you write yourself) and their layout: README
-section "Getting the data".  Test results are grouped by "<action> <subject>" (e.g. "Walk S1"), so
+The files (VideoPose3D's npz files plus a camera file you write yourself) and their layout: docs/data.md
+("Getting the data").  Test results are grouped by "<action> <subject>" (e.g. "Walk S1"), so
 report.md and its "Avg." are per action and subject as in the paper; table_paper_layout.md puts them in
 the column order of Table III next to the paper's rows.
 """
@@ -30,7 +30,7 @@ GROUP_LABEL = "action_subject"
 
 @dataclasses.dataclass(frozen=True)
 class HumanEvaData:
-    """HumanEva-I files and protocol (see jaxpose.data.humaneva and the README section "Getting the data")."""
+    """HumanEva-I files and protocol (see jaxpose.data.humaneva and docs/data.md)."""
 
     data_dir: pathlib.Path = pathlib.Path("data/humaneva")
     """Folder of data_3d_humaneva15.npz, the 2D npz files and cameras.json."""
@@ -38,7 +38,7 @@ class HumanEvaData:
     """2D source: NAME reads data_2d_humaneva15_NAME.npz (detectron_pt_coco: Mask R-CNN, COCO), gt, or a .npz path."""
     cameras_path: pathlib.Path | None = None
     """Calibration the training subjects are triangulated and trained with: a jaxpose camera file
-    with subjects S1-S3, cameras C1-C3 (README), e.g. one recovered by `python -m jaxpose.calibrate`;
+    with subjects S1-S3, cameras C1-C3 (docs/data.md), e.g. one recovered by `python -m jaxpose.calibrate`;
     None = the reference."""
     reference_cameras_path: pathlib.Path | None = None
     """Calibration of the motion capture, for the test samples' ground truth (and --data.detections gt):

@@ -10,7 +10,7 @@ PROJECT holds one folder per recording, each with the detections of every camera
 folders, COCO results per camera, or a detections.npz), and optionally a calibration (Anipose /
 Pose2Sim / FreeMoCap TOML, EasyMocap intri.yml + extri.yml, or a jaxpose camera file); without one
 the rig is recovered from the recordings.  The layout and every option: `jaxpose.data.rig_project`
-and README "Train on your own rig".
+and docs/rig.md ("Train on your own rig").
 
 The lifter is trained on the detector's own joints (root first: its mid-hip, derived from the hips
 where the detector has none).  A held-out part (--data.validation-recordings, or the last
@@ -129,8 +129,8 @@ EXPERIMENT = cli.Experiment(
     preset_notes=PRESET_NOTES,
     load_splits=load_splits,
     expected_files=lambda data: (
-        f"This run reads the rig project {data.root}: see `python -m experiments.rig --help` and README"
-        ' "Train on your own rig" for its layout.'
+        f"This run reads the rig project {data.root}: see `python -m experiments.rig --help` and"
+        " docs/rig.md for its layout."
     ),
 )
 

@@ -14,8 +14,8 @@ losses use, several calibrated views of each instant, so three measures need no 
 - **triangulation_p_mpjpe_mm**: P-MPJPE against the held-out triangulation of all views (in the
   lifted view's camera frame), the pseudo-label the lifter would have been trained towards.
 
-Which one to select models by is measured on Human3.6M, where the ground truth is known: README
-"Train on your own rig" gives the rank correlations with the true P-MPJPE.
+Which one to select models by is measured on Human3.6M, where the ground truth is known: docs/rig.md
+("Train on your own rig") gives the rank correlations with the true P-MPJPE.
 """
 
 from __future__ import annotations

@@ -144,7 +144,7 @@ def test_missing_data_is_one_message_and_leaves_no_run_dir(module, data_dir, tmp
         module.main([])
     message = stop.value.code
     assert isinstance(message, str) and message.startswith("error: ")  # printed to stderr, exit status 1
-    assert 'README section "Getting the data"' in message and f"--data.data-dir {data_dir}" in message
+    assert '"Getting the data" (docs/data.md)' in message and f"--data.data-dir {data_dir}" in message
     assert not (tmp_path / "runs").exists()
 
 

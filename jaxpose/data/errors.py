@@ -4,14 +4,14 @@ from __future__ import annotations
 
 from os import PathLike
 
-README_SECTION = 'README section "Getting the data"'
+README_SECTION = 'manual: "Getting the data" (docs/data.md), or for your own rig "Train on your own rig" (docs/rig.md)'
 
 
 class DataFormatError(ValueError):
     """A data file or folder is missing, unreadable, or not in the documented format.
 
     The message says where the loader looked, what it expected there and what it found, and points
-    to the README section that explains how to get and lay out the data.  Loaders raise it before
+    to the manual's pages that explain how to get and lay out the data.  Loaders raise it before
     returning anything, so a data set is never half-loaded.
     """
 
