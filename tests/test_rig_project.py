@@ -292,3 +292,30 @@ def test_the_real_pose2sim_demo_as_a_rig_project(tmp_path):
     theirs = 1000.0 * np.stack([rows[..., 2], rows[..., 0], rows[..., 1]], axis=-1)  # OpenSim's (Y, Z, X) -> z-up mm
     error = np.linalg.norm(labelled.pseudo3d[:, joints] - theirs, axis=-1)[labelled.pseudo3d_weight[:, joints] > 0]
     assert len(names) == 20 and len(error) > 150 and np.median(error) < 40, np.median(error)
+
+
+def test_messy_projects_load(project_copy):
+    """A camera that never sees anybody, a recording without one camera and with its own jaxpose camera file
+    of the cameras it has, CAMERA=N offsets for a camera only some recordings have, and a crowd of
+    detections in one frame."""
+    from jaxpose.data.calibration_formats import read_rig_calibration
+    from jaxpose.data.camera_file import save_cameras
+
+    first, second = sorted(p for p in project_copy.iterdir() if p.is_dir() and not p.name.startswith("."))
+    for frame in (first / "cam02_json").glob("*.json"):
+        frame.write_text(json.dumps({"version": 1.3, "people": []}))
+    rig = read_rig_calibration(project_copy / "calibration.toml").select(["cam01", "cam02", "cam03"], "test")
+    save_cameras(first / "cameras.json", {"rig": (list(rig.camera_names), rig.cameras)}, comment="this recording's own")
+    shutil.rmtree(first / "cam04_json")
+    crowd = sorted((second / "cam01_json").glob("*.json"))[10]
+    frame = json.loads(crowd.read_text())
+    frame["people"] = frame["people"] * 7
+    crowd.write_text(json.dumps(frame))
+    data = load_rig_project(RigProjectConfig(root=project_copy, frame_offsets=("cam03=3", "cam04=0")), progress=False)
+    assert data.camera_names == ("cam01", "cam02", "cam03", "cam04")
+    by_name = {r.name: r for r in data.recordings}
+    assert by_name[first.name].cameras == ("cam01", "cam02", "cam03") and by_name[first.name].calibration.endswith("cameras.json")
+    in_first = data.train.labels["recording"] == first.name
+    assert not (data.train.confidence[in_first][:, 1:2] > 0).any()  # cam02 never saw anybody
+    assert not (data.train.confidence[in_first][:, 3] > 0).any()  # no cam04 in this recording
+    assert (data.train.confidence[~in_first] > 0).any((0, 2)).all()

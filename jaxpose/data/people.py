@@ -13,11 +13,11 @@ tracker, no appearance):
 3. Each proposal's cost is the sum over views of its match distance, or `threshold_px` without a
    match: a proposal seen by more views costs less, then the better fit.
 4. Two people who are both seen well are both plausible, and a better fit or one more view is
-   no reason to switch between them from one instant to the next.  So the proposal whose root is
-   nearest to the subject's track wins, where one lies within `TRACK_RADIUS_MM` of it; the track
-   is the running median (over `TRACK_WINDOW` instants) of the roots of the cheapest proposals.
-   A subject present in most instants owns that median, a passer-by does not.  Where no proposal
-   is near the track (or there is none), the cheapest wins.
+   no reason to switch between them from one instant to the next.  So only proposals whose root
+   lies within `TRACK_RADIUS_MM` of the subject's track compete, and the cheapest of them wins; the
+   track is the running median (over `TRACK_WINDOW` instants) of the roots of the cheapest
+   proposals.  A subject present in most instants owns that median, a passer-by does not.  Where
+   no proposal is near the track (or there is none), the cheapest of all wins.
 
 Views without a match keep confidence 0 for that instant.  The same rule runs on instants with a
 single detection per view, where it removes a view whose only detection is somebody else (the
@@ -138,7 +138,7 @@ def choose_person(
     track = _running_median(np.where(found[:, None], root[instants, cheapest], np.nan), TRACK_WINDOW)
     from_track = np.nan_to_num(np.linalg.norm(root - track[:, None], axis=-1), nan=np.inf)  # inf: no track
     near = np.isfinite(cost) & (from_track < TRACK_RADIUS_MM)
-    winner = np.where(near.any(1), np.argmin(np.where(near, from_track, np.inf), axis=1), cheapest)
+    winner = np.where(near.any(1), np.argmin(np.where(near, cost, np.inf), axis=1), cheapest)
     chosen = match[instants, winner]  # [N, C]
     keep = matched[instants, winner] & found[:, None]
     instant, view = np.meshgrid(instants, np.arange(C), indexing="ij")

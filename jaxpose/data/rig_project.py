@@ -64,6 +64,8 @@ log = logging.getLogger(__name__)
 DETECTIONS_NPZ = "detections.npz"
 GROUND_TRUTH_NPZ = "ground_truth.npz"
 JSON_FOLDER_SUFFIX = "_json"
+MAX_PEOPLE = 4  # detections per camera and frame kept for the choice of person
+MIN_ALIGNMENT_POINTS = 50  # ground-truth joints needed to align it with a recovered rig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,7 +131,6 @@ class RecordingSummary:
     name: str
     cameras: tuple[str, ...]
     instants: int
-    layout: str
     calibration: str
     offsets: dict[str, int]
     offsets_estimated: bool
@@ -200,7 +201,10 @@ def _camera_sources(folder: pathlib.Path, probe: bool = False) -> dict[str, path
         for entry in sorted(folder.iterdir())
         if entry.is_dir() and not entry.name.startswith(".") and next(entry.glob("*.json"), None) is not None
     }
-    files = {entry.stem: entry for entry in sorted(folder.glob("*.json")) if not entry.name.startswith(".")}
+    calibration = None if probe else find_calibration(folder)  # a recording's own camera file is no camera
+    files = {
+        entry.stem: entry for entry in sorted(folder.glob("*.json")) if not entry.name.startswith(".") and entry != calibration
+    }
     if probe:
         return folders or files
     if folders and files:
@@ -287,7 +291,7 @@ def _read_recording(config: RigProjectConfig, folder: pathlib.Path, progress: bo
 
 
 def parse_frame_offsets(values: Sequence[str], recordings: Sequence[_Recording]) -> dict[tuple[str, str], int]:
-    """--data.frame-offsets as {(recording, camera): offset}, every recording's for CAMERA=N."""
+    """--data.frame-offsets as {(recording, camera): offset}; CAMERA=N applies to every recording that has the camera."""
     offsets = {}
     for value in values:
         match = re.fullmatch(r"(?:(?P<recording>[^/=]+)/)?(?P<camera>[^/=]+)=(?P<offset>[+-]?\d+)", value.strip())
@@ -296,12 +300,11 @@ def parse_frame_offsets(values: Sequence[str], recordings: Sequence[_Recording])
         targets = [r for r in recordings if match["recording"] in (None, r.name)]
         if not targets:
             raise ValueError(f"--data.frame-offsets {value!r}: no recording {match['recording']!r} (have {[r.name for r in recordings]})")
-        for recording in targets:
-            if match["camera"] not in recording.cameras:
-                raise ValueError(
-                    f"--data.frame-offsets {value!r}: recording {recording.name} has no camera {match['camera']!r}"
-                    f" (cameras {sorted(recording.cameras)})"
-                )
+        having = [r for r in targets if match["camera"] in r.cameras]
+        if not having:
+            cameras = sorted(set().union(*(r.cameras for r in targets)))
+            raise ValueError(f"--data.frame-offsets {value!r}: no camera {match['camera']!r} in {[r.name for r in targets]} (cameras {cameras})")
+        for recording in having:
             offsets[recording.name, match["camera"]] = int(match["offset"])
     return offsets
 
@@ -354,13 +357,50 @@ def _calibrations(config: RigProjectConfig, recordings: Sequence[_Recording]) ->
 
 
 def _lifting_views(recording: _Recording, config: RigProjectConfig) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Camera -> (frames [F], keypoints [F, P, J, 2], confidence [F, P, J]) in the lifting skeleton."""
+    """Camera -> (frames [F], keypoints [F, P, J, 2], confidence [F, P, J]) in the lifting skeleton,
+    at most `MAX_PEOPLE` detections per frame (the most confident: a crowd only costs memory), and at
+    least one (a camera that never saw anybody keeps an empty slot)."""
     views = {}
+    joints = len(layout_joint_names(recording.layout))
     for name, detections in recording.cameras.items():
-        keypoints, confidence = to_lifting_skeleton(recording.layout, detections.keypoints, detections.scores)
+        keypoints, scores = detections.keypoints, detections.scores
+        if keypoints.shape[1] == 0:
+            keypoints, scores = np.zeros((len(keypoints), 1, joints, 2), np.float32), np.zeros((len(keypoints), 1, joints), np.float32)
+        if keypoints.shape[1] > MAX_PEOPLE:
+            order = np.argsort(-np.nan_to_num(scores).sum(-1), axis=1, kind="stable")[:, :MAX_PEOPLE]
+            keypoints = np.take_along_axis(keypoints, order[..., None, None], axis=1)
+            scores = np.take_along_axis(scores, order[..., None], axis=1)
+        keypoints, confidence = to_lifting_skeleton(recording.layout, keypoints, scores)
         confidence = np.where(confidence >= config.min_confidence, confidence, 0.0).astype(np.float32)
         views[name] = (detections.frames, keypoints, confidence)
     return views
+
+
+def _one_person(keypoints: np.ndarray, confidence: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """[..., P, J, 2], [..., P, J] -> the only detection where there is exactly one, else confidence 0:
+    what frame offsets and a recovered rig are estimated from (no choice of person needed)."""
+    detected = (confidence > 0).any(-1)  # [..., P]
+    person = np.argmax(detected, axis=-1)[..., None]
+    chosen = np.take_along_axis(keypoints, person[..., None, None], axis=-3)[..., 0, :, :]
+    chosen_confidence = np.take_along_axis(confidence, person[..., None], axis=-2)[..., 0, :]
+    return chosen, np.where((detected.sum(-1) == 1)[..., None], chosen_confidence, 0.0).astype(np.float32)
+
+
+def _in_view_order(calibration: RigCalibration, camera_order: Sequence[str]) -> RigCalibration:
+    """A recording's rig in the data set's view order.  A camera of the project that this recording
+    lacks (and so its own calibration may lack) gets a copy of the rig's first camera: the slot is
+    never used, its view has confidence 0 throughout."""
+    present = [camera for camera in camera_order if camera in calibration.camera_names]
+    rig = calibration.select(present, "cameras of the project")
+    if len(present) == len(camera_order):
+        return rig
+    index = np.array([present.index(camera) if camera in present else 0 for camera in camera_order])
+    return dataclasses.replace(
+        rig,
+        camera_names=tuple(camera_order),
+        cameras=rig.cameras[index],
+        image_size=None if rig.image_size is None else rig.image_size[index],
+    )
 
 
 def _undistorted(calibration: RigCalibration | None, camera: str, keypoints: np.ndarray) -> np.ndarray:
@@ -377,12 +417,11 @@ def _estimate_sync(recording: _Recording, views: Mapping, camera_order: Sequence
     frames, keypoints, confidence = [], [], []
     for camera in camera_order:
         camera_frames, camera_keypoints, camera_confidence = views[camera]
-        single = (camera_confidence > 0).any(-1).sum(-1) == 1
-        person = np.argmax((camera_confidence > 0).any(-1), axis=1)
-        rows = np.flatnonzero(single)
+        single_keypoints, single_confidence = _one_person(camera_keypoints, camera_confidence)
+        rows = np.flatnonzero((single_confidence > 0).any(-1))
         frames.append(camera_frames[rows])
-        keypoints.append(_undistorted(recording.calibration, camera, camera_keypoints[rows, person[rows]]))
-        confidence.append(camera_confidence[rows, person[rows]])
+        keypoints.append(_undistorted(recording.calibration, camera, single_keypoints[rows]))
+        confidence.append(single_confidence[rows])
     projections = None
     if recording.calibration is not None:
         rig = recording.calibration.select(camera_order, f"cameras of recording {recording.name}")
@@ -428,7 +467,8 @@ def _ground_truth(folder: pathlib.Path, skeleton: Skeleton, layout: str, instant
     columns = {name: points[:, i] for i, name in enumerate(names)}
     root_from = DETECTOR_LAYOUTS[layout].root_from if layout in DETECTOR_LAYOUTS else None
     root = skeleton.joint_names[0]
-    if root not in columns and root_from is not None and all(name in columns for name in root_from):
+    if root_from is not None and all(name in columns for name in root_from):
+        # The detector's root is the hips' midpoint by definition; a mocap "pelvis" may lie elsewhere.
         columns[root] = 0.5 * (columns[root_from[0]] + columns[root_from[1]])
     if root not in columns:
         hips = f" or both of {list(root_from)}" if root_from is not None else ""
@@ -450,40 +490,49 @@ def _recover_rig(config: RigProjectConfig, recordings: Sequence[_Recording], ali
     keypoints, confidence = [], []
     for recording in recordings:
         _, candidates, candidate_confidence = aligned[recording.name]
-        single = (candidate_confidence > 0).any(-1).sum(-1) == 1  # [N, C]
-        person = np.argmax((candidate_confidence > 0).any(-1), axis=-1)  # [N, C]
-        instant, view = np.meshgrid(np.arange(len(person)), np.arange(len(camera_order)), indexing="ij")
-        keypoints.append(candidates[instant, view, person])
-        confidence.append(np.where(single[..., None], candidate_confidence[instant, view, person], 0.0))
-    npz = recordings[0].npz or {}
-    order = [str(name) for name in np.atleast_1d(npz["camera_names"])] if npz else list(camera_order)
-    index = [order.index(camera) for camera in camera_order]
-    if "image_size" in npz:
-        image_size = np.asarray(npz["image_size"], np.int64)[index]
-    elif config.image_size is not None:
-        image_size = np.tile(np.asarray(config.image_size, np.int64), (len(camera_order), 1))
-    else:
-        raise DataFormatError(
-            config.root,
-            "a calibration file (project or recording folder, or --data.calibration), or --data.image-size W H to recover the rig",
-            "no calibration and no image size",
-        )
+        single_keypoints, single_confidence = _one_person(candidates, candidate_confidence)
+        keypoints.append(single_keypoints)
+        confidence.append(single_confidence)
+    # Per camera, by name from every recording's detections.npz: image size and, where given, intrinsics.
+    known: dict[str, dict[str, np.ndarray]] = {}
+    for recording in recordings:
+        npz = recording.npz or {}
+        names = [str(name) for name in np.atleast_1d(npz.get("camera_names", []))]
+        for index, camera in enumerate(names):
+            fields = {key: np.asarray(npz[key])[index] for key in ("image_size", "K", "dist") if key in npz}
+            known.setdefault(camera, fields | {"model": str(npz.get("distortion_model", "opencv"))})
+    sizes = []
+    for camera in camera_order:
+        if "image_size" in known.get(camera, {}):
+            sizes.append(np.asarray(known[camera]["image_size"], np.int64))
+        elif config.image_size is not None:
+            sizes.append(np.asarray(config.image_size, np.int64))
+        else:
+            raise DataFormatError(
+                config.root,
+                "a calibration file (project or recording folder, or --data.calibration), or the image size to recover"
+                " the rig (--data.image-size W H, or 'image_size' in detections.npz)",
+                f"no calibration and no image size of camera {camera!r}",
+            )
+    intrinsics = [known.get(camera, {}) for camera in camera_order]
+    given_K = all("K" in fields for fields in intrinsics)
+    given_dist = given_K and all("dist" in fields for fields in intrinsics)
     detections = RigDetections(
         keypoints=np.concatenate(keypoints),
-        confidence=np.concatenate(confidence).astype(np.float32),
+        confidence=np.concatenate(confidence),
         camera_names=tuple(camera_order),
-        image_size=image_size,
+        image_size=np.stack(sizes),
         skeleton=skeleton,
-        K=None if "K" not in npz else np.asarray(npz["K"], np.float64)[index],
-        dist=None if "dist" not in npz else np.asarray(npz["dist"], np.float64)[index],
-        distortion_model=str(npz.get("distortion_model", "opencv")),
+        K=np.stack([fields["K"] for fields in intrinsics]).astype(np.float64) if given_K else None,
+        dist=np.stack([fields["dist"] for fields in intrinsics]).astype(np.float64) if given_dist else None,
+        distortion_model=intrinsics[0].get("model", "opencv"),
         source=f"{config.root} (all recordings)",
     )
     calibration = calibrate(detections, CalibrationConfig(max_frames=config.recovery_frames))
     rig = RigCalibration(
         camera_names=tuple(camera_order),
         cameras=calibration.cameras.replace(**{name: np.asarray(getattr(calibration.cameras, name), np.float64) for name in ("K", "R", "t")}),
-        image_size=np.asarray(image_size),
+        image_size=detections.image_size,
         source="recovered from the recordings by jaxpose.calibrate",
         unit="mm",
     )
@@ -514,6 +563,13 @@ def _ground_truth_into_recovered_world(target: np.ndarray, keypoints, confidence
     P = jnp.asarray(projection_matrices(rig.cameras.without_distortion()), jnp.float32)
     points = np.asarray(triangulate(P, jnp.asarray(keypoints), jnp.asarray(confidence), method="normal"))
     usable = np.isfinite(target).all(-1) & ((confidence > 0).sum(1) >= 2)
+    if usable.sum() < MIN_ALIGNMENT_POINTS:
+        raise DataFormatError(
+            f"{GROUND_TRUTH_NPZ}, array 'frames'",
+            f"at least {MIN_ALIGNMENT_POINTS} joints at frames seen by two or more cameras, to bring the ground truth into"
+            " the recovered rig's frame",
+            f"{int(usable.sum())}: do its frame numbers match the detections'?",
+        )
     source, destination = target[usable].astype(np.float64), points[usable].astype(np.float64)
     s, R, t = _similarity(source, destination)
     residual = np.linalg.norm(s * source @ R.T + t - destination, axis=-1)
@@ -567,7 +623,7 @@ def load_rig_project(config: RigProjectConfig, progress: bool = True) -> RigProj
     summaries = []
     for recording in recordings:
         instants, candidates, candidate_confidence = aligned[recording.name]
-        rig = recording.calibration.select(camera_order, f"detection folders of recording {recording.name}")
+        rig = _in_view_order(recording.calibration, camera_order)
         for index, camera in enumerate(camera_order):
             candidates[:, index] = _undistorted(rig, camera, candidates[:, index])
         pinhole = rig.cameras.without_distortion()
@@ -586,7 +642,6 @@ def load_rig_project(config: RigProjectConfig, progress: bool = True) -> RigProj
                 name=recording.name,
                 cameras=tuple(camera for camera in camera_order if camera in recording.cameras),
                 instants=len(instants),
-                layout=layout,
                 calibration=recording.calibration.source,
                 offsets=dict(recording.offsets),
                 offsets_estimated=recording.sync is not None,

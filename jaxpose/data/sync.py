@@ -19,10 +19,10 @@ triangulation that the out-of-sync camera spoiled, so only the clearest move is 
 directions count, where two views alone would only see motion across the epipolar lines (a
 person walking along a pair's baseline shows none).
 
-Without one: for every pair of cameras and offset d, the joints of camera c's frame f and camera
-r's frame f + d are correspondences when d is right, scored by their distance to the epipolar
-lines of a fundamental matrix fitted robustly to them (OpenCV's MAGSAC++; a wrong d fits worse
-too).  Each pair's best d, weighted by how clearly it wins, gives the offsets by least squares.
+Without one (or with two cameras only): for every pair of cameras and offset d, the joints of
+camera c's frame f and camera r's frame f + d are correspondences when d is right, scored by their
+distance to the epipolar lines of the calibration's fundamental matrix, or without a calibration
+of one fitted robustly to them (OpenCV's MAGSAC++; a wrong d fits worse too).  Each pair's best d, weighted by how clearly it wins, gives the offsets by least squares.
 
 Either way the offsets are then shifted so that most cameras have offset 0.
 """
@@ -53,6 +53,14 @@ class SyncEstimate:
     reliable: bool
     """Whether every curve's best offset clearly beats those two or more frames away (by `RELIABLE_MARGIN`):
     a person who moves enough for the frames to be told apart."""
+
+
+def fundamental_from_projections(P_a: np.ndarray, P_b: np.ndarray) -> np.ndarray:
+    """F [3, 3] with x_b^T F x_a = 0 for the projections of one point by P_a and P_b [3, 4]."""
+    centre_a = np.linalg.svd(P_a)[2][-1]  # P_a's null space: camera a's centre
+    e = P_b @ centre_a  # the epipole in image b
+    cross = np.array([[0.0, -e[2], e[1]], [e[2], 0.0, -e[0]], [-e[1], e[0], 0.0]])
+    return cross @ P_b @ np.linalg.pinv(P_a)
 
 
 def epipolar_distances(F: np.ndarray, points_a: np.ndarray, points_b: np.ndarray) -> np.ndarray:
@@ -147,9 +155,10 @@ def estimate_offsets(
     valid = [(c > min_confidence) & np.isfinite(k).all(-1) for c, k in zip(confidence, keypoints)]
     moving = _moving_detections(frames, keypoints, valid)
     shifts = np.arange(-max_offset, max_offset + 1)
-    if projections is not None:
+    if projections is not None and len(frames) >= 3:
         return _offsets_by_triangulation(frames, keypoints, valid, moving, projections, shifts, max_instants)
-    return _offsets_by_epipolar_fit(frames, keypoints, valid, moving, shifts, 20000, seed)
+    # Two cameras (nothing to triangulate the left-out one from) or no calibration: epipolar lines.
+    return _offsets_by_epipolar_fit(frames, keypoints, valid, moving, shifts, 20000, seed, projections)
 
 
 def _offsets_by_triangulation(frames, keypoints, valid, moving, projections, shifts, max_instants) -> SyncEstimate:
@@ -169,9 +178,8 @@ def _offsets_by_triangulation(frames, keypoints, valid, moving, projections, shi
         if gains[worst] <= MIN_GAIN:
             break
         offsets[worst] = shifts[int(np.argmin(scores[str(worst)]))]
-    values, counts = np.unique(offsets, return_counts=True)
     reliable = all(_reliability(curve) > RELIABLE_MARGIN for curve in scores.values())
-    return SyncEstimate(offsets=offsets - values[np.argmax(counts)], scores=scores, reliable=reliable)
+    return SyncEstimate(offsets=_most_at_zero(offsets), scores=scores, reliable=reliable)
 
 
 def _gain(curve: np.ndarray, shifts: np.ndarray, current: int) -> float:
@@ -210,7 +218,7 @@ def _camera_curve(c, frames, keypoints, valid, moving, projections, offsets, shi
     return curve
 
 
-def _offsets_by_epipolar_fit(frames, keypoints, valid, moving, shifts, max_correspondences, seed) -> SyncEstimate:
+def _offsets_by_epipolar_fit(frames, keypoints, valid, moving, shifts, max_correspondences, seed, projections=None) -> SyncEstimate:
     C = len(frames)
     rng = np.random.default_rng(seed)
     scores, pair_offsets, weights = {}, {}, {}
@@ -222,7 +230,7 @@ def _offsets_by_epipolar_fit(frames, keypoints, valid, moving, shifts, max_corre
             )
             if len(points_a) < MIN_CORRESPONDENCES:
                 continue
-            F = _fitted_fundamental(points_a, points_b, seed)
+            F = _fitted_fundamental(points_a, points_b, seed) if projections is None else fundamental_from_projections(projections[a], projections[b])
             if F is not None:
                 curve[i] = np.nanmean(np.minimum(epipolar_distances(F, points_a, points_b), CLIP_PX))
         scores[f"{a}-{b}"] = curve
@@ -248,6 +256,14 @@ def _solve_offsets(C: int, pair_offsets: dict[tuple[int, int], int], weights: di
     # Offsets are relative: fix their sum with one more equation, then move the most common to 0.
     system = np.vstack([*rows, np.ones(C)])
     solution = np.linalg.lstsq(system, np.array([*targets, 0.0]), rcond=None)[0]
-    offsets = np.round(solution).astype(np.int64)
+    # Relative to camera 0 before rounding: a sum fixed at 0 splits an odd offset into +-x.5.
+    return _most_at_zero(np.round(solution - solution[0]).astype(np.int64))
+
+
+def _most_at_zero(offsets: np.ndarray) -> np.ndarray:
+    """Offsets moved so that the most common value is 0; of equally common values, the one of the
+    earliest camera (so the numbering is the first cameras', e.g. that of a ground truth)."""
     values, counts = np.unique(offsets, return_counts=True)
-    return offsets - values[np.argmax(counts)]
+    common = set(values[counts == counts.max()].tolist())
+    reference = next(offset for offset in offsets.tolist() if offset in common)
+    return offsets - reference
