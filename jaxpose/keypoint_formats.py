@@ -97,12 +97,12 @@ def _h36m17_recipe(source: dict[str, str], thorax: Combination) -> dict[str, Com
 
 @dataclasses.dataclass(frozen=True)
 class _Adapter:
-    """A source layout compiled to matrices: coordinates = weights @ sources; `uses` marks each recipe's sources."""
+    """A source layout compiled to matrices: coordinates = weights @ sources; `sources` lists each recipe's sources."""
 
     name: str
     num_sources: int
     weights: np.ndarray  # [num_targets, num_sources]
-    uses: np.ndarray  # bool [num_targets, num_sources]
+    sources: np.ndarray  # int [num_targets, K]: each target's sources, the first repeated to fill K
 
     @classmethod
     def compile(
@@ -113,7 +113,10 @@ class _Adapter:
         for joint, combination in recipe.items():
             for source, weight in combination.items():
                 weights[target.index(joint), source_names.index(source)] = weight
-        return cls(name, len(source_names), weights, weights != 0.0)
+        used = [np.flatnonzero(row) for row in weights]
+        width = max(len(indices) for indices in used)
+        sources = np.array([np.pad(indices, (0, width - len(indices)), mode="edge") for indices in used])
+        return cls(name, len(source_names), weights, sources)
 
     def __call__(self, keypoints: np.ndarray, scores: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         keypoints = np.asarray(keypoints, np.float64)
@@ -130,8 +133,8 @@ class _Adapter:
         # NaN compares False, so a NaN score counts as missing too.
         present = (scores > 0.0) & np.isfinite(keypoints).all(axis=-1)
         confidence = np.where(present, np.clip(scores, 0.0, 1.0), 0.0)
-        # Every recipe uses at least one source, so the +inf filler never survives the min.
-        out_confidence = np.where(self.uses, confidence[..., None, :], np.inf).min(axis=-1)
+        # A gather of each target's few sources, not a [..., targets, sources] array: long recordings.
+        out_confidence = confidence[..., self.sources].min(axis=-1)
         clean = np.where(present[..., None], keypoints, 0.0)
         out = np.einsum("jn,...nc->...jc", self.weights, clean)
         out = np.where(out_confidence[..., None] > 0.0, out, 0.0)
