@@ -314,15 +314,17 @@ def evaluate_and_report(
         joint_names = tuple(joint_names[j] for j in joints)
         target, valid = evaluation.ground_truth_in_views(test)
         mean_pose = np.broadcast_to(evaluation.mean_pose_prediction(splits.train), pred.shape)
+        # Each row with the views it is evaluated on: the triangulation is a reference only where its
+        # root has a label (two agreeing views); elsewhere it is no estimate at all.
         predictions = {
-            method_name: pred,
-            "Input triangulation (multi-view, reference)": triangulation,
-            "Mean pose (baseline)": np.ascontiguousarray(mean_pose),
+            method_name: (pred, valid),
+            "Input triangulation (multi-view, reference)": (triangulation, valid & (test_triangulated.pseudo3d_weight[:, None, 0] > 0)),
+            "Mean pose (baseline)": (np.ascontiguousarray(mean_pose), valid),
         }
         agreeing = splits.agreeing_joints()
         rows = {
-            name: evaluation.evaluate_poses(poses[..., joints, :], target[..., joints, :], groups, valid, agreeing)
-            for name, poses in predictions.items()
+            name: evaluation.evaluate_poses(poses[..., joints, :], target[..., joints, :], groups, views, agreeing)
+            for name, (poses, views) in predictions.items()
         }
     history = _read_jsonl(run_dir / "metrics.jsonl")
     last_train = next((r for r in reversed(history) if "loss" in r), {})

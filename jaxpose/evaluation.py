@@ -18,6 +18,7 @@ from jaxpose.camera import world_to_camera
 from jaxpose.chunks import map_in_chunks
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.metrics import JOINT_METRICS, per_joint_metrics, pose_metrics
+from jaxpose.skeleton import ROOT
 
 METRIC_NAMES = ("mpjpe", "p_mpjpe", "n_mpjpe", "pck", "auc")
 
@@ -31,17 +32,22 @@ def poses_in_views(dataset: MultiViewDataset, poses_world: np.ndarray) -> np.nda
 
 def ground_truth_joints(dataset: MultiViewDataset) -> np.ndarray:
     """Indices of the joints the 3D ground truth gives: every joint, unless it covers fewer (a rig
-    project's ground truth shares only some joint names with the detector's skeleton; NaN elsewhere)."""
+    project's ground truth shares only some joint names with the detector's skeleton; NaN elsewhere).
+    A joint counts where it is known in most instants that have ground truth; the root always counts
+    (evaluation is root-relative), and an instant lacking any counted joint has no ground truth."""
     finite = np.isfinite(dataset.target3d).all(-1)  # [N, J]
     rows = finite.any(-1)
-    return np.flatnonzero(finite[rows].all(0)) if rows.any() else np.arange(dataset.skeleton.num_joints)
+    if not rows.any():
+        return np.arange(dataset.skeleton.num_joints)
+    counted = finite[rows].mean(0) >= 0.5
+    counted[ROOT] = True
+    return np.flatnonzero(counted)
 
 
 def ground_truth_in_views(dataset: MultiViewDataset) -> tuple[np.ndarray, np.ndarray]:
     """What single-view evaluation compares with: the 3D ground truth root-relative in every view's
     camera frame [N, C, J, 3], and bool[N, C]: the views that can be lifted (their root was detected)
-    and have ground truth (0 where an instant has none; joints without any are NaN, see
-    `ground_truth_joints`)."""
+    and have ground truth (every joint of `ground_truth_joints`; other joints may be NaN)."""
     if dataset.target3d is None:
         raise ValueError("the test split has no 3D ground truth to evaluate against")
     has_truth = np.isfinite(dataset.target3d[:, ground_truth_joints(dataset)]).all((-2, -1))  # [N]
@@ -132,10 +138,12 @@ def evaluate_poses(
 
 
 def mean_pose_prediction(train: MultiViewDataset) -> np.ndarray:
-    """The mean-pose baseline: the average training pseudo-label in camera frames [J, 3]."""
+    """The mean-pose baseline: the average training pseudo-label in camera frames [J, 3], over the
+    samples whose root has one (without it the label is meaningless)."""
     if train.pseudo3d is None:
         raise ValueError("mean_pose_prediction needs the training pseudo-labels")
-    return poses_in_views(train, train.pseudo3d).mean((0, 1))
+    labelled = train.subset(np.flatnonzero(train.pseudo3d_weight[:, ROOT] > 0))
+    return poses_in_views(labelled, labelled.pseudo3d).mean((0, 1))
 
 
 def per_joint_table(rows: Mapping[str, Mapping], metric: str, joint_names: tuple[str, ...], title: str | None = None) -> str:

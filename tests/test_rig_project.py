@@ -319,3 +319,23 @@ def test_messy_projects_load(project_copy):
     assert not (data.train.confidence[in_first][:, 1:2] > 0).any()  # cam02 never saw anybody
     assert not (data.train.confidence[in_first][:, 3] > 0).any()  # no cam04 in this recording
     assert (data.train.confidence[~in_first] > 0).any((0, 2)).all()
+
+
+def test_a_lost_marker_costs_its_instant_not_the_report(project):
+    from jaxpose import evaluation
+
+    data = load_rig_project(RigProjectConfig(root=project, frame_offsets=("cam03=3",)), progress=False)
+    test = data.validation
+    target = test.target3d.copy()
+    target[0, 0] = np.nan  # the root lost in one instant
+    target[1, 5] = np.nan  # another joint lost in another
+    _, valid_before = evaluation.ground_truth_in_views(test)
+    test = dataclasses.replace(test, target3d=target)
+    joints = evaluation.ground_truth_joints(test)
+    assert len(joints) == test.skeleton.num_joints  # both still evaluated where known
+    truth, valid = evaluation.ground_truth_in_views(test)
+    assert valid_before[:2].any()  # the two instants were evaluated before the loss
+    assert not valid[:2].any()  # without a root (or any joint), the instant is dropped
+    np.testing.assert_array_equal(valid[2:], valid_before[2:])  # and nothing else
+    summary = evaluation.evaluate_poses(truth, truth, None, valid)["overall"]
+    assert summary["mpjpe"] == 0.0 and summary["count"] == valid.sum()
