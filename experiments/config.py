@@ -12,7 +12,7 @@ import json
 import pathlib
 from typing import Any, Generic, TypeVar
 
-from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig, PseudoLabelConfig
+from jaxpose.config import InputAugmentation, LossConfig, ModelConfig, OptimizerConfig, PseudoLabelConfig
 
 DataT = TypeVar("DataT")
 
@@ -43,6 +43,9 @@ class TrainConfig:
     For watching a run only: nothing is selected on it, and the report is always the final checkpoint."""
     eval_samples: int = 1000
     """Test samples (with all their views) in each periodic evaluation: a fixed, evenly spaced subset."""
+    augment: InputAugmentation = InputAugmentation()
+    """The detector's failure modes imposed on the lifter's input (jaxpose.config.InputAugmentation);
+    all 0 by default."""
 
 
 @dataclasses.dataclass(frozen=True)

@@ -245,7 +245,11 @@ def train(
     learning_rate = config.optimizer.learning_rate_schedule(total_steps)
     evaluate = periodic_evaluation(config, test_set, model) if cfg.eval_every > 0 and test_set is not None else None
     step_fn = jit_train_step(
-        make_train_step(model, config.model, optimizer, config.loss, total_steps, cfg.log_every, stop_step), mesh
+        make_train_step(
+            model, config.model, optimizer, config.loss, total_steps, cfg.log_every, stop_step, cfg.augment,
+            train_set.skeleton.left_right_pairs,
+        ),
+        mesh,
     )
     start = int(state.step)
     views = train_set.num_views

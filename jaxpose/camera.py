@@ -222,7 +222,36 @@ def _undistort_fisheye(distorted: jax.Array, dist: jax.Array, iterations: int) -
     return distorted * scale[..., None]
 
 
-InputNormalization = Literal["intrinsics", "intrinsics_scale"]
+InputNormalization = Literal["intrinsics", "intrinsics_scale", "intrinsics_median"]
+INPUT_NORMALIZATIONS: tuple[str, ...] = ("intrinsics", "intrinsics_scale", "intrinsics_median")
+
+# "intrinsics_median": a joint whose distance to the root exceeds this many times the pose's median
+# distance is pulled in along its direction to that radius.  On the real Human3.6M S1 poses projected
+# into their four cameras the largest ratio of any joint is MEDIAN_RATIO_NOTE, so no true pose is
+# changed; a joint pushed hundreds of pixels away arrives at this bounded radius, whatever the
+# distance, instead of a coordinate the network never saw.
+MEDIAN_RADIUS_LIMIT = 4.0
+
+
+def masked_median(values: jax.Array, valid: jax.Array) -> jax.Array:
+    """The median of `values` [..., N] over the entries where `valid` [..., N] holds -> [...].
+
+    By comparisons and counts (O(N^2), N is a joint count), not a sort, so that it lowers to the
+    elementwise operations every export target has (ONNX included).  The mean of the lower and upper
+    medians; 0 where no entry is valid.
+    """
+    valid = valid.astype(bool)
+    count = valid.sum(-1, keepdims=True)
+    # at_most[..., i] = how many valid values are <= values[..., i]
+    at_most = ((values[..., None, :] <= values[..., :, None]) & valid[..., None, :]).sum(-1)
+    big = jnp.asarray(jnp.finfo(values.dtype).max, values.dtype)
+
+    def smallest_with(rank):  # the smallest valid value with at least `rank` valid values <= it
+        return jnp.where(valid & (at_most >= rank), values, big).min(-1)
+
+    lower = smallest_with((count + 1) // 2)
+    upper = smallest_with(count // 2 + 1)
+    return jnp.where(count[..., 0] > 0, 0.5 * (lower + upper), 0.0)
 
 
 def normalize_keypoints(
@@ -242,6 +271,12 @@ def normalize_keypoints(
        the 2D scale is mostly the subject's distance from the camera, which a root-relative 3D pose
        does not depend on; removing it lets the model transfer across subject distances and rigs.
        The 3D output stays metric: the network learns body size from the training poses.
+       With mode "intrinsics_median", divided by the MEDIAN of the joints' distances to the root
+       instead, and a joint farther than `MEDIAN_RADIUS_LIMIT` medians is pulled in to that radius.
+       The RMS is dominated by one far joint: a wrist detected 500 px away makes it several times
+       larger and shrinks every other joint of the input towards the root, so the lifter changes
+       its whole pose (see docs/robust_input.md for the measured effect).  One joint moves the
+       median by at most one rank, so the other joints' inputs barely change.
 
     Joints with confidence 0 are set to 0 (and excluded from the scale), so a missing joint never
     injects a garbage coordinate.  A pose whose root is missing gives all zeros; callers mask it.
@@ -257,6 +292,13 @@ def normalize_keypoints(
         count = jnp.maximum(valid.sum(-1, keepdims=True) - 1.0, 1.0)
         mean_square = (relative**2).sum((-2, -1))[..., None] / count
         relative = relative / jnp.sqrt(mean_square + 1e-12)[..., None]
+    elif mode == "intrinsics_median":
+        distance = jnp.sqrt((relative**2).sum(-1) + 1e-24)
+        others = (valid > 0) & (jnp.arange(valid.shape[-1]) != root)
+        scale = masked_median(distance, others)[..., None]
+        ratio = distance / jnp.maximum(scale, 1e-12)
+        pull = jnp.minimum(1.0, MEDIAN_RADIUS_LIMIT / jnp.maximum(ratio, 1e-12))
+        relative = relative * (pull / jnp.maximum(scale, 1e-12))[..., None]
     elif mode != "intrinsics":
-        raise ValueError(f"unknown input normalization {mode!r}; expected 'intrinsics' or 'intrinsics_scale'")
+        raise ValueError(f"unknown input normalization {mode!r}; expected one of {INPUT_NORMALIZATIONS}")
     return relative

@@ -38,8 +38,10 @@ class ModelConfig:
     """Dropout probability after every hidden layer (0 disables it)."""
     use_batchnorm: bool = True
     """BatchNorm after every hidden Linear layer."""
-    input_normalization: Literal["intrinsics", "intrinsics_scale"] = "intrinsics_scale"
-    """2D input: through K^-1 and root-relative ("intrinsics"), then scaled to unit RMS ("intrinsics_scale")."""
+    input_normalization: Literal["intrinsics", "intrinsics_scale", "intrinsics_median"] = "intrinsics_scale"
+    """2D input: through K^-1 and root-relative ("intrinsics"), then scaled to unit RMS distance to the root
+    ("intrinsics_scale"), or to unit MEDIAN distance with far joints pulled in ("intrinsics_median": one
+    wild joint cannot shrink the others; see jaxpose.camera.normalize_keypoints)."""
 
     def build(self, num_joints: int) -> LifterNetwork:
         """The network for a skeleton of `num_joints` joints."""
@@ -51,6 +53,39 @@ class ModelConfig:
             dropout_rate=self.dropout_rate,
             use_batchnorm=self.use_batchnorm,
         )
+
+
+@dataclasses.dataclass(frozen=True)
+class InputAugmentation:
+    """The detector's failure modes, imposed on the lifter's INPUT during training (the losses still see
+    the batch as given), so that a missing or wild joint changes little else of the prediction.
+
+    Each view-pose gets at most one of them, with these probabilities (their sum must be <= 1); the
+    joint (never the root) or the left/right pair is drawn uniformly.  Drawn inside the jitted train
+    step from the step's key (`jaxpose.train.augment_inputs`), so a resumed run draws what an
+    uninterrupted one would.  All 0 (the default): the train step is exactly the one without it.
+    """
+
+    drop: float = 0.0
+    """Probability that one joint is given as missing (confidence 0)."""
+    displace: float = 0.0
+    """Probability that one joint is moved in a random direction by a distance drawn uniformly up to
+    `displace_scale` times the pose's median joint distance to the root (in the image)."""
+    displace_scale: float = 4.0
+    """See `displace`."""
+    swap: float = 0.0
+    """Probability that the two joints of one left/right pair trade places (a detector's left/right confusion)."""
+
+    @property
+    def active(self) -> bool:
+        return self.drop > 0 or self.displace > 0 or self.swap > 0
+
+    def __post_init__(self):
+        for name in ("drop", "displace", "swap"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"input augmentation {name}: a probability in [0, 1], got {getattr(self, name)}")
+        if self.drop + self.displace + self.swap > 1.0 + 1e-9:
+            raise ValueError("input augmentation: drop + displace + swap must be <= 1 (one failure per view-pose)")
 
 
 @dataclasses.dataclass(frozen=True)

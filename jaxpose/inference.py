@@ -38,6 +38,48 @@ from jaxpose.train import make_eval_step
 
 DEFAULT_BATCH_SIZE = 1024
 
+# Keypoints that cannot be right are lifted as missing (confidence 0), for these reasons, in this order
+# (a joint is counted under the first that applies): its coordinates are NaN or infinite; its score is
+# below a threshold; it lies outside the image by more than a margin.  See `implausible_joints`.
+MISSING_REASONS = ("non_finite", "low_confidence", "outside_image")
+DEFAULT_MIN_CONFIDENCE = 0.05
+"""`jaxpose.predict --min-confidence`: OpenPose's own threshold for drawing a body part (render_threshold
+0.05).  Heatmap detectors give an occluded but well-placed joint scores of 0.1-0.3, which should be kept."""
+DEFAULT_OUTSIDE_MARGIN = 0.1
+"""`jaxpose.predict --outside-margin`: a keypoint more than this fraction of the larger image side outside
+the image is missing.  Detectors do place truncated joints a little past the border; a joint hundreds of
+pixels away is a detector failure (docs/robust_input.md)."""
+
+
+def implausible_joints(
+    keypoints: np.ndarray,
+    confidence: np.ndarray,
+    image_size: Sequence[float] | None = None,
+    outside_margin: float | None = DEFAULT_OUTSIDE_MARGIN,
+    min_confidence: float = 0.0,
+) -> dict[str, np.ndarray]:
+    """bool[N, J] per reason of `MISSING_REASONS`: the given joints (confidence > 0) that cannot be right.
+
+    "non_finite": a NaN or infinite coordinate; "low_confidence": 0 < confidence < `min_confidence`;
+    "outside_image": more than `outside_margin` x max(width, height) outside [0, width] x [0, height]
+    (only where `image_size` is known and `outside_margin` is not None).  Each joint is counted under
+    the first reason that applies, so the masks are disjoint.
+    """
+    keypoints = np.asarray(keypoints, np.float32)
+    confidence = np.asarray(confidence, np.float32)
+    given = confidence > 0
+    with np.errstate(invalid="ignore"):
+        non_finite = given & ~np.isfinite(keypoints).all(-1)
+        low = given & ~non_finite & (confidence < min_confidence)
+        outside = np.zeros_like(given)
+        if image_size is not None and outside_margin is not None:
+            width, height = (float(v) for v in image_size)
+            margin = outside_margin * max(width, height)
+            x, y = keypoints[..., 0], keypoints[..., 1]
+            beyond = (x < -margin) | (x > width + margin) | (y < -margin) | (y > height + margin)
+            outside = given & ~non_finite & ~low & beyond
+    return {"non_finite": non_finite, "low_confidence": low, "outside_image": outside}
+
 
 def default_intrinsics(image_size: Sequence[float]) -> np.ndarray:
     """The intrinsics assumed for an uncalibrated camera: f32[3, 3] for image_size (width, height) px.
@@ -45,7 +87,7 @@ def default_intrinsics(image_size: Sequence[float]) -> np.ndarray:
     Focal length max(width, height) in both axes (about 53 degrees of horizontal field of view for a
     landscape image, the usual guess of in-the-wild pipelines), principal point at the image centre,
     no skew, no distortion.  The lifter's input is root-relative, so the principal point cancels; with
-    the default `input_normalization="intrinsics_scale"` the pose is also scaled to unit size, so the
+    `input_normalization` "intrinsics_scale" or "intrinsics_median" the pose is also scaled to unit size, so the
     focal length cancels too and only fx/fy matters: the guess is then harmless.
     """
     size = np.asarray(image_size, np.float64)
@@ -103,6 +145,8 @@ class Lifter3D:
         confidence=None,
         distortion=None,
         image_size: Sequence[float] | None = None,
+        min_confidence: float = 0.0,
+        outside_margin: float | None = None,
     ) -> np.ndarray:
         """Root-relative 3D poses f32[N, J, 3] in mm, in each camera's frame (x right, y down, z forward).
 
@@ -111,7 +155,11 @@ class Lifter3D:
         confidence:  [N, J] detector scores; only > 0 (detected) vs 0 (missing) matters.  None = all detected.
         distortion:  OpenCV (k1, k2, p1, p2, k3), [5] or [N, 5]: the keypoints are undistorted first.
                      None = the keypoints are undistorted (pinhole) pixels already.
-        Rows whose root (joint 0) is missing are NaN.
+        min_confidence: joints scored below this are lifted as missing (default 0: every score > 0 counts).
+        outside_margin: with `image_size`, joints more than this fraction of the larger image side
+                     outside the image are lifted as missing (`implausible_joints`; None = no check).
+        Rows whose root (joint 0) is missing are NaN.  Non-finite keypoints with confidence > 0 are an
+        error here (`jaxpose.predict` reports them and lifts them as missing).
         """
         keypoints = np.asarray(keypoints2d, np.float32)
         single = keypoints.ndim == 2
@@ -119,6 +167,11 @@ class Lifter3D:
             keypoints = keypoints[None]
             confidence = None if confidence is None else np.asarray(confidence)[None]
         keypoints, confidence = self._check_keypoints(keypoints, confidence)
+        if min_confidence > 0 or (outside_margin is not None and image_size is not None):
+            dropped = implausible_joints(keypoints, confidence, image_size, outside_margin, min_confidence)
+            keep = ~(dropped["low_confidence"] | dropped["outside_image"])
+            confidence = np.where(keep, confidence, 0.0).astype(np.float32)
+            keypoints = np.where(keep[..., None], keypoints, 0.0).astype(np.float32)
         count = len(keypoints)
         K = _check_intrinsics(intrinsics, image_size, count)
         if distortion is not None:

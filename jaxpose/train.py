@@ -20,8 +20,8 @@ from flax import struct
 from jax.sharding import Mesh
 
 from jaxpose import parallel
-from jaxpose.camera import normalize_keypoints
-from jaxpose.config import LossConfig, ModelConfig
+from jaxpose.camera import masked_median, normalize_keypoints
+from jaxpose.config import InputAugmentation, LossConfig, ModelConfig
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.losses import TERMS, gradient_shares, input_triangulation_loss, total_loss
 from jaxpose.model import LifterNetwork
@@ -60,6 +60,46 @@ def lifter_inputs(batch: MultiViewBatch, mode: str) -> jax.Array:
     return normalize_keypoints(batch.keypoints2d, batch.cameras.K, batch.confidence, mode)
 
 
+def augment_inputs(
+    key: jax.Array,
+    keypoints2d: jax.Array,
+    confidence: jax.Array,
+    augmentation: InputAugmentation,
+    left_right_pairs: tuple[tuple[int, int], ...] = (),
+) -> tuple[jax.Array, jax.Array]:
+    """One detector failure per view-pose, with `augmentation`'s probabilities: keypoints2d [..., J, 2]
+    and confidence [..., J] -> the same, with one joint dropped (confidence 0), displaced, or one
+    left/right pair swapped.  A pure function of `key`.  The root (joint 0) is never touched."""
+    shape = confidence.shape[:-1]
+    J = confidence.shape[-1]
+    k_kind, k_joint, k_pair, k_angle, k_length = jax.random.split(key, 5)
+    u = jax.random.uniform(k_kind, shape)
+    drop = u < augmentation.drop
+    displace = (u >= augmentation.drop) & (u < augmentation.drop + augmentation.displace)
+    swap = (u >= augmentation.drop + augmentation.displace) & (u < augmentation.drop + augmentation.displace + augmentation.swap)
+    joint = jax.random.randint(k_joint, shape, 1, J)
+    chosen = jnp.arange(J) == joint[..., None]  # [..., J]
+    confidence = jnp.where(drop[..., None] & chosen, 0.0, confidence)
+    # Displacement: a random direction, up to displace_scale x the pose's median distance to the root.
+    relative = keypoints2d - keypoints2d[..., :1, :]
+    distance = jnp.sqrt((relative**2).sum(-1) + 1e-12)
+    others = (confidence > 0) & (jnp.arange(J) > 0)
+    size = masked_median(distance, others)
+    angle = jax.random.uniform(k_angle, shape, maxval=2 * jnp.pi)
+    length = jax.random.uniform(k_length, shape) * augmentation.displace_scale * size
+    offset = jnp.stack([jnp.cos(angle), jnp.sin(angle)], -1) * length[..., None]
+    keypoints2d = keypoints2d + jnp.where((displace[..., None] & chosen)[..., None], offset[..., None, :], 0.0)
+    if left_right_pairs and augmentation.swap > 0:
+        pairs = jnp.asarray(left_right_pairs, jnp.int32)  # [P, 2]
+        pair = pairs[jax.random.randint(k_pair, shape, 0, len(left_right_pairs))]  # [..., 2]
+        source = jnp.broadcast_to(jnp.arange(J), confidence.shape)
+        source = jnp.where(source == pair[..., :1], pair[..., 1:], jnp.where(source == pair[..., 1:], pair[..., :1], source))
+        source = jnp.where(swap[..., None], source, jnp.arange(J))
+        keypoints2d = jnp.take_along_axis(keypoints2d, source[..., None], axis=-2)
+        confidence = jnp.take_along_axis(confidence, source, axis=-1)
+    return keypoints2d, confidence
+
+
 def output_triangulation_start_step(loss: LossConfig, total_steps: int) -> int:
     return int(round(loss.output_triangulation_start * total_steps))
 
@@ -67,6 +107,8 @@ def output_triangulation_start_step(loss: LossConfig, total_steps: int) -> int:
 def make_loss_fn(
     model: LifterNetwork, model_config: ModelConfig, loss: LossConfig, output_start_step: int,
     measures_shares: Callable[[jax.Array], jax.Array],
+    augmentation: InputAugmentation = InputAugmentation(),
+    left_right_pairs: tuple[tuple[int, int], ...] = (),
 ) -> Callable[..., tuple[jax.Array, tuple[dict[str, jax.Array], Any]]]:
     """loss_fn(params, batch_stats, batch, dropout_key, step) -> (loss, (metrics, new batch_stats)).
 
@@ -76,7 +118,15 @@ def make_loss_fn(
     """
 
     def loss_fn(params, batch_stats, batch: MultiViewBatch, dropout_key, step):
-        inputs = lifter_inputs(batch, model_config.input_normalization)
+        if augmentation.active:
+            # Its own key, derived from the step's dropout key: the dropout masks are those of a run without it.
+            keypoints, confidence = augment_inputs(
+                jax.random.fold_in(dropout_key, 0x61756700), batch.keypoints2d, batch.confidence, augmentation,
+                left_right_pairs,
+            )  # fmt: skip
+            inputs = normalize_keypoints(keypoints, batch.cameras.K, confidence, model_config.input_normalization)
+        else:
+            inputs = lifter_inputs(batch, model_config.input_normalization)
         pred, updates = model.apply(
             {"params": params, "batch_stats": batch_stats},
             inputs,
@@ -112,12 +162,16 @@ def make_train_step(
     total_steps: int,
     share_every: int = 1,
     last_step: int | None = None,
+    augmentation: InputAugmentation = InputAugmentation(),
+    left_right_pairs: tuple[tuple[int, int], ...] = (),
 ) -> Callable[[TrainState, MultiViewBatch, jax.Array], tuple[TrainState, dict[str, jax.Array]]]:
     """The pure train step (un-jitted; see `jit_train_step`).
 
     The metrics' gradient shares are measured every `share_every` steps (counting completed steps,
     as the run log does) and on the step that completes `last_step` (default `total_steps`), 0 on
     the others: pass the log interval so that every logged line has them at no cost elsewhere.
+    `augmentation` (with the skeleton's `left_right_pairs` for its swaps) perturbs the lifter's input
+    only (`augment_inputs`).
     """
     if loss.supervision not in ("self", "full"):
         raise ValueError(f"unknown supervision {loss.supervision!r}; expected 'self' or 'full'")
@@ -129,7 +183,10 @@ def make_train_step(
         done = step + 1
         return (done % share_every == 0) | (done == last_step)
 
-    loss_fn = make_loss_fn(model, model_config, loss, output_triangulation_start_step(loss, total_steps), measures_shares)
+    loss_fn = make_loss_fn(
+        model, model_config, loss, output_triangulation_start_step(loss, total_steps), measures_shares,
+        augmentation, left_right_pairs,
+    )  # fmt: skip
     grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
 
     def train_step(state: TrainState, batch: MultiViewBatch, key: jax.Array):

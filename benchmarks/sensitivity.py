@@ -1,0 +1,199 @@
+"""How much one wild keypoint changes the rest of a lifted pose, and what wild joints cost on real data.
+
+    python benchmarks/sensitivity.py --run runs/h36m_dev --data-dir /data/h36m_s1 [--run runs/synthetic ...]
+
+For each trained run (any skeleton whose joint names are among Human3.6M's 17), on real Human3.6M poses:
+the development split's test trials (S1, second trial of every action, every 5th frame), the motion
+capture projected into one camera each (undistorted pixels, image 1000 x 1000 px):
+
+1. Sensitivity.  For every pose and every joint but the root, that one joint is moved and the pose is
+   lifted again with `Lifter3D.predict`; the change is the 3D distance (mm) of each OTHER non-root
+   joint between the two predictions, and the table gives its median and 95th percentile over all
+   (pose, moved joint, other joint).  Displacements: 0, 25, 50, 100, 200, 400 px in a random direction
+   that keeps the joint inside the image (directions that leave it are redrawn; a joint with none is
+   skipped); "corner+500": 500 px diagonally beyond a random image corner (the case of the issue);
+   "outside": a random point 1 to 1000 px beyond the missing-keypoint margin of a random border.
+   Each run is measured twice: as `predict` lifted before the missing-keypoint policy (every keypoint
+   as given) and with it (`outside_margin`: a keypoint beyond the margin is missing).
+2. Wild joints on real detections.  The run's own development-split test set with Stacked Hourglass
+   detections (16-joint runs only): P-MPJPE over the view-poses that have a joint more than 100 px from
+   the projected ground truth, and over those that have none.
+
+Writes a JSON of every number (--out) and prints markdown tables.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+import time
+
+import numpy as np
+
+ROOT_DIR = pathlib.Path(__file__).resolve().parents[1]
+if str(ROOT_DIR) not in sys.path:
+    sys.path.insert(0, str(ROOT_DIR))
+
+from jaxpose import inference  # noqa: E402
+from jaxpose.evaluation import ground_truth_in_views  # noqa: E402
+from jaxpose.metrics import p_mpjpe  # noqa: E402
+
+IMAGE_SIZE = (1000.0, 1000.0)
+DISPLACEMENTS_PX = (0, 25, 50, 100, 200, 400)
+WILD_PX = 100.0
+
+
+def dev_split(data_dir: pathlib.Path, detections: str):
+    """The development split's test set (S1, second trials, every 5th frame) with `detections`."""
+    from experiments.h36m import DEV, load_splits
+    import dataclasses
+
+    data = dataclasses.replace(DEV.data, data_dir=data_dir, detections=detections)
+    return load_splits(data).test
+
+
+def joint_indices(names_from: tuple[str, ...], names_to: tuple[str, ...]) -> np.ndarray:
+    missing = [name for name in names_to if name not in names_from]
+    if missing:
+        raise SystemExit(f"the lifter's joints {missing} are not Human3.6M joints; this benchmark needs them")
+    return np.array([names_from.index(name) for name in names_to])
+
+
+def sample_poses(test, names: tuple[str, ...], count: int, rng: np.random.Generator):
+    """`count` poses, each from one random view: (keypoints f32[M, J, 2] undistorted px, K f32[M, 3, 3])."""
+    undistorted = test.undistorted()
+    rows = rng.choice(len(test), size=min(count, len(test)), replace=False)
+    views = rng.integers(0, test.num_views, size=len(rows))
+    index = joint_indices(test.skeleton.joint_names, names)
+    keypoints = undistorted.keypoints2d[rows, views][:, index]
+    K = np.asarray(test.rigs.K)[test.rig_index[rows], views]
+    inside = ((keypoints >= 0) & (keypoints <= np.array(IMAGE_SIZE))).all((1, 2))
+    return keypoints[inside].astype(np.float32), K[inside].astype(np.float32)
+
+
+def displaced(point: np.ndarray, condition, margin: float, rng: np.random.Generator) -> np.ndarray | None:
+    """Where one joint goes under `condition` (pixels, or "corner+500" / "outside"); None: no such place."""
+    width, height = IMAGE_SIZE
+    if condition == "corner+500":
+        corner = np.array([rng.integers(0, 2) * width, rng.integers(0, 2) * height])
+        outward = np.where(corner > 0, 1.0, -1.0)
+        return corner + outward * 500.0 / np.sqrt(2.0)
+    if condition == "outside":
+        side = rng.integers(0, 4)
+        beyond = margin + rng.uniform(1.0, 1000.0)
+        along = rng.uniform(-margin, max(width, height) + margin)
+        return np.array([(-beyond, along), (width + beyond, along), (along, -beyond), (along, height + beyond)][side])
+    if condition == 0:
+        return point
+    for _ in range(32):
+        angle = rng.uniform(0, 2 * np.pi)
+        moved = point + condition * np.array([np.cos(angle), np.sin(angle)])
+        if (moved >= 0).all() and moved[0] <= width and moved[1] <= height:
+            return moved
+    return None
+
+
+def sensitivity(lifter, keypoints, K, conditions, margin_fraction, policy: bool, rng) -> dict:
+    """{condition: {"median_mm", "p95_mm", "cases"}}, see the module docstring."""
+    M, J, _ = keypoints.shape
+    margin = margin_fraction * max(IMAGE_SIZE)
+    options = dict(image_size=IMAGE_SIZE, outside_margin=margin_fraction if policy else None)
+    base = lifter.predict(keypoints, K, **options)
+    results = {}
+    for condition in conditions:
+        moved, rows, joints = [], [], []
+        for i in range(M):
+            for j in range(1, J):
+                place = displaced(keypoints[i, j], condition, margin, rng)
+                if place is None:
+                    continue
+                pose = keypoints[i].copy()
+                pose[j] = place
+                moved.append(pose)
+                rows.append(i)
+                joints.append(j)
+        rows, joints = np.array(rows), np.array(joints)
+        pred = lifter.predict(np.stack(moved), K[rows], **options)
+        change = np.linalg.norm(pred - base[rows], axis=-1)  # [cases, J]
+        others = (np.arange(J)[None] != joints[:, None]) & (np.arange(J)[None] != 0)
+        values = change[others]
+        results[str(condition)] = {
+            "median_mm": float(np.median(values)),
+            "p95_mm": float(np.percentile(values, 95)),
+            "cases": int(len(rows)),
+        }
+    return results
+
+
+def wild_joint_errors(lifter, data_dir: pathlib.Path) -> dict | None:
+    """P-MPJPE (mm) of the lifter on the dev split's SH test set, view-poses with / without a joint
+    more than WILD_PX from the projected ground truth."""
+    sh = dev_split(data_dir, "sh")
+    if sh.skeleton.joint_names != lifter.joint_names:
+        return None
+    gt = dev_split(data_dir, "gt")
+    index = joint_indices(gt.skeleton.joint_names, sh.skeleton.joint_names)
+    projected = gt.keypoints2d[:, :, index]
+    if projected.shape != sh.keypoints2d.shape:
+        raise SystemExit(f"SH {sh.keypoints2d.shape} and ground-truth 2D {projected.shape} test sets differ")
+    offset = np.linalg.norm(sh.keypoints2d - projected, axis=-1)  # [N, C, J]
+    wild = (offset > WILD_PX).any(-1)
+    undistorted = sh.undistorted()
+    N, C, J, _ = sh.keypoints2d.shape
+    K = np.asarray(sh.rigs.K)[sh.rig_index].reshape(N * C, 3, 3)
+    pred = lifter.predict(undistorted.keypoints2d.reshape(N * C, J, 2), K, sh.confidence.reshape(N * C, J))
+    target, valid = ground_truth_in_views(sh)
+    errors = np.asarray(p_mpjpe(pred, target.reshape(N * C, J, 3))).reshape(N, C)
+    result = {}
+    for name, mask in (("wild", wild & valid), ("clean", ~wild & valid)):
+        result[name] = {"p_mpjpe_mm": float(errors[mask].mean()), "view_poses": int(mask.sum())}
+    result["share_wild"] = float((wild & valid).sum() / valid.sum())
+    return result
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--run", type=pathlib.Path, action="append", required=True, help="run directory (repeatable)")
+    parser.add_argument("--data-dir", type=pathlib.Path, required=True, help="h36m.zip tree holding S1 and cameras.h5")
+    parser.add_argument("--poses", type=int, default=200, help="test poses (one view each)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--margin", type=float, default=inference.DEFAULT_OUTSIDE_MARGIN, help="--outside-margin of predict")
+    parser.add_argument("--out", type=pathlib.Path, default=pathlib.Path("runs/benchmarks/sensitivity.json"))
+    args = parser.parse_args(argv)
+    gt = dev_split(args.data_dir, "gt")
+    conditions = (*DISPLACEMENTS_PX, "corner+500", "outside")
+    report = {"image_size": IMAGE_SIZE, "margin": args.margin, "runs": {}}
+    for run in args.run:
+        start = time.perf_counter()
+        lifter = inference.load(run)
+        keypoints, K = sample_poses(gt, lifter.joint_names, args.poses, np.random.default_rng(args.seed))
+        entry = {"normalization": lifter.model_config.input_normalization, "poses": len(keypoints)}
+        for policy in (False, True):
+            rng = np.random.default_rng(args.seed + 1)  # the same displacements for both
+            entry["policy" if policy else "as_given"] = sensitivity(lifter, keypoints, K, conditions, args.margin, policy, rng)
+        entry["wild"] = wild_joint_errors(lifter, args.data_dir)
+        entry["seconds"] = time.perf_counter() - start
+        report["runs"][str(run)] = entry
+        print(f"\n### {run} ({entry['normalization']}, {entry['poses']} poses)\n")
+        print("| one joint moved | as given: median / p95 (mm) | missing-keypoint policy: median / p95 (mm) |")
+        print("|---|---|---|")
+        for condition in conditions:
+            a, b = entry["as_given"][str(condition)], entry["policy"][str(condition)]
+            label = f"{condition} px" if isinstance(condition, int) else condition
+            print(f"| {label} | {a['median_mm']:.1f} / {a['p95_mm']:.1f} | {b['median_mm']:.1f} / {b['p95_mm']:.1f} |")
+        if entry["wild"] is not None:
+            w = entry["wild"]
+            print(
+                f"\nSH test view-poses with a joint > {WILD_PX:.0f} px off: {w['wild']['view_poses']}"
+                f" ({100 * w['share_wild']:.1f}%), P-MPJPE {w['wild']['p_mpjpe_mm']:.1f} mm; without:"
+                f" {w['clean']['view_poses']}, P-MPJPE {w['clean']['p_mpjpe_mm']:.1f} mm"
+            )
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=2) + "\n")
+    return report
+
+
+if __name__ == "__main__":
+    main()
