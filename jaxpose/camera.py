@@ -241,16 +241,18 @@ def masked_median(values: jax.Array, valid: jax.Array) -> jax.Array:
     medians; 0 where no entry is valid.
     """
     valid = valid.astype(bool)
-    count = valid.sum(-1, keepdims=True)
+    # Counts and ranks in floating point: integer division lowers to a `rem` that the ONNX converter
+    # cannot take with a symbolic batch axis.
+    count = valid.astype(values.dtype).sum(-1, keepdims=True)
     # at_most[..., i] = how many valid values are <= values[..., i]
-    at_most = ((values[..., None, :] <= values[..., :, None]) & valid[..., None, :]).sum(-1)
+    at_most = ((values[..., None, :] <= values[..., :, None]) & valid[..., None, :]).astype(values.dtype).sum(-1)
     big = jnp.asarray(jnp.finfo(values.dtype).max, values.dtype)
 
     def smallest_with(rank):  # the smallest valid value with at least `rank` valid values <= it
         return jnp.where(valid & (at_most >= rank), values, big).min(-1)
 
-    lower = smallest_with((count + 1) // 2)
-    upper = smallest_with(count // 2 + 1)
+    lower = smallest_with(jnp.floor(0.5 * (count + 1.0)))
+    upper = smallest_with(jnp.floor(0.5 * count) + 1.0)
     return jnp.where(count[..., 0] > 0, 0.5 * (lower + upper), 0.0)
 
 

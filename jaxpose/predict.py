@@ -33,6 +33,13 @@ Output, by suffix, one pose per input pose, in input order.  Poses are root-rela
   of the file says after the file name.  A TRC holds one subject: an input with several people per
   image gives a row per person, one after the other.
 
+Keypoints that cannot be right are lifted as missing, and the command says how many joints of how many
+poses it treated so, per reason (`jaxpose.inference.implausible_joints`): NaN or infinite coordinates
+with a positive score, a score below --min-confidence (default 0.05), and, where the image size is known
+(--image-size, or the --intrinsics calibration's), a keypoint more than --outside-margin (default 10%) of
+the larger image side outside the image.  One wild keypoint would otherwise move the whole lifted pose
+(docs/robust_input.md).
+
 A pose whose root (the pelvis; for COCO/OpenPose both hips) was not detected cannot be lifted: it is null,
 NaN or empty in the output.
 
@@ -350,6 +357,11 @@ class PredictArgs:
     """Frames per second of --animation, and the DataRate of a .trc --output."""
     batch_size: int = inference.DEFAULT_BATCH_SIZE
     """Most poses per jitted lifter call."""
+    min_confidence: float = inference.DEFAULT_MIN_CONFIDENCE
+    """Keypoints scored below this are lifted as missing (0 keeps every keypoint with a positive score)."""
+    outside_margin: float | None = inference.DEFAULT_OUTSIDE_MARGIN
+    """Keypoints more than this fraction of the larger image side outside the image are lifted as missing
+    (needs the image size: --image-size or a calibration that has it); None disables the check."""
 
 
 def run(args: PredictArgs) -> np.ndarray:
@@ -363,21 +375,28 @@ def run(args: PredictArgs) -> np.ndarray:
             viz.check_animation_path(args.animation, args.fps)
         except ValueError as error:
             raise ValueError(f"--animation {error}") from None
+    if not 0.0 <= args.min_confidence <= 1.0:
+        raise ValueError(f"--min-confidence must lie in [0, 1], got {args.min_confidence}")
+    if args.outside_margin is not None and not args.outside_margin >= 0:
+        raise ValueError(f"--outside-margin must be >= 0, got {args.outside_margin}")
     detections = read_detections(args.input)
     lifter = inference.load(args.checkpoint, batch_size=args.batch_size)
-    layout = args.format or input_layout(lifter.skeleton, detections)
-    if layout is None:
-        keypoints, confidence = detections.keypoints, detections.scores
-    else:
-        keypoints, confidence = to_skeleton(layout, lifter.skeleton, detections.keypoints, detections.scores)
-    if confidence is None:
-        confidence = np.ones(keypoints.shape[:2], np.float32)
     K, dist, image_size = (None, None, None) if args.intrinsics is None else read_intrinsics(args.intrinsics)
     if detections.intrinsics is not None:
         if K is not None:
             raise ValueError(f"{args.input} holds a camera per pose ('K'); do not pass --intrinsics as well")
         K = detections.intrinsics
     image_size = args.image_size or image_size
+    layout = args.format or input_layout(lifter.skeleton, detections)
+    scores = detections.scores if detections.scores is not None else np.ones(detections.keypoints.shape[:2], np.float32)
+    scores, message = drop_implausible(detections.keypoints, scores, image_size, args, layout, lifter)
+    print(message, file=sys.stderr)
+    if layout is None:
+        keypoints, confidence = detections.keypoints, scores
+    else:
+        keypoints, confidence = to_skeleton(layout, lifter.skeleton, detections.keypoints, scores)
+    if confidence is None:
+        confidence = np.ones(keypoints.shape[:2], np.float32)
     count = len(keypoints)
     poses = np.empty((count, lifter.num_joints, 3), np.float32)
     with tqdm(total=count, desc="lifting", unit="pose", disable=count <= LIFT_BLOCK) as bar:
@@ -406,6 +425,55 @@ def run(args: PredictArgs) -> np.ndarray:
         )  # fmt: skip
         print(f"saved the animation {args.animation}", file=sys.stderr)
     return poses
+
+
+def _count(number: int, noun: str) -> str:
+    return f"{number} {noun}" + ("" if number == 1 else "s")
+
+
+def drop_implausible(
+    keypoints: np.ndarray, scores: np.ndarray, image_size, args: PredictArgs, layout: str | None, lifter
+) -> tuple[np.ndarray, str]:
+    """The input's scores with the joints that cannot be right set to 0, and a report of them per reason."""
+    scores = np.asarray(scores, np.float32)
+    if not np.isfinite(scores).all() or (scores < 0).any():
+        pose, joint = np.argwhere(~np.isfinite(scores) | (scores < 0))[0]
+        raise ValueError(f"{args.input}: scores must be finite and >= 0; pose {pose} joint {joint} has {scores[pose, joint]}")
+    dropped = inference.implausible_joints(keypoints, scores, image_size, args.outside_margin, args.min_confidence)
+    names = layout_joint_names(layout) if layout is not None else lifter.joint_names
+    if len(names) != keypoints.shape[1]:
+        names = tuple(f"joint {j}" for j in range(keypoints.shape[1]))
+    descriptions = {
+        "non_finite": "NaN or infinite coordinates with a positive score",
+        "low_confidence": f"score below --min-confidence {args.min_confidence:g}",
+        "outside_image": (
+            f"more than --outside-margin {args.outside_margin:g} of the larger image side outside the image"
+            if image_size is not None and args.outside_margin is not None else "outside the image"
+        ),
+    }  # fmt: skip
+    parts = []
+    for reason in inference.MISSING_REASONS:
+        mask = dropped[reason]
+        if mask.any():
+            pose, joint = np.argwhere(mask)[0]
+            parts.append(
+                f"{_count(int(mask.sum()), 'joint')} of {_count(int(mask.any(1).sum()), 'pose')}: {descriptions[reason]}"
+                f" (first: pose {pose}, {names[joint]} at {[round(float(v), 1) for v in keypoints[pose, joint]]} score"
+                f" {float(scores[pose, joint]):.3g})"
+            )
+    any_dropped = np.any([dropped[reason] for reason in inference.MISSING_REASONS], axis=0)
+    count = len(keypoints)
+    if parts:
+        message = (
+            f"treated {_count(int(any_dropped.sum()), 'joint')} of {int(any_dropped.any(1).sum())} of {count} poses as"
+            " missing: "
+            + "; ".join(parts)
+        )
+    else:
+        message = f"no keypoint of the {count} poses was treated as missing"
+    if image_size is None and args.outside_margin is not None:
+        message += " (no image size, so keypoints outside the image were not looked for: pass --image-size W H)"
+    return np.where(any_dropped, 0.0, scores).astype(np.float32), message
 
 
 def main(argv: Sequence[str] | None = None) -> np.ndarray:
