@@ -227,9 +227,10 @@ INPUT_NORMALIZATIONS: tuple[str, ...] = ("intrinsics", "intrinsics_scale", "intr
 
 # "intrinsics_median": a joint whose distance to the root exceeds this many times the pose's median
 # distance is pulled in along its direction to that radius.  On the real Human3.6M S1 poses projected
-# into their four cameras the largest ratio of any joint is MEDIAN_RATIO_NOTE, so no true pose is
-# changed; a joint pushed hundreds of pixels away arrives at this bounded radius, whatever the
-# distance, instead of a coordinate the network never saw.
+# into their four cameras (median distance ~92 px), the largest ratio of any joint is 4.3 (training
+# trials) / 4.7 (test trials), and the 99.9th percentile of a pose's largest ratio 4.05 / 3.85: the
+# limit touches ~0.1% of true poses, and those barely.  A joint pushed hundreds of pixels away arrives
+# at this bounded radius, whatever the distance, instead of at a coordinate the network never saw.
 MEDIAN_RADIUS_LIMIT = 4.0
 
 

@@ -32,6 +32,10 @@ TINY = [
     "--model.width", "64", "--train.epochs", "2", "--train.batch-size", "64", "--train.checkpoint-every", "4",
     "--train.log-every", "1", "--data.generator.samples-per-subject", "300", "--run.no-progress",
     "--run.plot-samples", "0",
+    # The robust input path (issue 26): median normalisation and the detector-failure augmentation,
+    # whose draws come from the step's key, so a resumed run must draw what an uninterrupted one does.
+    "--model.input-normalization", "intrinsics_median", "--train.augment.drop", "0.1",
+    "--train.augment.displace", "0.1", "--train.augment.swap", "0.05",
 ]  # fmt: skip
 TOTAL_STEPS = 46
 TIMEOUT_S = 240
