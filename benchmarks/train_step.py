@@ -83,7 +83,9 @@ PAPER_LOSS = LossConfig(output_triangulation_start=0.0)  # all four terms on fro
 
 def paper_step(batch_size: int, num_views: int, model_config=None, loss_config=None):
     """(jitted train step, initial state, device batch, dropout key) at the paper's configuration."""
-    model_config = model_config or ModelConfig()
+    # The PyTorch reference implements the RMS input scale (benchmarks/torch_reference.py): the same here,
+    # so both sides run one program (the normalization is a negligible part of the step either way).
+    model_config = model_config or ModelConfig(input_normalization="intrinsics_scale")
     loss_config = loss_config or PAPER_LOSS
     model = model_config.build(NUM_JOINTS)
     optimizer = OptimizerConfig().build(1000)
