@@ -326,8 +326,11 @@ def evaluate_and_report(
             "Mean pose (baseline)": (np.ascontiguousarray(mean_pose), valid),
         }
         agreeing = splits.agreeing_joints()
+        # Every loader labels each sample with its sequence and frame number: the motion metrics follow them.
+        sequences, frames = test.labels["sequence"], test.labels["frame"]
+        motion_step = f"between test samples {evaluation.frame_step(sequences, frames)} frames apart"
         rows = {
-            name: evaluation.evaluate_poses(poses[..., joints, :], target[..., joints, :], groups, views, agreeing)
+            name: evaluation.evaluate_poses(poses[..., joints, :], target[..., joints, :], groups, views, agreeing, sequences, frames)
             for name, (poses, views) in predictions.items()
         }
     history = _read_jsonl(run_dir / "metrics.jsonl")
@@ -355,6 +358,8 @@ def evaluate_and_report(
                 evaluation.markdown_table(rows, "p_mpjpe", f"P-MPJPE (mm) per {splits.group_label}"),
                 evaluation.markdown_table(rows, "mpjpe", f"MPJPE (mm) per {splits.group_label}"),
                 evaluation.markdown_table(rows, "n_mpjpe", f"N-MPJPE (mm) per {splits.group_label}"),
+                evaluation.markdown_table(rows, "mpjve", f"Velocity error MPJVE (mm per frame, {motion_step}) per {splits.group_label}"),
+                evaluation.markdown_table(rows, "accel_error", f"Acceleration error (mm per frame², {motion_step}) per {splits.group_label}"),
                 *([agreeing_joints_table(rows, excluded, splits.group_label)] if excluded else []),
                 evaluation.per_joint_table(rows, "p_mpjpe", joint_names, "P-MPJPE (mm) per joint"),
                 evaluation.per_joint_table(rows, "mpjpe", joint_names, "MPJPE (mm) per joint"),

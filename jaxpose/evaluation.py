@@ -21,6 +21,7 @@ from jaxpose.metrics import JOINT_METRICS, per_joint_metrics, pose_metrics
 from jaxpose.skeleton import ROOT
 
 METRIC_NAMES = ("mpjpe", "p_mpjpe", "n_mpjpe", "pck", "auc")
+MOTION_METRICS = ("mpjve", "accel_error")  # `motion_errors`: NaN where a pose has no neighbours to difference
 
 
 def poses_in_views(dataset: MultiViewDataset, poses_world: np.ndarray) -> np.ndarray:
@@ -80,6 +81,68 @@ def compute_metrics(pred: np.ndarray, target: np.ndarray, chunk: int = 65536) ->
     return {name: per_pose[name] for name in METRIC_NAMES}, {name: per_joint[name] for name in JOINT_METRICS}
 
 
+def motion_errors(pred: np.ndarray, target: np.ndarray, sequences: np.ndarray, frames: np.ndarray, valid: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """How well single-view predictions move: {"mpjve": [N, C], "accel_error": [N, C]}, NaN where undefined.
+
+    pred, target: [N, C, J, 3] mm (root-relative, camera frames); sequences [N]: which recording a sample
+    belongs to; frames [N]: its frame number; valid bool[N, C].  Within a sequence the samples are taken in
+    frame order at the sequence's step g (its most common frame gap: the evaluation stride).  The
+    velocity error of a sample is the mean over joints of |(p' - p) - (t' - t)| / g to the next sample
+    (mm per frame; VideoPose3D's MPJVE at g = 1); its acceleration error the mean over joints of
+    |(p+ - 2p + p-) - (t+ - 2t + t-)| / g^2 around it (mm per frame^2), where the neighbours lie g frames
+    away and every view-pose involved is valid.  A finite difference over g frames averages jitter out, so
+    compare rows of one report (one stride), not reports at different strides.
+    """
+    N, C = pred.shape[:2]
+    valid = np.ones((N, C), bool) if valid is None else np.asarray(valid, bool)
+    order = np.lexsort((frames, sequences))
+    seq, frame = np.asarray(sequences)[order], np.asarray(frames, np.int64)[order]
+    p, t, ok = pred[order].astype(np.float64), target[order].astype(np.float64), valid[order]
+    step = _sequence_steps(seq, frame)
+    same = seq[1:] == seq[:-1]
+    gaps = frame[1:] - frame[:-1]
+    # next[k]: sample k + 1 is the same sequence's next sample, one step on
+    has_next = np.zeros(N, bool)
+    has_next[:-1] = same & (gaps == step[:-1]) & (step[:-1] > 0)
+    g = np.maximum(step, 1).astype(np.float64)[:, None]
+    velocity = np.full((N, C), np.nan)
+    pair = has_next[:-1, None] & ok[:-1] & ok[1:]
+    difference = (p[1:] - p[:-1]) - (t[1:] - t[:-1])
+    velocity[:-1] = np.where(pair, np.linalg.norm(difference, axis=-1).mean(-1) / g[:-1], np.nan)
+    acceleration = np.full((N, C), np.nan)
+    if N >= 3:
+        triple = has_next[:-2, None] & has_next[1:-1, None] & ok[:-2] & ok[1:-1] & ok[2:]
+        second = (p[2:] - 2 * p[1:-1] + p[:-2]) - (t[2:] - 2 * t[1:-1] + t[:-2])
+        acceleration[1:-1] = np.where(triple, np.linalg.norm(second, axis=-1).mean(-1) / g[1:-1] ** 2, np.nan)
+    inverse = np.empty(N, np.int64)
+    inverse[order] = np.arange(N)
+    return {"mpjve": velocity[inverse].astype(np.float32), "accel_error": acceleration[inverse].astype(np.float32)}
+
+
+def _sequence_steps(sequences: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """Per sample (sorted by sequence, then frame) its sequence's most common frame gap; 0 for a sequence
+    of one frame."""
+    step = np.zeros(len(frames), np.int64)
+    for name in np.unique(sequences):
+        gaps = np.diff(frames[sequences == name])
+        gaps = gaps[gaps > 0]
+        step[sequences == name] = np.bincount(gaps).argmax() if gaps.size else 0
+    return step
+
+
+def frame_step(sequences: np.ndarray, frames: np.ndarray) -> int:
+    """The most common frame gap between consecutive samples of a sequence (the evaluation stride)."""
+    order = np.lexsort((frames, sequences))
+    steps = _sequence_steps(np.asarray(sequences)[order], np.asarray(frames, np.int64)[order])
+    steps = steps[steps > 0]
+    return int(np.bincount(steps).argmax()) if steps.size else 0
+
+
+def _finite_mean(values: np.ndarray) -> float:
+    finite = values[np.isfinite(values)]
+    return float(finite.mean()) if finite.size else float("nan")
+
+
 def summarize(
     per_pose: Mapping[str, np.ndarray],
     groups: np.ndarray | None = None,
@@ -97,8 +160,11 @@ def summarize(
     valid = np.ones(count, bool) if valid is None else valid
 
     def mean(mask):
+        # The motion metrics are NaN where a pose has no neighbours: their mean is over the poses that have.
         return {
-            name: float(values[mask].mean() * (100.0 if name in ("pck", "auc") else 1.0)) for name, values in per_pose.items()
+            name: (_finite_mean(values[mask]) if name in MOTION_METRICS else float(values[mask].mean()))
+            * (100.0 if name in ("pck", "auc") else 1.0)
+            for name, values in per_pose.items()
         } | {"count": int(mask.sum())}
 
     summary = {"overall": mean(valid)}
@@ -106,7 +172,7 @@ def summarize(
         names = sorted(set(groups[valid].tolist()))
         summary["groups"] = {str(name): mean(valid & (groups == name)) for name in names}
         summary["group_average"] = {
-            metric: float(np.mean([summary["groups"][str(n)][metric] for n in names])) for metric in per_pose
+            metric: _finite_mean(np.array([summary["groups"][str(n)][metric] for n in names])) for metric in per_pose
         }
     if per_joint is not None:
         summary["per_joint"] = {name: values[valid].mean(0).tolist() for name, values in per_joint.items()}
@@ -119,15 +185,21 @@ def evaluate_poses(
     groups: np.ndarray | None = None,
     view_valid: np.ndarray | None = None,
     agreeing_joints: np.ndarray | None = None,
+    sequences: np.ndarray | None = None,
+    frames: np.ndarray | None = None,
 ) -> dict:
     """Evaluate [N, C, J, 3] predictions against [N, C, J, 3] targets; groups: per-sample labels [N].
 
     With `agreeing_joints` (indices), the summary also holds "agreeing_joints": the "overall" and
     "group_average" metrics of those joints alone, Procrustes-aligned on them (for a 2D source that
-    defines the other joints differently from the ground truth).
+    defines the other joints differently from the ground truth).  With `sequences` and `frames` (per
+    sample [N]), the motion metrics `MOTION_METRICS` too (`motion_errors`).
     """
     N, C = pred.shape[:2]
     per_pose, per_joint = compute_metrics(pred.reshape(N * C, *pred.shape[2:]), target.reshape(N * C, *target.shape[2:]))
+    if sequences is not None and frames is not None:
+        motion = motion_errors(pred, target, sequences, frames, view_valid)
+        per_pose = per_pose | {name: values.reshape(N * C) for name, values in motion.items()}
     expanded_groups = None if groups is None else np.repeat(np.asarray(groups), C)
     valid = None if view_valid is None else view_valid.reshape(N * C)
     summary = summarize(per_pose, expanded_groups, valid, per_joint)
@@ -167,8 +239,10 @@ def markdown_table(rows: Mapping[str, Mapping], metric: str, title: str | None =
     lines = [] if title is None else [f"**{title}**", ""]
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for method, summary in rows.items():
-        cells = [f"{summary['groups'][g][metric]:.{digits}f}" if g in summary.get("groups", {}) else "-" for g in groups]
-        average = summary.get("group_average", summary["overall"])[metric]
-        cells += [f"{average:.{digits}f}", f"{summary['overall'][metric]:.{digits}f}"]
+        def cell(value):
+            return "-" if not np.isfinite(value) else f"{value:.{digits}f}"
+
+        cells = [cell(summary["groups"][g][metric]) if g in summary.get("groups", {}) else "-" for g in groups]
+        cells += [cell(summary.get("group_average", summary["overall"])[metric]), cell(summary["overall"][metric])]
         lines.append("| " + " | ".join([method, *cells]) + " |")
     return "\n".join(lines)

@@ -142,11 +142,12 @@ def test_normalize_keypoints_is_camera_and_distance_invariant():
     rng = np.random.default_rng(7)
     cameras = random_rig(rng, 4)
     pose = jnp.asarray(random_poses(rng, 1, 17))
-    near = normalize_keypoints(project(cameras, pose), cameras.K)
+    # The RMS scale here (the median scale's own test is in test_robust_input.py).
+    near = normalize_keypoints(project(cameras, pose), cameras.K, mode="intrinsics_scale")
     # A different focal length/principal point gives the same normalized input.
     K2 = cameras.K.at[:, 0, 0].multiply(1.5).at[:, 1, 1].multiply(1.5).at[:, 0, 2].add(40.0)
     cameras2 = cameras.replace(K=K2)
-    np.testing.assert_allclose(normalize_keypoints(project(cameras2, pose), K2), near, atol=1e-4)
+    np.testing.assert_allclose(normalize_keypoints(project(cameras2, pose), K2, mode="intrinsics_scale"), near, atol=1e-4)
     assert np.allclose(near[:, 0], 0.0)
     rms = np.sqrt((np.asarray(near) ** 2).sum(-1).sum(-1) / 16)
     np.testing.assert_allclose(rms, 1.0, rtol=1e-4)

@@ -1,6 +1,7 @@
 """Metrics against independent numpy/scipy implementations and hand-computed cases."""
 
 import jax.numpy as jnp
+import pytest
 import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
@@ -110,3 +111,76 @@ def test_evaluate_poses_over_the_agreeing_joints_ignores_the_others():
         np.testing.assert_allclose(summary["agreeing_joints"]["overall"]["p_mpjpe"], oracle, rtol=1e-4)
         assert set(summary["agreeing_joints"]) == {"overall", "group_average"}
     assert "agreeing_joints" not in evaluation.evaluate_poses(pred, target, groups)
+
+
+# ---------------------------------------------------------------------------------------------
+# Motion metrics: velocity (MPJVE) and acceleration errors along each sequence
+
+
+def _numpy_motion(pred, target, step):
+    """Oracle for one sequence of one view, sorted, every sample `step` frames apart: [T, J, 3] -> ([T-1], [T-2])."""
+    velocity = np.linalg.norm(np.diff(pred, axis=0) - np.diff(target, axis=0), axis=-1).mean(-1) / step
+    acceleration = np.linalg.norm(np.diff(pred, 2, axis=0) - np.diff(target, 2, axis=0), axis=-1).mean(-1) / step**2
+    return velocity, acceleration
+
+
+@given(
+    lengths=st.lists(st.integers(1, 9), min_size=1, max_size=3),
+    step=st.integers(1, 5),
+    seed=st.integers(0, 2**16),
+)
+def test_motion_errors_follow_each_sequence_in_frame_order_whatever_the_sample_order(lengths, step, seed):
+    rng = np.random.default_rng(seed)
+    N, C, J = sum(lengths), 2, 4
+    target = rng.normal(0, 100, (N, C, J, 3))
+    pred = target + rng.normal(0, 10, target.shape)
+    sequences = np.repeat([f"s{i}" for i in range(len(lengths))], lengths)
+    frames = np.concatenate([100 * i + step * np.arange(n) for i, n in enumerate(lengths)])
+    shuffle = rng.permutation(N)
+    motion = evaluation.motion_errors(pred[shuffle], target[shuffle], sequences[shuffle], frames[shuffle])
+    velocity, acceleration = np.empty((N, C)), np.empty((N, C))
+    velocity[shuffle], acceleration[shuffle] = motion["mpjve"], motion["accel_error"]  # back to sorted order
+    start = 0
+    for n in lengths:
+        rows = slice(start, start + n)
+        for c in range(C):
+            v, a = _numpy_motion(pred[rows, c], target[rows, c], step if n > 1 else 1)
+            np.testing.assert_allclose(velocity[rows, c][:-1], v, rtol=1e-5)
+            np.testing.assert_allclose(acceleration[rows, c][1:-1], a, rtol=1e-5)
+            assert np.isnan(velocity[start + n - 1, c]) and np.isnan(acceleration[start, c])  # no neighbour
+            assert n < 2 or np.isnan(acceleration[start + n - 1, c])
+        start += n
+
+
+def test_motion_errors_of_one_jittered_frame_and_of_an_offset_and_gaps():
+    T, J, step = 7, 3, 5
+    target = np.cumsum(np.ones((T, 1, J, 3)), axis=0) * 10.0  # moving steadily
+    frames, sequences = step * np.arange(T), np.zeros(T, int)
+    offset = evaluation.motion_errors(target + 25.0, target, sequences, frames)
+    assert np.nanmax(offset["mpjve"]) == 0 and np.nanmax(offset["accel_error"]) == 0  # a constant error does not move
+    jitter = target.copy()
+    jitter[3] += np.array([3.0, 4.0, 0.0])  # 5 mm at frame 15, every joint
+    motion = evaluation.motion_errors(jitter, target, sequences, frames)
+    np.testing.assert_allclose(motion["mpjve"][:, 0], [0, 0, 1, 1, 0, 0, np.nan])  # 5 mm over 5 frames
+    np.testing.assert_allclose(motion["accel_error"][:, 0], [np.nan, 0, 0.2, 0.4, 0.2, 0, np.nan])  # 5, 10, 5 mm / 25
+    # A missing sample breaks the chain: no difference across the gap, and invalid views are not used.
+    valid = np.ones((T, 1), bool)
+    valid[4] = False
+    motion = evaluation.motion_errors(jitter, target, sequences, frames, valid)
+    assert np.isnan(motion["mpjve"][[3, 4], 0]).all() and np.isnan(motion["accel_error"][[3, 4, 5], 0]).all()
+    gapped = evaluation.motion_errors(jitter[[0, 1, 2, 4, 5]], target[[0, 1, 2, 4, 5]], sequences[:5], frames[[0, 1, 2, 4, 5]])
+    assert np.isnan(gapped["mpjve"][2, 0]) and evaluation.frame_step(sequences[:5], frames[[0, 1, 2, 4, 5]]) == step
+
+
+def test_evaluate_poses_reports_motion_metrics_per_group_over_the_poses_that_have_them():
+    rng = np.random.default_rng(1)
+    target = rng.normal(0, 100, (6, 2, 5, 3))
+    pred = target + rng.normal(0, 5, target.shape)
+    groups = np.array(["a"] * 3 + ["b"] * 3)
+    summary = evaluation.evaluate_poses(pred, target, groups, sequences=groups, frames=np.array([0, 1, 2, 0, 1, 2]))
+    motion = evaluation.motion_errors(pred, target, groups, np.array([0, 1, 2, 0, 1, 2]))
+    assert summary["groups"]["a"]["mpjve"] == pytest.approx(np.nanmean(motion["mpjve"][:3]), rel=1e-5)
+    assert summary["overall"]["accel_error"] == pytest.approx(np.nanmean(motion["accel_error"]), rel=1e-5)
+    assert "mpjve" not in evaluation.evaluate_poses(pred, target, groups)["overall"]
+    table = evaluation.markdown_table({"x": summary}, "accel_error")
+    assert "nan" not in table

@@ -666,6 +666,7 @@ def load_rig_project(config: RigProjectConfig, progress: bool = True) -> RigProj
             labels={
                 "subject": np.full(len(instants), f"rig{rig_index}"),
                 "recording": np.full(len(instants), recording.name),
+                "sequence": np.full(len(instants), recording.name),  # what motion metrics difference along
                 "frame": instants.astype(np.int32),
             },
         )
