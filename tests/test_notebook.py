@@ -5,11 +5,13 @@ from __future__ import annotations
 import pathlib
 
 import nbformat
+import pytest
 from nbclient import NotebookClient
 
 NOTEBOOK = pathlib.Path(__file__).resolve().parents[1] / "notebooks" / "quickstart.ipynb"
 
 
+@pytest.mark.slow  # ~30 s: a kernel and a training; the same job runs in test_end_to_end, the notebook with `pytest -m slow`
 def test_quickstart_notebook_executes():
     notebook = nbformat.read(NOTEBOOK, as_version=4)
     # A generous per-cell limit: the whole notebook takes well under a minute on an idle laptop CPU,
