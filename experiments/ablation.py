@@ -29,6 +29,8 @@ import json
 import pathlib
 import sys
 
+import numpy as np
+
 from experiments import cli, h36m, humaneva, synthetic
 from experiments.config import ExperimentConfig
 from experiments.runner import run
@@ -93,7 +95,7 @@ def comparison_table(results: list[tuple[str, dict]]) -> str:
     gradient share; then the input-triangulation reference row of the first run."""
     first = results[0][1]
     excluded = first.get("detector_specific_joints", [])
-    header = ["Rows", "P-MPJPE (mm)", "MPJPE (mm)", "N-MPJPE (mm)"]
+    header = ["Rows", "P-MPJPE (mm)", "MPJPE (mm)", "N-MPJPE (mm)", "MPJVE (mm/frame)", "accel. error (mm/frame²)"]
     if excluded:
         header += [f"P-MPJPE without {', '.join(excluded)}", f"MPJPE without {', '.join(excluded)}"]
     header += [f"share {term}" for term in TERMS]
@@ -101,11 +103,14 @@ def comparison_table(results: list[tuple[str, dict]]) -> str:
 
     def cells(summary: dict) -> list[str]:
         average = summary.get("group_average", summary["overall"])
-        values = [average["p_mpjpe"], average["mpjpe"], average["n_mpjpe"]]
+        values = [average["p_mpjpe"], average["mpjpe"], average["n_mpjpe"], average.get("mpjve"), average.get("accel_error")]
+        digits = [1, 1, 1, 1, 2]
         if excluded:
             agreeing = summary["agreeing_joints"].get("group_average", summary["agreeing_joints"]["overall"])
             values += [agreeing["p_mpjpe"], agreeing["mpjpe"]]
-        return [f"{v:.1f}" for v in values]
+            digits += [1, 1]
+        # A row's motion metrics are missing where its report predates them (a resumed comparison).
+        return ["-" if v is None or not np.isfinite(v) else f"{v:.{d}f}" for v, d in zip(values, digits)]
 
     for label, report in results:
         shares = report.get("final_gradient_shares", {})
