@@ -326,8 +326,10 @@ def evaluate_and_report(
             "Mean pose (baseline)": (np.ascontiguousarray(mean_pose), valid),
         }
         agreeing = splits.agreeing_joints()
-        # Every loader labels each sample with its sequence and frame number: the motion metrics follow them.
-        sequences, frames = test.labels["sequence"], test.labels["frame"]
+        # Every loader labels each sample with its subject, sequence and frame number: the motion metrics
+        # follow them (a sequence name such as "Walking 1" recurs across subjects).
+        sequences = np.char.add(np.char.add(test.labels["subject"].astype(str), "/"), test.labels["sequence"].astype(str))
+        frames = test.labels["frame"]
         motion_step = f"between test samples {evaluation.frame_step(sequences, frames)} frames apart"
         rows = {
             name: evaluation.evaluate_poses(poses[..., joints, :], target[..., joints, :], groups, views, agreeing, sequences, frames)

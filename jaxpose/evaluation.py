@@ -97,6 +97,12 @@ def motion_errors(pred: np.ndarray, target: np.ndarray, sequences: np.ndarray, f
     valid = np.ones((N, C), bool) if valid is None else np.asarray(valid, bool)
     order = np.lexsort((frames, sequences))
     seq, frame = np.asarray(sequences)[order], np.asarray(frames, np.int64)[order]
+    repeated = np.flatnonzero((seq[1:] == seq[:-1]) & (frame[1:] == frame[:-1]))
+    if repeated.size:  # e.g. two subjects' trials of one name: differencing across them would be garbage
+        raise ValueError(
+            f"motion_errors: sequence {str(seq[repeated[0]])!r} has frame {int(frame[repeated[0]])} more than once;"
+            " name sequences uniquely (e.g. with the subject)"
+        )
     p, t, ok = pred[order].astype(np.float64), target[order].astype(np.float64), valid[order]
     step = _sequence_steps(seq, frame)
     same = seq[1:] == seq[:-1]
@@ -171,8 +177,9 @@ def summarize(
     if groups is not None:
         names = sorted(set(groups[valid].tolist()))
         summary["groups"] = {str(name): mean(valid & (groups == name)) for name in names}
+        average = {metric: _finite_mean if metric in MOTION_METRICS else np.mean for metric in per_pose}
         summary["group_average"] = {
-            metric: _finite_mean(np.array([summary["groups"][str(n)][metric] for n in names])) for metric in per_pose
+            metric: float(average[metric](np.array([summary["groups"][str(n)][metric] for n in names]))) for metric in per_pose
         }
     if per_joint is not None:
         summary["per_joint"] = {name: values[valid].mean(0).tolist() for name, values in per_joint.items()}

@@ -60,16 +60,20 @@ def implausible_joints(
 ) -> dict[str, np.ndarray]:
     """bool[N, J] per reason of `MISSING_REASONS`: the given joints (confidence > 0) that cannot be right.
 
-    "non_finite": a NaN or infinite coordinate; "low_confidence": 0 < confidence < `min_confidence`;
+    "non_finite": a NaN or infinite coordinate with a positive score, or a NaN or infinite score;
+    "low_confidence": 0 < confidence < `min_confidence`;
     "outside_image": more than `outside_margin` x max(width, height) outside [0, width] x [0, height]
     (only where `image_size` is known and `outside_margin` is not None).  Each joint is counted under
     the first reason that applies, so the masks are disjoint.
     """
     keypoints = np.asarray(keypoints, np.float32)
     confidence = np.asarray(confidence, np.float32)
-    given = confidence > 0
+    if confidence.shape != keypoints.shape[:-1]:
+        raise ValueError(f"confidence: expected shape {keypoints.shape[:-1]} (one score per keypoint), got {confidence.shape}")
+    bad_score = ~np.isfinite(confidence)
+    given = (confidence > 0) | bad_score
     with np.errstate(invalid="ignore"):
-        non_finite = given & ~np.isfinite(keypoints).all(-1)
+        non_finite = given & (~np.isfinite(keypoints).all(-1) | bad_score)
         low = given & ~non_finite & (confidence < min_confidence)
         outside = np.zeros_like(given)
         if image_size is not None and outside_margin is not None:

@@ -436,15 +436,17 @@ def drop_implausible(
 ) -> tuple[np.ndarray, str]:
     """The input's scores with the joints that cannot be right set to 0, and a report of them per reason."""
     scores = np.asarray(scores, np.float32)
-    if not np.isfinite(scores).all() or (scores < 0).any():
-        pose, joint = np.argwhere(~np.isfinite(scores) | (scores < 0))[0]
-        raise ValueError(f"{args.input}: scores must be finite and >= 0; pose {pose} joint {joint} has {scores[pose, joint]}")
+    with np.errstate(invalid="ignore"):
+        negative = scores < 0
+    if negative.any():
+        pose, joint = np.argwhere(negative)[0]
+        raise ValueError(f"{args.input}: scores must be >= 0; pose {pose} joint {joint} has {scores[pose, joint]}")
     dropped = inference.implausible_joints(keypoints, scores, image_size, args.outside_margin, args.min_confidence)
     names = layout_joint_names(layout) if layout is not None else lifter.joint_names
     if len(names) != keypoints.shape[1]:
         names = tuple(f"joint {j}" for j in range(keypoints.shape[1]))
     descriptions = {
-        "non_finite": "NaN or infinite coordinates with a positive score",
+        "non_finite": "NaN or infinite coordinates with a positive score, or a NaN or infinite score",
         "low_confidence": f"score below --min-confidence {args.min_confidence:g}",
         "outside_image": (
             f"more than --outside-margin {args.outside_margin:g} of the larger image side outside the image"

@@ -184,3 +184,16 @@ def test_evaluate_poses_reports_motion_metrics_per_group_over_the_poses_that_hav
     assert "mpjve" not in evaluation.evaluate_poses(pred, target, groups)["overall"]
     table = evaluation.markdown_table({"x": summary}, "accel_error")
     assert "nan" not in table
+
+
+def test_motion_errors_refuse_a_sequence_name_shared_by_two_recordings():
+    target = np.zeros((4, 1, 3, 3))
+    with pytest.raises(ValueError, match=r"sequence 'Walking 1' has frame 0 more than once"):
+        evaluation.motion_errors(target, target, np.array(["Walking 1"] * 4), np.array([0, 5, 0, 5]))
+
+
+def test_group_average_skips_groups_without_motion_but_not_a_broken_metric():
+    per_pose = {"p_mpjpe": np.array([10.0, 20.0, np.nan, np.nan]), "mpjve": np.array([1.0, np.nan, np.nan, np.nan])}
+    summary = evaluation.summarize(per_pose, np.array(["a", "a", "b", "b"]))
+    assert np.isnan(summary["group_average"]["p_mpjpe"])  # a NaN error is a bug to see, not to average away
+    assert summary["group_average"]["mpjve"] == 1.0  # group b has no consecutive samples: no velocity to count

@@ -191,6 +191,11 @@ def test_predict_min_confidence_and_implausible_joints():
     assert np.argwhere(found["outside_image"]).tolist() == [[1, 2]]
     assert np.argwhere(found["low_confidence"]).tolist() == [[2, 1]]
     assert not inference.implausible_joints(keypoints, confidence, None, 0.1, 0.0)["outside_image"].any()
+    # A NaN score is no score: missing, and counted as non-finite (not an error, not a detection).
+    confidence[1, 3] = np.nan
+    assert np.argwhere(inference.implausible_joints(keypoints, confidence, IMAGE, 0.1, 0.05)["non_finite"]).tolist() == [[0, 1], [1, 3]]
+    with pytest.raises(ValueError, match=r"confidence: expected shape \(3, 4\)"):
+        inference.implausible_joints(keypoints, confidence[:, :1], IMAGE)
 
 
 def test_cli_reports_nan_low_and_outside_keypoints_per_reason(trained_run, lifter, tmp_path, capsys):
@@ -217,7 +222,7 @@ def test_cli_reports_nan_low_and_outside_keypoints_per_reason(trained_run, lifte
     poses = predict.main([*common, "--output", str(tmp_path / "out.npz"), "--image-size", "1000", "1000"])
     err = capsys.readouterr().err
     assert "treated 3 joints of 3 of 4 poses as missing" in err
-    assert "1 joint of 1 pose: NaN or infinite coordinates with a positive score (first: pose 0, nose" in err
+    assert "1 joint of 1 pose: NaN or infinite coordinates with a positive score, or a NaN or infinite score (first: pose 0, nose" in err
     assert "1 joint of 1 pose: score below --min-confidence 0.05 (first: pose 2, right_wrist" in err
     assert "1 joint of 1 pose: more than --outside-margin 0.1" in err and "first: pose 1, left_wrist" in err
     assert np.isfinite(poses).all()
