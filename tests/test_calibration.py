@@ -59,6 +59,7 @@ def write_npz(path, dataset: MultiViewDataset, with_intrinsics: bool) -> None:
     np.savez(path, **arrays)
 
 
+@pytest.mark.slow  # ~22 s: the whole command; the same calibration is tested through the library below
 def test_synthetic_rig_is_recovered_through_the_command_line(synthetic_subject, tmp_path):
     rig = own_rig(synthetic_subject)
     reference = tmp_path / "reference.json"

@@ -229,6 +229,7 @@ def test_a_body25_project_needs_its_layout_named(tmp_path):
     assert data.layout == "body25" and data.train.skeleton.joint_names[0] == "MidHip"
 
 
+@pytest.mark.slow  # ~28 s of calibration; measured on Human3.6M in docs/rig.md, calibration itself in test_calibration.py
 def test_a_project_without_calibration_recovers_the_rig(tmp_path):
     """No calibration file: the rig is recovered from the recordings (jaxpose.calibrate), and the
     ground truth is brought into its world frame for evaluation."""
