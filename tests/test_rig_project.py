@@ -229,6 +229,12 @@ def test_a_body25_project_needs_its_layout_named(tmp_path):
     assert data.layout == "body25" and data.train.skeleton.joint_names[0] == "MidHip"
 
 
+def test_a_project_without_calibration_or_image_size_is_refused(tmp_path):
+    root = write_rig_project(tmp_path / "uncalibrated", dataclasses.replace(SMALL, recordings=1, frames_per_recording=40, desync_camera=-1))
+    (root / "calibration.toml").unlink()
+    _raises(r"--data.image-size W H", root)
+
+
 @pytest.mark.slow  # ~28 s of calibration; measured on Human3.6M in docs/rig.md, calibration itself in test_calibration.py
 def test_a_project_without_calibration_recovers_the_rig(tmp_path):
     """No calibration file: the rig is recovered from the recordings (jaxpose.calibrate), and the
@@ -236,7 +242,6 @@ def test_a_project_without_calibration_recovers_the_rig(tmp_path):
     root = write_rig_project(tmp_path / "uncalibrated", dataclasses.replace(SMALL, recordings=1, frames_per_recording=400, desync_camera=-1))
     reference = read_rig_calibration(root / "calibration.toml")
     (root / "calibration.toml").unlink()
-    _raises(r"--data.image-size W H", root)
     data = load_rig_project(RigProjectConfig(root=root, image_size=(1920, 1080), recovery_frames=120), progress=False)
     recovered = data.recovered_calibration
     assert recovered is not None and np.median(recovered.reprojection_median_px) < 10
