@@ -175,6 +175,8 @@ def main(argv=None) -> dict:
     for run in args.run:
         start = time.perf_counter()
         lifter = inference.load(run)
+        if lifter.model_config.temporal_window > 1:  # Lifter3D.predict would read the poses as one sequence
+            raise SystemExit(f"{run}: a temporal lifter ({lifter.model_config.temporal_window} frames); this benchmark moves joints of single poses")
         keypoints, K = sample_poses(gt, lifter.joint_names, args.poses, np.random.default_rng(args.seed))
         entry = {"normalization": lifter.model_config.input_normalization, "poses": len(keypoints)}
         for policy in (False, True):

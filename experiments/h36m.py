@@ -75,18 +75,20 @@ def load_splits(data: H36MData) -> Splits:
     if data.split == "trials" and data.test_subjects:
         raise ValueError("--data.split trials tests on other trials of --data.train-subjects: pass --data.test-subjects with no subject")
     reference = reference_calibration(data)
+    trials = data.split == "trials"  # one subject's frames train and test: strides applied below
     dataset = load_h36m(
         data.data_dir,
         layout=data.layout,
         detections=data.detections,
         subjects=data.train_subjects + data.test_subjects,
-        train_stride=data.train_stride,
-        test_stride=data.test_stride,
+        train_stride=1 if trials else data.train_stride,
+        test_stride=1 if trials else data.test_stride,
         cameras_path=reference,
     )
-    if data.split == "trials":
-        train = first_trials(dataset.labels["subject"], dataset.labels["action"], dataset.labels["sequence"])
-        test = ~train & (dataset.labels["frame"] % data.test_stride == 0)
+    if trials:
+        first = first_trials(dataset.labels["subject"], dataset.labels["action"], dataset.labels["sequence"])
+        train = first & (dataset.labels["frame"] % data.train_stride == 0)
+        test = ~first & (dataset.labels["frame"] % data.test_stride == 0)
     else:
         train = np.isin(dataset.labels["subject"], list(data.train_subjects))
         test = ~train

@@ -166,7 +166,9 @@ def mapped_output_report(config: ExperimentConfig, splits: Splits, offset: np.nd
     test = splits.test
     target, valid = evaluation.ground_truth_in_views(test)
     lifter = inference.load(config.run.run_dir)
-    pred = evaluation.lift_every_view(lifter.eval_step, lifter.variables, test, config.train.eval_batch_size)
+    pred = evaluation.lift_every_view(
+        lifter.eval_step, lifter.variables, test, config.train.eval_batch_size, lifter.model_config.temporal_window
+    )
     flat = pred.reshape(-1, *pred.shape[2:])
     mapped = moved_in_body(flat, body_frames(flat, test.skeleton), offset).reshape(pred.shape).astype(np.float32)
     summary = evaluation.evaluate_poses(mapped, target, test.labels.get(splits.group_label), valid, splits.agreeing_joints())

@@ -199,7 +199,7 @@ def periodic_evaluation(config: ExperimentConfig, test: MultiViewDataset, model)
     eval_step = make_eval_step(model, config.model)
 
     def evaluate(variables) -> dict:
-        pred = evaluation.lift_every_view(eval_step, variables, subset, config.train.eval_batch_size)
+        pred = evaluation.lift_every_view(eval_step, variables, subset, config.train.eval_batch_size, config.model.temporal_window)
         record = {}
         if truth is not None:
             joints, target, valid = truth
@@ -261,7 +261,7 @@ def train(
     bar = tqdm(total=stop_step, initial=start, desc="train", unit="step", disable=not config.run.progress or jax.process_index() != 0)
     last_time, last_step = time.perf_counter(), start
     with _SignalFlag() as interrupt:
-        batches = parallel.process_batches(train_set, cfg.batch_size, cfg.seed, mesh, start)
+        batches = parallel.process_batches(train_set, cfg.batch_size, cfg.seed, mesh, start, config.model.temporal_window)
         for step, batch in batches:
             if step >= stop_step:
                 break
@@ -306,7 +306,7 @@ def evaluate_and_report(
     report.{json,md}, plots."""
     test = splits.test
     eval_step = make_eval_step(model, config.model)
-    pred = evaluation.lift_every_view(eval_step, state.variables, test, config.train.eval_batch_size)
+    pred = evaluation.lift_every_view(eval_step, state.variables, test, config.train.eval_batch_size, config.model.temporal_window)
     groups = test.labels.get(splits.group_label)
     test_triangulated = pseudo_labelling.label(test, config.pseudo_labels)
     triangulation = evaluation.poses_in_views(test, test_triangulated.pseudo3d)
@@ -488,7 +488,7 @@ def run(
     train_set = pseudo_labelling.label(train_set, config.pseudo_labels)
     if replace_labels is not None:
         train_set = replace_labels(train_set)
-    validate_batch(train_set.batch(np.arange(len(train_set))))
+    validate_batch(train_set.batch(np.arange(len(train_set)), config.model.temporal_window))
     splits = dataclasses.replace(splits, train=train_set)
     try:
         state, model = train(config, train_set, run_dir, splits.test)

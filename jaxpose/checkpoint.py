@@ -55,7 +55,7 @@ class LifterRecord:
     def abstract_variables(self) -> dict[str, Any]:
         """Shapes and dtypes of the network's {"params", "batch_stats"}, computing nothing."""
         model = self.model.build(self.skeleton.num_joints)
-        dummy = jnp.zeros((1, self.skeleton.num_joints, 2), jnp.float32)
+        dummy = jnp.zeros(model.input_shape(1), jnp.float32)
         return jax.eval_shape(lambda: model.init(jax.random.key(0), dummy, train=False))
 
 

@@ -20,7 +20,7 @@ import tyro
 
 from jaxpose import robust
 from jaxpose.losses import LossWeights
-from jaxpose.model import LifterNetwork
+from jaxpose.model import LifterNetwork, temporal_levels
 from jaxpose.robust import PseudoLabelMethod
 
 
@@ -42,6 +42,14 @@ class ModelConfig:
     """2D input: through K^-1 and root-relative ("intrinsics"), then scaled to unit MEDIAN distance to the root
     with far joints pulled in ("intrinsics_median": one wild joint cannot shrink the others), or to unit RMS
     distance ("intrinsics_scale", the default before; same accuracy on Human3.6M: docs/robust_input.md)."""
+    temporal_window: int = 1
+    """Frames of one view the lifter sees per prediction (1, 3, 9, 27, 81 or 243): 1 = one frame (the paper);
+    T > 1 = the T frames centred on the predicted one, through dilated temporal convolutions (see
+    jaxpose.model.LifterNetwork).  Training, evaluation and prediction then need each recording's frames
+    in order (docs/temporal.md)."""
+
+    def __post_init__(self):
+        temporal_levels(self.temporal_window)  # a clear error for a window that is not a power of 3
 
     def build(self, num_joints: int) -> LifterNetwork:
         """The network for a skeleton of `num_joints` joints."""
@@ -52,6 +60,7 @@ class ModelConfig:
             blocks_per_stage=self.blocks_per_stage,
             dropout_rate=self.dropout_rate,
             use_batchnorm=self.use_batchnorm,
+            temporal_window=self.temporal_window,
         )
 
 

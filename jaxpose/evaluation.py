@@ -7,7 +7,6 @@ family) and averaged over groups, as the paper's tables average over actions.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable, Mapping
 
 import jax
@@ -57,21 +56,28 @@ def ground_truth_in_views(dataset: MultiViewDataset) -> tuple[np.ndarray, np.nda
 
 
 def lift_every_view(
-    eval_step: Callable[..., jax.Array], variables, dataset: MultiViewDataset, batch_size: int = 16384
+    eval_step: Callable[..., jax.Array], variables, dataset: MultiViewDataset, batch_size: int = 16384, window: int = 1
 ) -> np.ndarray:
-    """Single-view predictions for every view of every sample: [N, C, J, 3] mm.
+    """Single-view predictions for every view of every sample: [N, C, J, 3] mm.  With `window` > 1
+    each view is lifted from its window of frames (`MultiViewDataset.windows`), gathered chunk by chunk.
 
     Chunks are padded to a fixed size (`jaxpose.chunks.map_in_chunks`) so the eval step compiles once.
     """
     dataset = dataset.undistorted()
     N, C, J, _ = dataset.keypoints2d.shape
-    keypoints = dataset.keypoints2d.reshape(N * C, J, 2)
-    confidence = dataset.confidence.reshape(N * C, J)
-    K = np.asarray(dataset.rigs.K)[dataset.rig_index].reshape(N * C, 3, 3)
-    lift = functools.partial(eval_step, variables)
-    out = map_in_chunks(lift, (keypoints, K, confidence), min(batch_size, N * C))
-    return out.reshape(N, C, J, 3)
+    K = np.asarray(dataset.rigs.K)[dataset.rig_index]  # [N, C, 3, 3]
 
+    def lift(samples, K):
+        if window > 1:
+            keypoints, confidence = dataset.windows(samples, window)
+        else:
+            keypoints, confidence = dataset.keypoints2d[samples], dataset.confidence[samples]
+        n = len(samples)
+        flat = eval_step(variables, keypoints.reshape(n * C, *keypoints.shape[2:]), K.reshape(n * C, 3, 3),
+                         confidence.reshape(n * C, *confidence.shape[2:]))  # fmt: skip
+        return flat.reshape(n, C, J, 3)
+
+    return map_in_chunks(lift, (np.arange(N), K), max(1, min(batch_size, N * C) // C))
 
 
 def compute_metrics(pred: np.ndarray, target: np.ndarray, chunk: int = 65536) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:

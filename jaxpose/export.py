@@ -17,7 +17,10 @@ The model takes what `jaxpose.inference.Lifter3D.predict` takes, for any number 
   confidence  f32[B, J]     > 0 detected, 0 missing (a missing joint's coordinates are ignored)
 
 and returns `pose3d_mm` f32[B, J, 3]: root-relative millimetres in each camera's frame (x right,
-y down, z forward); rows whose root (joint 0) is missing are NaN.  Distorted detections must be
+y down, z forward); rows whose root (joint 0) is missing are NaN.  A temporal lifter (window T > 1)
+takes windows instead, keypoints f32[B, T, J, 2] and confidence f32[B, T, J] (T frames of one camera
+centred on the frame to lift; repeat the first / last frame beyond a sequence's ends, as
+`Lifter3D.predict` does), and returns the centre frame's pose; the window is in the metadata.  Distorted detections must be
 undistorted first (`Lifter3D.predict(distortion=...)` does it; the exported model does not).
 """
 
@@ -47,25 +50,31 @@ def single_view_function(lifter: Lifter3D) -> Callable[[jax.Array, jax.Array, ja
     """The lifter as one pure function (keypoints, K, confidence) -> pose3d_mm, its variables baked
     in: what `Lifter3D.predict` computes for undistorted keypoints, missing joints and roots included."""
 
+    centre = lifter.model_config.temporal_window // 2
+
     def lift(keypoints: jax.Array, K: jax.Array, confidence: jax.Array) -> jax.Array:
         detected = confidence > 0
         keypoints = jnp.where(detected[..., None], keypoints, 0.0)  # NaN in a missing joint stays out
         poses = lifter.eval_step(lifter.variables, keypoints, K, confidence)
-        return jnp.where(detected[:, ROOT, None, None], poses, jnp.nan)
+        root = detected[:, ROOT] if detected.ndim == 2 else detected[:, centre, ROOT]
+        return jnp.where(root[:, None, None], poses, jnp.nan)
 
     return lift
 
 
 def metadata(lifter: Lifter3D) -> dict[str, Any]:
     """What a user of the exported model needs to know, without jaxpose."""
-    J = lifter.num_joints
+    J, T = lifter.num_joints, lifter.model_config.temporal_window
+    frames = "" if T == 1 else f"{T}, "
+    window = "" if T == 1 else f" of the {T} frames centred on the one lifted (the first / last frame repeated beyond a sequence's ends)"
     return {
         "skeleton": lifter.skeleton.name,
         "joint_names": list(lifter.joint_names),
+        "temporal_window": T,
         "inputs": {
-            "keypoints": f"f32[B, {J}, 2] undistorted pixels, joints in joint_names order",
+            "keypoints": f"f32[B, {frames}{J}, 2] undistorted pixels{window}, joints in joint_names order",
             "K": "f32[B, 3, 3] camera intrinsics",
-            "confidence": f"f32[B, {J}] > 0 detected, 0 missing",
+            "confidence": f"f32[B, {frames}{J}] > 0 detected, 0 missing",
         },
         "output": {OUTPUT_NAME: f"f32[B, {J}, 3] root-relative mm in the camera frame (x right, y down, z forward); NaN rows where the root is missing"},
         "step": lifter.step,
@@ -73,18 +82,19 @@ def metadata(lifter: Lifter3D) -> dict[str, Any]:
     }
 
 
-def _input_shapes(num_joints: int, batch) -> list[jax.ShapeDtypeStruct]:
+def _input_shapes(lifter: Lifter3D, batch) -> list[jax.ShapeDtypeStruct]:
+    keypoints = lifter.model_config.build(lifter.num_joints).input_shape(batch)
     return [
-        jax.ShapeDtypeStruct((batch, num_joints, 2), jnp.float32),
+        jax.ShapeDtypeStruct(keypoints, jnp.float32),
         jax.ShapeDtypeStruct((batch, 3, 3), jnp.float32),
-        jax.ShapeDtypeStruct((batch, num_joints), jnp.float32),
+        jax.ShapeDtypeStruct(keypoints[:-1], jnp.float32),
     ]
 
 
 def export_jax(lifter: Lifter3D, path: str | pathlib.Path) -> pathlib.Path:
     """Write the `jax.export` serialization of `single_view_function`, for any batch size."""
     (batch,) = jax.export.symbolic_shape("B")
-    exported = jax.export.export(jax.jit(single_view_function(lifter)))(*_input_shapes(lifter.num_joints, batch))
+    exported = jax.export.export(jax.jit(single_view_function(lifter)))(*_input_shapes(lifter, batch))
     path = pathlib.Path(path)
     path.write_bytes(exported.serialize())
     return path
@@ -101,7 +111,7 @@ def export_onnx(lifter: Lifter3D, path: str | pathlib.Path) -> pathlib.Path:
 
     # onnx_ir logs a warning for every shape constant it serializes without a declared type.
     logging.getLogger("onnx_ir.serde").setLevel(logging.ERROR)
-    shapes = [("B", *s.shape[1:]) for s in _input_shapes(lifter.num_joints, 1)]
+    shapes = [("B", *s.shape[1:]) for s in _input_shapes(lifter, 1)]
     model = to_onnx(
         single_view_function(lifter), shapes, model_name="jaxpose_lifter",
         input_names=list(INPUT_NAMES), output_names=[OUTPUT_NAME],

@@ -33,6 +33,7 @@ from jaxpose import checkpoint
 from jaxpose.camera import Cameras, undistort_points
 from jaxpose.config import ModelConfig
 from jaxpose.chunks import map_in_chunks
+from jaxpose.data.dataset import window_rows
 from jaxpose.skeleton import ROOT, Skeleton
 from jaxpose.train import make_eval_step
 
@@ -155,6 +156,10 @@ class Lifter3D:
         """Root-relative 3D poses f32[N, J, 3] in mm, in each camera's frame (x right, y down, z forward).
 
         keypoints2d: [N, J, 2] pixels (or one pose [J, 2], giving [J, 3]), in `self.skeleton`'s order.
+                     For a temporal lifter (`temporal_window` > 1) the N poses are ONE person's sequence,
+                     frame after frame, and each is lifted with the window of frames around it (the
+                     sequence's first and last frames repeated beyond its ends); a frame without a pose
+                     is given with confidence 0.
         intrinsics:  K [3, 3] shared by all poses, or [N, 3, 3] one per pose; None = `default_intrinsics(image_size)`.
         confidence:  [N, J] detector scores; only > 0 (detected) vs 0 (missing) matters.  None = all detected.
         distortion:  OpenCV (k1, k2, p1, p2, k3), [5] or [N, 5]: the keypoints are undistorted first.
@@ -189,7 +194,12 @@ class Lifter3D:
         liftable = np.flatnonzero(confidence[:, ROOT] > 0)
         if len(liftable):
             lift = functools.partial(self.eval_step, self.variables)
-            inputs = (keypoints[liftable], K[liftable], confidence[liftable])
+            window = self.model_config.temporal_window
+            if window > 1:  # [N, T, J, 2]: each frame's window in the sequence
+                frames = window_rows(liftable, np.array([[0, count]]).repeat(len(liftable), 0), window)
+                inputs = (keypoints[frames], K[liftable], confidence[frames])
+            else:
+                inputs = (keypoints[liftable], K[liftable], confidence[liftable])
             poses[liftable] = map_in_chunks(lift, inputs, _chunk_size(len(liftable), self.batch_size))
         return poses[0] if single else poses
 

@@ -170,12 +170,56 @@ class ResidualBlock(nn.Module):
         return x + y
 
 
+def temporal_levels(window: int) -> int:
+    """L for a window of 3^L frames (1, 3, 9, 27, 81, 243); ValueError otherwise."""
+    levels = 0
+    while 3**levels < window:
+        levels += 1
+    if window < 1 or 3**levels != window:
+        raise ValueError(f"temporal window must be a power of 3 (1, 3, 9, 27, 81, 243), got {window}")
+    return levels
+
+
+def _rows(block: nn.Module, x: jax.Array, train: bool) -> jax.Array:
+    """Apply a [rows, F] block to [M, T, F] (BatchNorm statistics over all M * T rows)."""
+    M, T, F = x.shape
+    return block(x.reshape(M * T, F), train).reshape(M, T, -1)
+
+
+def _group_triples(x: jax.Array) -> jax.Array:
+    """[M, T, F] -> [M, T / 3, 3F]: each run of three consecutive frames as one row.  A Dense layer on
+    these rows is a temporal convolution of kernel 3 and stride 3: evaluated only where the window's
+    centre output needs it, it is the dilated convolution of VideoPose3D (dilation 3^level)."""
+    M, T, F = x.shape
+    return x.reshape(M, T // 3, 3 * F)
+
+
+class TemporalBlock(nn.Module):
+    """VideoPose3D's residual block on frame triples: the centre frame of each triple plus
+    (kernel-3 convolution -> kernel-1 convolution), each Linear-BatchNorm-ReLU-Dropout."""
+
+    width: int
+    dropout_rate: float
+    use_batchnorm: bool
+
+    @nn.compact
+    def __call__(self, x: jax.Array, train: bool) -> jax.Array:
+        y = _rows(DenseBlock(self.width, self.dropout_rate, self.use_batchnorm), _group_triples(x), train)
+        y = _rows(DenseBlock(self.width, self.dropout_rate, self.use_batchnorm), y, train)
+        return x[:, 1::3] + y
+
+
 class LifterNetwork(nn.Module):
-    """Root-relative 2D pose (normalized, [..., J, 2]) -> root-relative 3D pose in mm [..., J, 3].
+    """Root-relative 2D pose (normalized, [..., J, 2]) -> root-relative 3D pose in mm [..., J, 3];
+    with `temporal_window` T > 1, a window of T consecutive frames of one view [..., T, J, 2] -> the
+    centre frame's 3D pose [..., J, 3].
 
     Each stage is a DenseBlock to `width` followed by `blocks_per_stage` residual blocks; the
     encoder is stage 1 (its output the latent), the decoder the remaining stages, then a Linear
-    layer to 3J.
+    layer to 3J.  With T = 3^L frames, stage 1's first DenseBlock takes the frames in triples and
+    L - 1 `TemporalBlock`s reduce the window to one row before the rest of the network: VideoPose3D's
+    dilated temporal convolutions (Pavllo et al. 2019), evaluated at the centre frame only.  T = 1 is
+    exactly the frame network (same variables, same function).
     """
 
     num_joints: int
@@ -184,15 +228,30 @@ class LifterNetwork(nn.Module):
     blocks_per_stage: int = 2
     dropout_rate: float = 0.5
     use_batchnorm: bool = True
+    temporal_window: int = 1
+
+    def input_shape(self, batch: int) -> tuple[int, ...]:
+        """The input of `batch` poses: (batch, J, 2), or (batch, T, J, 2) for a window of T frames."""
+        window = () if self.temporal_window == 1 else (self.temporal_window,)
+        return (batch, *window, self.num_joints, 2)
 
     @nn.compact
     def __call__(self, keypoints: jax.Array, train: bool) -> jax.Array:
-        if keypoints.shape[-2:] != (self.num_joints, 2):
-            raise ValueError(f"LifterNetwork: expected inputs [..., {self.num_joints}, 2], got {keypoints.shape}")
-        leading = keypoints.shape[:-2]
-        x = keypoints.reshape(-1, self.num_joints * 2)
-        for _ in range(self.stages):
-            x = DenseBlock(self.width, self.dropout_rate, self.use_batchnorm)(x, train)
+        T = self.temporal_window
+        levels = temporal_levels(T)
+        frame = (self.num_joints, 2) if T == 1 else (T, self.num_joints, 2)
+        if keypoints.shape[-len(frame) :] != frame:
+            shape = ", ".join(map(str, frame))
+            raise ValueError(f"LifterNetwork: expected inputs [..., {shape}], got {keypoints.shape}")
+        leading = keypoints.shape[: keypoints.ndim - len(frame)]
+        x = keypoints.reshape(-1, T, self.num_joints * 2)
+        x = _rows(DenseBlock(self.width, self.dropout_rate, self.use_batchnorm), _group_triples(x) if levels else x, train)
+        for level in range(1, levels):
+            x = TemporalBlock(self.width, self.dropout_rate, self.use_batchnorm, name=f"TemporalBlock_{level}")(x, train)
+        x = x[:, 0]
+        for stage in range(self.stages):
+            if stage > 0:
+                x = DenseBlock(self.width, self.dropout_rate, self.use_batchnorm)(x, train)
             for _ in range(self.blocks_per_stage):
                 x = ResidualBlock(self.width, self.dropout_rate, self.use_batchnorm)(x, train)
         # A small initial output (~cm) instead of metres: early predictions stay in front of the

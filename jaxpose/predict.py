@@ -398,13 +398,16 @@ def run(args: PredictArgs) -> np.ndarray:
     if confidence is None:
         confidence = np.ones(keypoints.shape[:2], np.float32)
     count = len(keypoints)
-    poses = np.empty((count, lifter.num_joints, 3), np.float32)
-    with tqdm(total=count, desc="lifting", unit="pose", disable=count <= LIFT_BLOCK) as bar:
-        for start in range(0, count, LIFT_BLOCK):
-            rows = slice(start, min(start + LIFT_BLOCK, count))
-            per_pose_K = K if K is None or K.ndim == 2 else K[rows]
-            poses[rows] = lifter.predict(keypoints[rows], per_pose_K, confidence[rows], dist, image_size)
-            bar.update(rows.stop - rows.start)
+    if lifter.model_config.temporal_window > 1:
+        poses = lift_sequence(lifter, keypoints, confidence, K, dist, image_size, detections)
+    else:
+        poses = np.empty((count, lifter.num_joints, 3), np.float32)
+        with tqdm(total=count, desc="lifting", unit="pose", disable=count <= LIFT_BLOCK) as bar:
+            for start in range(0, count, LIFT_BLOCK):
+                rows = slice(start, min(start + LIFT_BLOCK, count))
+                per_pose_K = K if K is None or K.ndim == 2 else K[rows]
+                poses[rows] = lifter.predict(keypoints[rows], per_pose_K, confidence[rows], dist, image_size)
+                bar.update(rows.stop - rows.start)
     write_poses(args.output, poses, detections.image_ids, lifter.joint_names, args.fps)
     lifted = int(np.isfinite(poses).all((1, 2)).sum())
     unliftable = f"; {count - lifted} without a detected root are null" if lifted < count else ""
@@ -424,6 +427,31 @@ def run(args: PredictArgs) -> np.ndarray:
             lifter.skeleton, image_size, args.fps,
         )  # fmt: skip
         print(f"saved the animation {args.animation}", file=sys.stderr)
+    return poses
+
+
+def lift_sequence(lifter, keypoints, confidence, K, dist, image_size, detections: DetectionFile) -> np.ndarray:
+    """A temporal lifter's poses f32[N, J, 3]: the input's frames in sequence order (`animation_frames`:
+    OpenPose frames in frame-number order, image ids in numerical order), one person per frame (the
+    highest mean score), each lifted with the window of frames around it; a frame without a pose is a
+    frame of missing joints in its neighbours' windows.  The other people's poses are NaN, and said so."""
+    count = len(keypoints)
+    # Ranked by score alone (nothing is lifted yet): all-zero "poses" count as lifted.
+    frames, shown = animation_frames(detections.image_ids, confidence, np.zeros((count, 1, 3)), detections.frame_ids)
+    rows = np.array([count if index is None else index for index in shown])
+    blank_keypoints = np.concatenate([keypoints, np.zeros((1, *keypoints.shape[1:]), np.float32)])
+    blank_confidence = np.concatenate([confidence, np.zeros((1, confidence.shape[1]), np.float32)])
+    per_frame_K = K if K is None or K.ndim == 2 else np.concatenate([K, K[:1]])[rows]
+    lifted = lifter.predict(blank_keypoints[rows], per_frame_K, blank_confidence[rows], dist, image_size)
+    poses = np.full((count, lifter.num_joints, 3), np.nan, np.float32)
+    followed = rows < count
+    poses[rows[followed]] = lifted[followed]
+    others = count - int(followed.sum())
+    print(
+        f"temporal lifter ({lifter.model_config.temporal_window} frames): lifted {len(frames)} frames as one sequence"
+        + (f"; {others} poses of other people in frames with several are not lifted (null)" if others else ""),
+        file=sys.stderr,
+    )
     return poses
 
 

@@ -44,7 +44,7 @@ class TrainState:
 
 
 def init_train_state(model: LifterNetwork, optimizer: optax.GradientTransformation, key: jax.Array) -> TrainState:
-    dummy = jnp.zeros((2, model.num_joints, 2), jnp.float32)
+    dummy = jnp.zeros(model.input_shape(2), jnp.float32)
     variables = model.init({"params": key}, dummy, train=False)
     params = variables["params"]
     return TrainState(
@@ -55,9 +55,25 @@ def init_train_state(model: LifterNetwork, optimizer: optax.GradientTransformati
     )
 
 
+def lifter_input_2d(batch: MultiViewBatch) -> tuple[jax.Array, jax.Array]:
+    """What the lifter sees of every view: its window (keypoints [B, C, T, J, 2], confidence [B, C, T, J])
+    where the batch has one, else the instant's 2D ([B, C, J, 2], [B, C, J])."""
+    if batch.window2d is None:
+        return batch.keypoints2d, batch.confidence
+    return batch.window2d, batch.window_confidence
+
+
+def normalize_views(keypoints2d: jax.Array, K: jax.Array, confidence: jax.Array, mode: str) -> jax.Array:
+    """`normalize_keypoints` of poses [N..., J, 2] or windows [N..., T, J, 2] of views whose intrinsics
+    are K [N..., 3, 3]: every frame of a window is normalized on its own, as the frame lifter's input."""
+    K = K.reshape(K.shape[:-2] + (1,) * (confidence.ndim - 1 - (K.ndim - 2)) + K.shape[-2:])
+    return normalize_keypoints(keypoints2d, K, confidence, mode)
+
+
 def lifter_inputs(batch: MultiViewBatch, mode: str) -> jax.Array:
-    """The lifter input of every view, [B, C, J, 2] (detections must be undistorted pixels)."""
-    return normalize_keypoints(batch.keypoints2d, batch.cameras.K, batch.confidence, mode)
+    """The lifter input of every view, [B, C, J, 2] or [B, C, T, J, 2] (detections must be undistorted pixels)."""
+    keypoints, confidence = lifter_input_2d(batch)
+    return normalize_views(keypoints, batch.cameras.K, confidence, mode)
 
 
 def augment_inputs(
@@ -121,10 +137,9 @@ def make_loss_fn(
         if augmentation.active:
             # Its own key, derived from the step's dropout key: the dropout masks are those of a run without it.
             keypoints, confidence = augment_inputs(
-                jax.random.fold_in(dropout_key, 0x61756700), batch.keypoints2d, batch.confidence, augmentation,
-                left_right_pairs,
+                jax.random.fold_in(dropout_key, 0x61756700), *lifter_input_2d(batch), augmentation, left_right_pairs,
             )  # fmt: skip
-            inputs = normalize_keypoints(keypoints, batch.cameras.K, confidence, model_config.input_normalization)
+            inputs = normalize_views(keypoints, batch.cameras.K, confidence, model_config.input_normalization)
         else:
             inputs = lifter_inputs(batch, model_config.input_normalization)
         pred, updates = model.apply(
@@ -219,12 +234,13 @@ def jit_train_step(train_step: Callable, mesh: Mesh | None = None) -> Callable:
 
 
 def make_eval_step(model: LifterNetwork, model_config: ModelConfig) -> Callable[..., jax.Array]:
-    """Jitted single-view inference: eval_step(variables, keypoints2d [N, J, 2] undistorted px,
-    K [N, 3, 3], confidence [N, J]) -> [N, J, 3] mm, root-relative in the camera frame."""
+    """Jitted single-view inference: eval_step(variables, keypoints2d [N, J, 2] undistorted px (a temporal
+    lifter: windows [N, T, J, 2]), K [N, 3, 3], confidence [N, J] ([N, T, J])) -> [N, J, 3] mm, root-relative
+    in the camera frame (of the window's centre frame)."""
 
     @jax.jit
     def eval_step(variables, keypoints2d, K, confidence):
-        inputs = normalize_keypoints(keypoints2d, K, confidence, model_config.input_normalization)
+        inputs = normalize_views(keypoints2d, K, confidence, model_config.input_normalization)
         return model.apply(variables, inputs, train=False)
 
     return eval_step

@@ -26,10 +26,10 @@ TINY_ARGS = [
 ]
 
 
-def _tiny_config(run_dir, max_steps=0):
+def _tiny_config(run_dir, max_steps=0, window=1):
     return ExperimentConfig(
         data=synthetic.SyntheticData(SyntheticConfig(num_train_subjects=2, num_test_subjects=1, samples_per_subject=200)),
-        model=ModelConfig(width=64),
+        model=ModelConfig(width=64, temporal_window=window),
         train=TrainConfig(batch_size=32, epochs=2, max_steps=max_steps, log_every=4, checkpoint_every=3),
         run=RunConfig(run_dir=run_dir, progress=False),
     )
@@ -42,12 +42,13 @@ def _train(config):
     return jax.device_get(state)
 
 
-def test_resumed_training_matches_uninterrupted_training(tmp_path):
-    full = _train(_tiny_config(tmp_path / "full"))
+@pytest.mark.parametrize("window", [1, 9])  # the frame lifter, and a temporal one fed windows of 9 frames
+def test_resumed_training_matches_uninterrupted_training(tmp_path, window):
+    full = _train(_tiny_config(tmp_path / "full", window=window))
     total = int(full.step)
     assert total == 2 * (400 // 32)
-    _train(_tiny_config(tmp_path / "resumed", max_steps=total // 2))
-    resumed = _train(_tiny_config(tmp_path / "resumed"))  # same run dir: continues from step total//2
+    _train(_tiny_config(tmp_path / "resumed", max_steps=total // 2, window=window))
+    resumed = _train(_tiny_config(tmp_path / "resumed", window=window))  # same run dir: continues from step total//2
     assert int(resumed.step) == total
     for a, b in zip(jax.tree.leaves(full.params), jax.tree.leaves(resumed.params)):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-6)

@@ -30,6 +30,10 @@ class MultiViewBatch:
                      triangulation): it disagrees with its joint's pseudo-label, as the robust
                      pseudo-label methods find outliers.  The lifter still sees it as input.
                      None means every detection with confidence > 0.
+    window2d:        f32[B, C, T, J, 2] pixels: the T frames of each view centred on the sample's instant,
+                     the input of a temporal lifter (`jaxpose.model.LifterNetwork.temporal_window`); the
+                     losses use the centre frame, `keypoints2d`.  None for the frame lifter.
+    window_confidence: f32[B, C, T, J], the confidence of `window2d`.
     """
 
     keypoints2d: jax.Array
@@ -39,6 +43,8 @@ class MultiViewBatch:
     pseudo3d_weight: jax.Array | None = None
     target3d: jax.Array | None = None
     detection_weight: jax.Array | None = None
+    window2d: jax.Array | None = None
+    window_confidence: jax.Array | None = None
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -150,6 +156,16 @@ def validate_batch(batch: MultiViewBatch, min_views: int = 2) -> None:
     if batch.target3d is not None:
         target = _check_shape("target3d", batch.target3d, (B, J, 3))
         _check_finite("target3d", target)
+    if (batch.window2d is None) != (batch.window_confidence is None):
+        raise BatchValidationError("window2d and window_confidence: both or neither")
+    if batch.window2d is not None:
+        T = np.shape(batch.window2d)[2] if np.ndim(batch.window2d) == 5 else None
+        window = _check_shape("window2d", batch.window2d, (B, C, T, J, 2))
+        window_confidence = _check_shape("window_confidence", batch.window_confidence, (B, C, T, J))
+        _check_finite("window2d", window)
+        _check_finite("window_confidence", window_confidence)
+        if ((window_confidence < 0) | (window_confidence > 1)).any():
+            raise BatchValidationError("window_confidence: values must lie in [0, 1]")
     if C < min_views:
         raise BatchValidationError(f"keypoints2d: {C} views in shape {keypoints.shape}; need at least {min_views}")
     usable = (confidence[..., 0] > 0) & ((confidence[..., 1:] > 0).sum(-1) >= 1)

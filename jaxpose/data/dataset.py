@@ -4,12 +4,14 @@ Every loader (synthetic, Human3.6M, HumanEva-I, MPI-INF-3DHP) returns a `MultiVi
 arrays with one row per synchronized instant, so shuffling moves whole multi-view samples and can
 never mix views of different instants (the authors' release recovered views by reshaping rows).
 Cameras are stored once per rig (a subject's calibration) and gathered per batch by `rig_index`.
+A data set can also carry every frame of the recordings its samples come from (`FrameContext`), so that
+a temporal lifter's window can be cut around any sample however the samples were thinned.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -21,6 +23,39 @@ from jaxpose.skeleton import Skeleton
 
 
 @dataclasses.dataclass(frozen=True)
+class FrameContext:
+    """Every frame of a data set's recordings, in recording order: keypoints2d f32[M, C, J, 2] pixels,
+    confidence f32[M, C, J].  Shared, not copied, by the subsets of one data set."""
+
+    keypoints2d: np.ndarray
+    confidence: np.ndarray
+
+
+def window_rows(row: np.ndarray, span: np.ndarray, window: int) -> np.ndarray:
+    """Context rows of the `window` frames centred on each sample: row i32[N] (the sample's own frame),
+    span i32[N, 2] (first and one-past-last row of its stretch of consecutive frames) -> i32[N, window].
+    Frames beyond the stretch's ends repeat its edge frame (VideoPose3D's padding)."""
+    half = window // 2
+    return np.clip(row[:, None] + np.arange(-half, half + 1), span[:, :1], span[:, 1:] - 1)
+
+
+def consecutive_spans(labels: Mapping[str, np.ndarray]) -> np.ndarray:
+    """i32[N, 2]: for rows in recording order, the first and one-past-last row of each row's stretch of
+    consecutive frames (same subject and sequence, frame numbers increasing by 1)."""
+    frame = labels["frame"].astype(np.int64)
+    N = len(frame)
+    starts = np.ones(N, bool)
+    starts[1:] = frame[1:] != frame[:-1] + 1
+    for name in ("subject", "sequence"):
+        if name in labels:
+            starts[1:] |= labels[name][1:] != labels[name][:-1]
+    first = np.maximum.accumulate(np.where(starts, np.arange(N), 0))
+    boundaries = np.append(np.flatnonzero(starts), N)
+    end = boundaries[np.searchsorted(boundaries, np.arange(N), side="right")]
+    return np.stack([first, end], -1).astype(np.int32)
+
+
+@dataclasses.dataclass(frozen=True)
 class MultiViewDataset:
     """N instants, C views, J joints; all arrays numpy float32 unless said otherwise.
 
@@ -29,6 +64,9 @@ class MultiViewDataset:
     pseudo3d_weight (f32[N, J, 3], f32[N, J]) once `jaxpose.pseudo_labelling.label` has set them, and detection_weight
     f32[N, C, J] when its method rejects outlying views (see `MultiViewBatch`); labels: per-sample
     string/int arrays such as "subject", "action", "frame" used to group evaluation results.
+    context, context_row i32[N], context_span i32[N, 2]: every frame of the samples' recordings, each
+    sample's own row in it and its stretch of consecutive frames (`window_rows`); None where the loader
+    keeps no full-rate 2D (then only the frame lifter trains on it).
     """
 
     skeleton: Skeleton
@@ -41,6 +79,9 @@ class MultiViewDataset:
     pseudo3d_weight: np.ndarray | None = None
     detection_weight: np.ndarray | None = None
     labels: Mapping[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    context: FrameContext | None = None
+    context_row: np.ndarray | None = None
+    context_span: np.ndarray | None = None
 
     def __post_init__(self):
         N, C, J, two = self.keypoints2d.shape
@@ -56,6 +97,8 @@ class MultiViewDataset:
             "pseudo3d": (self.pseudo3d, (N, J, 3)),
             "pseudo3d_weight": (self.pseudo3d_weight, (N, J)),
             "detection_weight": (self.detection_weight, (N, C, J)),
+            "context_row": (self.context_row, (N,)),
+            "context_span": (self.context_span, (N, 2)),
         }
         for name, (array, shape) in expected.items():
             if array is not None and array.shape != shape:
@@ -67,6 +110,32 @@ class MultiViewDataset:
         for name, values in self.labels.items():
             if len(values) != N:
                 raise ValueError(f"labels[{name!r}]: {len(values)} entries for {N} samples")
+        if (self.context is None) != (self.context_row is None) or (self.context is None) != (self.context_span is None):
+            raise ValueError("context, context_row and context_span: all three or none")
+        if self.context is not None and self.context.keypoints2d.shape[1:] != (C, J, 2):
+            raise ValueError(f"context.keypoints2d: expected (M, {C}, {J}, 2), got {self.context.keypoints2d.shape}")
+
+    def with_own_context(self) -> "MultiViewDataset":
+        """This data set, whose samples are every frame of its recordings in order, as its own context:
+        subsets taken afterwards (a stride, a split) keep the frames between their samples for windows."""
+        context = FrameContext(self.keypoints2d, self.confidence)
+        return dataclasses.replace(
+            self, context=context, context_row=np.arange(len(self), dtype=np.int32), context_span=consecutive_spans(self.labels)
+        )
+
+    def windows(self, indices: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
+        """The `window` frames centred on each of the samples `indices`, every view: keypoints2d
+        f32[n, C, window, J, 2] and confidence f32[n, C, window, J] (`window_rows`)."""
+        if self.context is None:
+            raise ValueError(
+                f"a temporal window of {window} frames needs each recording's frames in order, and this data set"
+                " keeps none (its loader gives single frames): use --model.temporal-window 1"
+            )
+        rows = window_rows(self.context_row[indices], self.context_span[indices], window)
+        return (
+            np.moveaxis(self.context.keypoints2d[rows], 1, 2),
+            np.moveaxis(self.context.confidence[rows], 1, 2),
+        )
 
     def __len__(self) -> int:
         return self.keypoints2d.shape[0]
@@ -89,6 +158,8 @@ class MultiViewDataset:
             pseudo3d_weight=take(self.pseudo3d_weight),
             detection_weight=take(self.detection_weight),
             labels={name: values[indices] for name, values in self.labels.items()},
+            context_row=take(self.context_row),
+            context_span=take(self.context_span),
         )
 
     def where(self, **label_values) -> "MultiViewDataset":
@@ -120,11 +191,15 @@ class MultiViewDataset:
     def cameras_for(self, indices: np.ndarray) -> Cameras:
         return jax.tree.map(lambda field: field[self.rig_index[indices]], self.rigs)
 
-    def batch(self, indices: np.ndarray) -> MultiViewBatch:
-        """Gather samples into a `MultiViewBatch` of numpy arrays (vectorized, no per-sample loop)."""
+    def batch(self, indices: np.ndarray, window: int = 1) -> MultiViewBatch:
+        """Gather samples into a `MultiViewBatch` of numpy arrays (vectorized, no per-sample loop), with
+        the lifter's input windows of `window` frames where it is > 1."""
         if self.pseudo3d is None:
             raise ValueError("dataset has no pseudo-labels yet: label it with jaxpose.pseudo_labelling.label first")
+        window2d, window_confidence = self.windows(indices, window) if window > 1 else (None, None)
         return MultiViewBatch(
+            window2d=window2d,
+            window_confidence=window_confidence,
             keypoints2d=self.keypoints2d[indices],
             confidence=self.confidence[indices],
             cameras=self.cameras_for(indices),
@@ -142,9 +217,82 @@ class MultiViewDataset:
         """
         if self.rigs.dist is None:
             return self
+        undistort = jax.jit(undistort_points)
         cameras = self.cameras_for(np.arange(len(self)))
-        points = np.asarray(jax.jit(undistort_points)(cameras, jnp.asarray(self.keypoints2d)))
-        return dataclasses.replace(self, keypoints2d=points.astype(np.float32), rigs=self.rigs.without_distortion())
+        points = np.asarray(undistort(cameras, jnp.asarray(self.keypoints2d)))
+        dataset = dataclasses.replace(self, keypoints2d=points.astype(np.float32), rigs=self.rigs.without_distortion())
+        if self.context is None:
+            return dataset
+        # Only the frames some sample's window can reach, each through the rig of a sample that reaches it.
+        dataset = self._compact_context(dataset)
+        cameras = jax.tree.map(lambda field: field[self._context_rig_index(dataset)], self.rigs)
+        context = np.asarray(undistort(cameras, jnp.asarray(dataset.context.keypoints2d))).astype(np.float32)
+        return dataclasses.replace(dataset, context=dataclasses.replace(dataset.context, keypoints2d=context))
+
+    @staticmethod
+    def _compact_context(dataset: "MultiViewDataset") -> "MultiViewDataset":
+        """`dataset` with its context reduced to the stretches its samples lie in."""
+        M = len(dataset.context.keypoints2d)
+        edges = np.zeros(M + 1, np.int64)
+        spans = np.unique(dataset.context_span, axis=0)
+        np.add.at(edges, spans[:, 0], 1)
+        np.add.at(edges, spans[:, 1], -1)
+        used = np.cumsum(edges[:M]) > 0
+        new_row = (np.cumsum(used) - 1).astype(np.int32)
+        span = np.stack([new_row[dataset.context_span[:, 0]], new_row[dataset.context_span[:, 1] - 1] + 1], -1)
+        context = FrameContext(dataset.context.keypoints2d[used], dataset.context.confidence[used])
+        return dataclasses.replace(dataset, context=context, context_row=new_row[dataset.context_row], context_span=span.astype(np.int32))
+
+    @staticmethod
+    def _context_rig_index(dataset: "MultiViewDataset") -> np.ndarray:
+        """i32[M]: each context row's rig, that of a sample whose stretch contains it (all of a stretch's
+        samples come from one recording, so one rig)."""
+        spans, first = np.unique(dataset.context_span, axis=0, return_index=True)
+        rig = np.zeros(len(dataset.context.keypoints2d), np.int32)
+        for (start, end), sample in zip(spans.tolist(), first.tolist()):
+            rig[start:end] = dataset.rig_index[sample]
+        return rig
+
+
+def concatenate(parts: Sequence[MultiViewDataset]) -> MultiViewDataset:
+    """One data set of parts that share skeleton, rigs and labels' names; their contexts (shared or
+    not) are joined with the rows renumbered."""
+    first = parts[0]
+
+    def joined(name):
+        arrays = [getattr(part, name) for part in parts]
+        return None if arrays[0] is None else np.concatenate(arrays)
+
+    contexts, offsets, rows, spans = [], {}, [], []
+    for part in parts:
+        if part.context is None:
+            continue
+        if id(part.context) not in offsets:
+            offsets[id(part.context)] = sum(len(c.keypoints2d) for c in contexts)
+            contexts.append(part.context)
+        rows.append(part.context_row + offsets[id(part.context)])
+        spans.append(part.context_span + offsets[id(part.context)])
+    if contexts and len(rows) != len(parts):
+        raise ValueError("concatenate: either every part has a frame context or none has")
+    context = None
+    if contexts:
+        context = FrameContext(
+            np.concatenate([c.keypoints2d for c in contexts]), np.concatenate([c.confidence for c in contexts])
+        )
+    return dataclasses.replace(
+        first,
+        keypoints2d=joined("keypoints2d"),
+        confidence=joined("confidence"),
+        rig_index=joined("rig_index"),
+        target3d=joined("target3d"),
+        pseudo3d=joined("pseudo3d"),
+        pseudo3d_weight=joined("pseudo3d_weight"),
+        detection_weight=joined("detection_weight"),
+        labels={name: np.concatenate([part.labels[name] for part in parts]) for name in first.labels},
+        context=context,
+        context_row=np.concatenate(rows).astype(np.int32) if contexts else None,
+        context_span=np.concatenate(spans).astype(np.int32) if contexts else None,
+    )
 
 
 def epoch_order(num_samples: int, seed: int, epoch: int) -> np.ndarray:

@@ -264,9 +264,9 @@ def _npz_2d(path: Path, positions: Mapping, subject: str) -> Sources2D:
 def _read_recording(
     subject: str, name: str, read3d: Reader, views: Mapping[str, Reader] | None, stride: int, joints3d: np.ndarray
 ) -> Recording:
-    """Read one sequence, keep every `stride`-th frame, and check that its 2D covers its 3D."""
+    """Read one sequence, every frame (the samples are every `stride`-th), and check that its 2D covers its 3D."""
     points = read3d()
-    frames = np.arange(0, len(points), stride, dtype=np.int32)
+    frames = np.arange(len(points), dtype=np.int32)
     keypoints = confidence = None
     if views is not None:
         read = {camera: reader() for camera, reader in views.items()}
@@ -276,7 +276,8 @@ def _read_recording(
         action=sequence_action(name),
         sequence=name,
         frames=frames,
-        points3d=points[frames][:, joints3d].astype(np.float32),
+        points3d=points[:, joints3d].astype(np.float32),
         keypoints2d=keypoints,
         confidence=confidence,
+        kept=np.arange(0, len(points), stride),
     )

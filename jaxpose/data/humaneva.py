@@ -104,7 +104,7 @@ def load_humaneva(
         recording, invalid = _read_recording(subject, name, poses, cameras, stride)
         recordings.append(recording)
         dropped += invalid
-    kept = sum(len(r.frames) for r in recordings)
+    kept = sum(len(r.kept) for r in recordings)
     logger.info(
         "HumanEva-I %s: dropped %d of %d frames with invalid markers (NaN or all-zero)", split, dropped, kept + dropped
     )
@@ -138,9 +138,10 @@ def subject_rigs(path: Path, subjects: tuple[str, ...]) -> dict:
 def _read_recording(
     subject: str, name: str, poses: np.ndarray, cameras: dict[str, np.ndarray] | None, stride: int
 ) -> tuple[Recording, int]:
-    """One sequence with its invalid frames dropped; also returns how many were dropped."""
-    frames = np.arange(0, len(poses), stride, dtype=np.int32)
-    points = poses[frames].astype(np.float64) * 1000.0  # metres -> mm
+    """One sequence, every frame, with its invalid frames dropped (the samples are the valid ones among every
+    `stride`-th); also returns how many of those were dropped."""
+    frames = np.arange(len(poses), dtype=np.int32)
+    points = poses.astype(np.float64) * 1000.0  # metres -> mm
     valid = np.isfinite(points).all((1, 2)) & ~(points == 0).all(-1).any(-1)
     keypoints = confidence = None
     if cameras is not None:
@@ -155,5 +156,6 @@ def _read_recording(
         points3d=points[valid].astype(np.float32),
         keypoints2d=keypoints,
         confidence=confidence,
+        kept=np.flatnonzero(frames[valid] % stride == 0),
     )
-    return recording, int((~valid).sum())
+    return recording, int((~valid[::stride]).sum())

@@ -1,8 +1,9 @@
 """From per-sequence arrays of a real data set to one `MultiViewDataset`.
 
-The Human3.6M and HumanEva-I loaders read files into `Recording`s (one subject's sequence, already
-down-sampled) and hand them to `build_dataset`, which stacks them, attaches one rig per subject and,
-where a recording carries no 2D, projects its 3D ground truth through the real cameras.
+The Human3.6M and HumanEva-I loaders read files into `Recording`s (one subject's sequence, every frame,
+with the frames to keep as samples) and hand them to `build_dataset`, which stacks them, attaches one
+rig per subject, where a recording carries no 2D projects its 3D ground truth through the real cameras,
+and keeps every frame's 2D as the samples' `FrameContext` (the windows of a temporal lifter).
 """
 
 from __future__ import annotations
@@ -26,11 +27,12 @@ logger = logging.getLogger(__name__)
 
 @dataclasses.dataclass(frozen=True)
 class Recording:
-    """n kept frames of one sequence seen by C cameras, J joints.
+    """n frames of one sequence seen by C cameras, J joints, of which those at `kept` become samples.
 
     frames: i32[n] frame numbers in the original recording; points3d: f32[n, J, 3] world mm;
     keypoints2d: f32[n, C, J, 2] pixels, or None for ground-truth 2D (projected from points3d);
-    confidence: f32[n, C, J], 0 for a camera whose 2D is missing; None = 1 everywhere.
+    confidence: f32[n, C, J], 0 for a camera whose 2D is missing; None = 1 everywhere;
+    kept: i32[k] rows of the samples (e.g. every 5th frame); None = every row.
     """
 
     subject: str
@@ -40,6 +42,7 @@ class Recording:
     points3d: np.ndarray
     keypoints2d: np.ndarray | None
     confidence: np.ndarray | None = None
+    kept: np.ndarray | None = None
 
 
 def build_dataset(skeleton: Skeleton, recordings: Sequence[Recording], rigs: Mapping[str, Cameras]) -> MultiViewDataset:
@@ -47,6 +50,7 @@ def build_dataset(skeleton: Skeleton, recordings: Sequence[Recording], rigs: Map
 
     Either every recording has keypoints2d or none has (then all 2D are projections of the 3D,
     with distortion).  Confidence is each recording's, else 1: the detection files carry no scores.
+    The samples are the `kept` rows; every row's 2D stays as their context (`MultiViewDataset.windows`).
     """
     if not recordings:
         raise ValueError("build_dataset: no recordings")
@@ -69,7 +73,7 @@ def build_dataset(skeleton: Skeleton, recordings: Sequence[Recording], rigs: Map
     def label(field):
         return np.concatenate([np.full(len(r.frames), getattr(r, field)) for r in recordings])
 
-    return MultiViewDataset(
+    every_frame = MultiViewDataset(
         skeleton=skeleton,
         keypoints2d=keypoints2d,
         confidence=confidence,
@@ -82,7 +86,10 @@ def build_dataset(skeleton: Skeleton, recordings: Sequence[Recording], rigs: Map
             "sequence": label("sequence"),
             "frame": np.concatenate([r.frames for r in recordings]).astype(np.int32),
         },
-    )
+    ).with_own_context()
+    offsets = np.cumsum([0] + [len(r.frames) for r in recordings[:-1]])
+    kept = [np.arange(len(r.frames)) if r.kept is None else np.asarray(r.kept) for r in recordings]
+    return every_frame.subset(np.concatenate([offset + rows for offset, rows in zip(offsets, kept)]))
 
 
 def project_to_views(rigs: Cameras, rig_index: np.ndarray, points3d: np.ndarray, chunk_size: int = 65536) -> np.ndarray:

@@ -49,7 +49,7 @@ import numpy as np
 
 from jaxpose.camera import Cameras, projection_matrices, undistort_points
 from jaxpose.data.calibration_formats import CalibrationUnit, RigCalibration, find_calibration, read_rig_calibration
-from jaxpose.data.dataset import MultiViewDataset
+from jaxpose.data.dataset import MultiViewDataset, concatenate
 from jaxpose.data.errors import DataFormatError
 from jaxpose.data.files import read_npz_arrays
 from jaxpose.data.keypoint_files import CameraDetections, read_camera_detections
@@ -669,7 +669,7 @@ def load_rig_project(config: RigProjectConfig, progress: bool = True) -> RigProj
                 "sequence": np.full(len(instants), recording.name),  # what motion metrics difference along
                 "frame": instants.astype(np.int32),
             },
-        )
+        ).with_own_context()
         position = np.arange(len(instants))
         if recording.name in config.validation_recordings:
             held_out = np.ones(len(instants), bool)
@@ -679,7 +679,7 @@ def load_rig_project(config: RigProjectConfig, progress: bool = True) -> RigProj
             held_out = position >= int(round(len(instants) * (1.0 - config.validation_fraction)))
         train.append(dataset.subset(np.flatnonzero(~held_out & (position % config.train_stride == 0))))
         validation.append(dataset.subset(np.flatnonzero(held_out & (position % config.validation_stride == 0))))
-    validation_set, train_set = _concatenate(validation), _concatenate(train)
+    validation_set, train_set = concatenate(validation), concatenate(train)
     if train_set.target3d is not None and not np.isfinite(train_set.target3d).all():
         # Ground truth for only some joints or recordings serves evaluation, not the supervised twin.
         log.info("the ground truth does not cover every training instant and joint: no --supervision full")
@@ -701,15 +701,3 @@ def _ground_truth_joint_names(dataset: MultiViewDataset) -> tuple[str, ...]:
     return tuple(dataset.skeleton.joint_names[j] for j in ground_truth_joints(dataset))
 
 
-def _concatenate(parts: Sequence[MultiViewDataset]) -> MultiViewDataset:
-    """One data set of parts that share skeleton and rigs."""
-    first = parts[0]
-    targets = [part.target3d for part in parts]
-    return dataclasses.replace(
-        first,
-        keypoints2d=np.concatenate([part.keypoints2d for part in parts]),
-        confidence=np.concatenate([part.confidence for part in parts]),
-        rig_index=np.concatenate([part.rig_index for part in parts]),
-        target3d=None if targets[0] is None else np.concatenate(targets),
-        labels={name: np.concatenate([part.labels[name] for part in parts]) for name in first.labels},
-    )

@@ -18,7 +18,8 @@ def generate(config: SyntheticConfig = SyntheticConfig()) -> MultiViewDataset:
 
     Subjects "S1".."Sn": the first `num_train_subjects` have split "train", the rest "test".  Each
     subject's rig is the shared room (`make_rig`) with its own small calibration jitter.  Labels:
-    subject, split, motion, sequence (unique over the data set), frame.
+    subject, split, motion, sequence (unique over the data set), frame.  Every sample is a frame of a
+    sequence in order, so the data set is its own `FrameContext` (windows for a temporal lifter).
     """
     room = make_rig(stream_rng(config, Stream.ROOM), config)
     keypoints, confidence, targets, rigs = [], [], [], []
@@ -52,4 +53,4 @@ def generate(config: SyntheticConfig = SyntheticConfig()) -> MultiViewDataset:
         rig_index=np.repeat(np.arange(config.num_subjects, dtype=np.int32), config.samples_per_subject),
         target3d=np.concatenate(targets),
         labels={name: np.concatenate(values) for name, values in labels.items()},
-    )
+    ).with_own_context()
