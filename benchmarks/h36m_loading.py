@@ -69,6 +69,9 @@ def measure(data_dir: str, detections: str, stride: int) -> dict:
         "stride": stride,
         "samples": len(dataset),
         "joints": dataset.skeleton.num_joints,
+        # Every frame's 2D, kept for the temporal lifter's windows (`FrameContext`).
+        "context_frames": len(dataset.context.keypoints2d),
+        "context_gib": round((dataset.context.keypoints2d.nbytes + dataset.context.confidence.nbytes) / 2**30, 3),
         "seconds": round(seconds, 2),
         "peak_rss_gib": round(peak / 2**20, 3),
         "rss_after_imports_gib": round(baseline / 2**20, 3),
@@ -107,7 +110,8 @@ def main() -> None:
             run = child("--measure", data_dir, detections, stride)
             runs.append(run)
             print(f"detections={detections} stride={stride}: {run['samples']} samples in {run['seconds']} s,"
-                  f" peak RSS {run['peak_rss_gib']} GiB (after imports {run['rss_after_imports_gib']} GiB)", flush=True)
+                  f" peak RSS {run['peak_rss_gib']} GiB (after imports {run['rss_after_imports_gib']} GiB),"
+                  f" every frame's 2D: {run['context_frames']} frames, {run['context_gib']} GiB", flush=True)
     default = runs[0]
     result = {
         "benchmark": "h36m_loading",

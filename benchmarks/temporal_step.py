@@ -1,0 +1,72 @@
+"""Train-step time of the temporal lifter against the frame lifter, in one process, as ratios.
+
+The same jitted step (`jaxpose.train`) on batches of the synthetic data set (4 views), for each
+temporal window T, with the batch's windows gathered on the host as training does: the median step
+time and T = 1's samples/s divided by each window's.  The ratios set the epochs of a temporal run at the
+frame lifter's wall-clock budget (docs/temporal.md).
+
+    python -m benchmarks.temporal_step [--batch-size 128] [--width 512] [--lifters 1:2 9:2 9:1 1:1] [--steps 40]
+
+Each lifter is WINDOW:STAGES (`--model.temporal-window`, `--model.stages`); the first is the reference.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+
+import jax
+import numpy as np
+
+from jaxpose import pseudo_labelling
+from jaxpose.config import RESCALED_LOSS, ModelConfig, OptimizerConfig, PseudoLabelConfig
+from jaxpose.data.synthetic import SyntheticConfig, generate
+from jaxpose.train import init_train_state, jit_train_step, make_train_step
+
+
+def step_seconds(dataset, window: int, stages: int, batch_size: int, width: int, steps: int) -> float:
+    """Median seconds of one train step (after 3 compiling/warm-up steps), batches drawn at random."""
+    config = ModelConfig(width=width, dropout_rate=0.1, temporal_window=window, stages=stages)
+    model = config.build(dataset.skeleton.num_joints)
+    optimizer = OptimizerConfig().build(steps + 3)
+    state = init_train_state(model, optimizer, jax.random.key(0))
+    step = jit_train_step(make_train_step(model, config, optimizer, RESCALED_LOSS, steps + 3, share_every=50))
+    rng = np.random.default_rng(0)
+    key = jax.random.key(1)
+    times = []
+    for index in range(steps + 3):
+        start = time.perf_counter()
+        batch = dataset.batch(rng.choice(len(dataset), batch_size, replace=False), window)  # host gather counted
+        state, metrics = step(state, batch, key)
+        jax.block_until_ready(metrics)
+        if index >= 3:
+            times.append(time.perf_counter() - start)
+    return float(np.median(times))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--batch-size", type=int, default=128, help="multi-view samples per step (the dev / cpu presets: 128)")
+    parser.add_argument("--width", type=int, default=512, help="lifter width (the presets: 512)")
+    parser.add_argument("--lifters", nargs="+", default=["1:2", "3:2", "9:2", "27:2", "9:1", "27:1", "1:1"],
+                        help="WINDOW:STAGES of each lifter to time; the first is the reference")
+    parser.add_argument("--steps", type=int, default=40, help="timed steps per lifter")
+    args = parser.parse_args()
+    dataset = generate(SyntheticConfig())
+    dataset = pseudo_labelling.label(dataset.subset(np.arange(20000)), PseudoLabelConfig(method="normal"))
+    lifters = [tuple(int(v) for v in lifter.split(":")) for lifter in args.lifters]
+    seconds = {lifter: step_seconds(dataset, *lifter, args.batch_size, args.width, args.steps) for lifter in lifters}
+    reference = seconds[lifters[0]]
+    print(f"{os.cpu_count()} cores, batch {args.batch_size} x 4 views, width {args.width}, median of {args.steps} steps")
+    print(f"| window T | stages | ms / step | samples / s | speed vs {args.lifters[0]} |")
+    print("|---|---|---:|---:|---:|")
+    for (window, stages), value in seconds.items():
+        print(f"| {window} | {stages} | {value * 1e3:.1f} | {args.batch_size / value:.0f} | {reference / value:.2f}x |")
+    print(json.dumps({"cpus": os.cpu_count(), "batch_size": args.batch_size, "width": args.width,
+                      "seconds": {f"{w}:{s}": v for (w, s), v in seconds.items()}}))
+
+
+if __name__ == "__main__":
+    main()
