@@ -42,5 +42,6 @@ def body25_from_coco(coco: np.ndarray, score: float) -> np.ndarray:
         if coco_name in COCO_17.joint_names:
             body25[:, b] = np.concatenate([coco[:, COCO_17.index(coco_name)], np.full((len(coco), 1), score)], 1)
     shoulders = [COCO_17.index("left_shoulder"), COCO_17.index("right_shoulder")]
-    body25[:, OPENPOSE_25_JOINT_NAMES.index("Neck")] = [*coco[:, shoulders].mean(1).T, np.full(len(coco), score)]
+    neck = coco[:, shoulders].mean(1)  # [N, 2]
+    body25[:, OPENPOSE_25_JOINT_NAMES.index("Neck")] = np.concatenate([neck, np.full((len(coco), 1), score)], 1)
     return body25

@@ -42,7 +42,9 @@ def _train(config):
     return jax.device_get(state)
 
 
-@pytest.mark.parametrize("window", [1, 9])  # the frame lifter, and a temporal one fed windows of 9 frames
+# A temporal lifter fed windows of 9 frames: the frame lifter's resume is checked bit for bit, killed at
+# any point, by tests/test_fault_tolerance.py, and the step is the same with windows in the batch.
+@pytest.mark.parametrize("window", [9])
 def test_resumed_training_matches_uninterrupted_training(tmp_path, window):
     full = _train(_tiny_config(tmp_path / "full", window=window))
     total = int(full.step)

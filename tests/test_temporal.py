@@ -13,11 +13,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from detection_helpers import body25_from_coco, coco_from_h36m
 from experiments import synthetic as synthetic_job
 from jaxpose import export, inference, predict
 from jaxpose.camera import Cameras
 from jaxpose.config import ModelConfig
 from jaxpose.data.dataset import MultiViewDataset, concatenate, consecutive_spans, window_rows
+from jaxpose.keypoint_formats import to_skeleton
 from jaxpose.model import LifterNetwork
 from jaxpose.skeleton import H36M_17
 
@@ -237,3 +239,29 @@ def test_cli_lifts_an_npz_sequence_in_frame_order(temporal_run, tmp_path):
 def test_a_temporal_window_must_be_a_power_of_three():
     with pytest.raises(ValueError, match="power of 3"):
         ModelConfig(temporal_window=5)
+
+
+def test_cli_follows_one_person_through_an_openpose_folder(temporal_run, tmp_path):
+    """Frames in frame-number order, an empty frame kept as a gap, the best-scoring of two people followed
+    and the other written as null."""
+    lifter = inference.load(temporal_run)
+    keypoints, K, confidence = _sequence(6)
+    confidence[5, 0] = 1.0  # every frame's root detected
+    keypoints = np.nan_to_num(keypoints)
+    body25 = body25_from_coco(coco_from_h36m(keypoints), 0.9)  # [6, 25, 3]
+    folder = tmp_path / "openpose"
+    folder.mkdir()
+    bystander = body25[0].copy()
+    bystander[:, 2] = 0.3  # a second, lower-scoring person in frame 1
+    for frame in range(6):
+        people = [] if frame == 3 else [body25[frame]] + ([bystander] if frame == 1 else [])
+        document = {"version": 1.3, "people": [{"pose_keypoints_2d": p.ravel().tolist()} for p in people]}
+        (folder / f"clip_{frame:012d}_keypoints.json").write_text(json.dumps(document))
+    args = ["--checkpoint", temporal_run, "--input", folder, "--output", tmp_path / "poses.npz", "--intrinsics", "1000", "1000", "500", "500"]
+    poses = predict.main([str(a) for a in args])
+    assert poses.shape == (6, 17, 3)  # five followed poses and the bystander, in file order
+    assert np.isnan(poses[2]).all() and np.isfinite(np.delete(poses, 2, 0)).all()
+    sequence, scores = to_skeleton("body25", H36M_17, body25[..., :2], body25[..., 2])
+    scores[3] = 0.0  # the empty frame: a frame of missing joints in its neighbours' windows
+    expected = lifter.predict(sequence, K, scores)
+    np.testing.assert_allclose(np.delete(poses, 2, 0), np.delete(expected, 3, 0), atol=TOLERANCE_MM)
