@@ -22,10 +22,12 @@ import dataclasses
 import json
 import pathlib
 
+import numpy as np
 import tyro
 
 from jaxpose import evaluation, inference
 from jaxpose.checkpoint import CheckpointError
+from jaxpose.data.dataset import consecutive_spans
 from jaxpose.data.errors import DataFormatError
 from jaxpose.data.mpi_inf_3dhp import ACTIVITY_NAMES, SEQUENCES, load_mpi_inf_3dhp_test
 from jaxpose.skeleton import H36M_17
@@ -61,7 +63,12 @@ def evaluate(settings: Mpi3dhpEvaluation) -> dict:
     except DataFormatError as error:
         expected = f"{settings.data_dir}/<sequence>/annot_data.mat for sequences {' '.join(settings.sequences)}"
         raise SystemExit(f"error: {error}\nThis evaluation reads the MPI-INF-3DHP test set: {expected}") from None
-    predictions = lifter.predict(test.keypoints2d, intrinsics=test.K)
+    if lifter.model_config.temporal_window == 1:
+        predictions = lifter.predict(test.keypoints2d, intrinsics=test.K)
+    else:  # a temporal lifter reads each call as one sequence: one per stretch of consecutive valid frames
+        predictions = np.empty((len(test), lifter.num_joints, 3), np.float32)
+        for start, end in np.unique(consecutive_spans({"sequence": test.sequence, "frame": test.frame}), axis=0).tolist():
+            predictions[start:end] = lifter.predict(test.keypoints2d[start:end], intrinsics=test.K[start:end])
     per_pose, per_joint = evaluation.compute_metrics(predictions, test.univ3d)
     report = {
         "run_dir": str(settings.run_dir),

@@ -265,3 +265,23 @@ def test_cli_follows_one_person_through_an_openpose_folder(temporal_run, tmp_pat
     scores[3] = 0.0  # the empty frame: a frame of missing joints in its neighbours' windows
     expected = lifter.predict(sequence, K, scores)
     np.testing.assert_allclose(np.delete(poses, 2, 0), np.delete(expected, 3, 0), atol=TOLERANCE_MM)
+
+
+def test_mpi_inf_3dhp_lifts_each_stretch_of_valid_frames_as_its_own_sequence(temporal_run, tmp_path):
+    from experiments import mpi_inf_3dhp
+    from fixtures_real_data import write_mpi_inf_3dhp_test_set
+    from jaxpose.data.mpi_inf_3dhp import camera_intrinsics, load_mpi_inf_3dhp_test
+
+    K = {name: camera_intrinsics(name) for name in ("TS1", "TS5")}
+    data = write_mpi_inf_3dhp_test_set(tmp_path / "3dhp", {"TS1": "v7.3", "TS5": "v5"}, K=K)
+    argv = ["--run-dir", temporal_run, "--data-dir", data.root, "--sequences", "TS1", "TS5", "--out-dir", tmp_path / "out", "--no-progress"]
+    report = mpi_inf_3dhp.main([str(a) for a in argv])
+    test = load_mpi_inf_3dhp_test(data.root, ("TS1", "TS5"), progress=False)
+    lifter = inference.load(temporal_run)
+    spans = consecutive_spans({"sequence": test.sequence, "frame": test.frame})
+    assert len(np.unique(spans, axis=0)) > 2  # two sequences, and gaps at invalid frames
+    expected = np.concatenate(
+        [lifter.predict(test.keypoints2d[a:b], intrinsics=test.K[a:b]) for a, b in np.unique(spans, axis=0).tolist()]
+    )
+    mpjpe = np.linalg.norm(expected - (test.univ3d - test.univ3d[:, :1]), axis=-1).mean()
+    assert report["by_activity"]["overall"]["mpjpe"] == pytest.approx(mpjpe, abs=0.01)
