@@ -278,13 +278,14 @@ def _sequence_order(image_id: Any) -> tuple[bool, Any]:
 
 
 def animation_frames(
-    image_ids: list[Any], confidence: np.ndarray, poses: np.ndarray, frame_ids: list[Any] | None
+    image_ids: list[Any], confidence: np.ndarray, lifted: np.ndarray, frame_ids: list[Any] | None
 ) -> tuple[list[Any], list[int | None]]:
     """The frames in sequence order and the pose each one shows (None: no pose in that frame).
 
-    A frame with several poses shows the one with the highest mean keypoint confidence, lifted ones first.
+    A frame with several poses shows the one with the highest mean keypoint confidence, lifted ones
+    (bool[N] `lifted`) first.
     """
-    rank = list(zip(np.isfinite(poses).all((1, 2)), confidence.mean(1)))
+    rank = list(zip(np.asarray(lifted, bool), confidence.mean(1)))
     shown: dict[Any, int] = {}
     for index, image_id in enumerate(image_ids):
         if image_id not in shown or rank[index] > rank[shown[image_id]]:
@@ -297,7 +298,7 @@ def save_animation(
     path: pathlib.Path, keypoints, confidence, poses, image_ids, frame_ids, skeleton, image_size, fps: float
 ) -> pathlib.Path:
     """`viz.save_pose_animation` of one pose per frame (`animation_frames`); a frame without one is blank."""
-    frames, shown = animation_frames(image_ids, confidence, poses, frame_ids)
+    frames, shown = animation_frames(image_ids, confidence, np.isfinite(poses).all((1, 2)), frame_ids)
     blank = len(poses)  # the index of a row appended for frames without a pose
     rows = [blank if index is None else index for index in shown]
     joints = keypoints.shape[1]
@@ -395,8 +396,6 @@ def run(args: PredictArgs) -> np.ndarray:
         keypoints, confidence = detections.keypoints, scores
     else:
         keypoints, confidence = to_skeleton(layout, lifter.skeleton, detections.keypoints, scores)
-    if confidence is None:
-        confidence = np.ones(keypoints.shape[:2], np.float32)
     count = len(keypoints)
     if lifter.model_config.temporal_window > 1:
         poses = lift_sequence(lifter, keypoints, confidence, K, dist, image_size, detections)
@@ -436,8 +435,8 @@ def lift_sequence(lifter, keypoints, confidence, K, dist, image_size, detections
     highest mean score), each lifted with the window of frames around it; a frame without a pose is a
     frame of missing joints in its neighbours' windows.  The other people's poses are NaN, and said so."""
     count = len(keypoints)
-    # Ranked by score alone (nothing is lifted yet): all-zero "poses" count as lifted.
-    frames, shown = animation_frames(detections.image_ids, confidence, np.zeros((count, 1, 3)), detections.frame_ids)
+    # Ranked by score alone: nothing is lifted yet.
+    frames, shown = animation_frames(detections.image_ids, confidence, np.ones(count, bool), detections.frame_ids)
     rows = np.array([count if index is None else index for index in shown])
     blank_keypoints = np.concatenate([keypoints, np.zeros((1, *keypoints.shape[1:]), np.float32)])
     blank_confidence = np.concatenate([confidence, np.zeros((1, confidence.shape[1]), np.float32)])

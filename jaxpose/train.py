@@ -134,14 +134,13 @@ def make_loss_fn(
     """
 
     def loss_fn(params, batch_stats, batch: MultiViewBatch, dropout_key, step):
+        keypoints, confidence = lifter_input_2d(batch)
         if augmentation.active:
             # Its own key, derived from the step's dropout key: the dropout masks are those of a run without it.
             keypoints, confidence = augment_inputs(
-                jax.random.fold_in(dropout_key, 0x61756700), *lifter_input_2d(batch), augmentation, left_right_pairs,
-            )  # fmt: skip
-            inputs = normalize_views(keypoints, batch.cameras.K, confidence, model_config.input_normalization)
-        else:
-            inputs = lifter_inputs(batch, model_config.input_normalization)
+                jax.random.fold_in(dropout_key, 0x61756700), keypoints, confidence, augmentation, left_right_pairs
+            )
+        inputs = normalize_views(keypoints, batch.cameras.K, confidence, model_config.input_normalization)
         pred, updates = model.apply(
             {"params": params, "batch_stats": batch_stats},
             inputs,
