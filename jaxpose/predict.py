@@ -397,8 +397,9 @@ def run(args: PredictArgs) -> np.ndarray:
     else:
         keypoints, confidence = to_skeleton(layout, lifter.skeleton, detections.keypoints, scores)
     count = len(keypoints)
+    not_followed = 0  # a temporal lifter's other people in a frame
     if lifter.model_config.temporal_window > 1:
-        poses = lift_sequence(lifter, keypoints, confidence, K, dist, image_size, detections)
+        poses, not_followed = lift_sequence(lifter, keypoints, confidence, K, dist, image_size, detections)
     else:
         poses = np.empty((count, lifter.num_joints, 3), np.float32)
         with tqdm(total=count, desc="lifting", unit="pose", disable=count <= LIFT_BLOCK) as bar:
@@ -409,7 +410,9 @@ def run(args: PredictArgs) -> np.ndarray:
                 bar.update(rows.stop - rows.start)
     write_poses(args.output, poses, detections.image_ids, lifter.joint_names, args.fps)
     lifted = int(np.isfinite(poses).all((1, 2)).sum())
-    unliftable = f"; {count - lifted} without a detected root are null" if lifted < count else ""
+    rootless = count - lifted - not_followed
+    unliftable = f"; {rootless} without a detected root are null" if rootless else ""
+    unliftable += f"; {not_followed} other people, not followed, are null" if not_followed else ""
     print(
         f"lifted {lifted} of {count} poses with the {lifter.skeleton.name} lifter (step {lifter.step}) of"
         f" {lifter.source} -> {args.output}{unliftable}",
@@ -429,8 +432,8 @@ def run(args: PredictArgs) -> np.ndarray:
     return poses
 
 
-def lift_sequence(lifter, keypoints, confidence, K, dist, image_size, detections: DetectionFile) -> np.ndarray:
-    """A temporal lifter's poses f32[N, J, 3]: the input's frames in sequence order (`animation_frames`:
+def lift_sequence(lifter, keypoints, confidence, K, dist, image_size, detections: DetectionFile) -> tuple[np.ndarray, int]:
+    """A temporal lifter's poses f32[N, J, 3] and how many of them were not followed: the input's frames in sequence order (`animation_frames`:
     OpenPose frames in frame-number order, image ids in numerical order), one person per frame (the
     highest mean score), each lifted with the window of frames around it; a frame without a pose is a
     frame of missing joints in its neighbours' windows.  The other people's poses are NaN, and said so."""
@@ -451,7 +454,7 @@ def lift_sequence(lifter, keypoints, confidence, K, dist, image_size, detections
         + (f"; {others} poses of other people in frames with several are not lifted (null)" if others else ""),
         file=sys.stderr,
     )
-    return poses
+    return poses, others
 
 
 def _count(number: int, noun: str) -> str:
