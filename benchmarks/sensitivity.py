@@ -13,11 +13,13 @@ capture projected into one camera each (undistorted pixels, image 1000 x 1000 px
    that keeps the joint inside the image (directions that leave it are redrawn; a joint with none is
    skipped); "corner+500": 500 px diagonally beyond a random image corner (the case of the issue);
    "outside": a random point 1 to 1000 px beyond the missing-keypoint margin of a random border.
-   Each run is measured twice: as `predict` lifted before the missing-keypoint policy (every keypoint
-   as given) and with it (`outside_margin`: a keypoint beyond the margin is missing).
+   Each run is measured three times: as `predict` lifted before the missing-keypoint policy (every
+   keypoint as given), with it (`outside_margin`: a keypoint beyond the margin is missing), and with it
+   and the rejection of the joint that fits the rest of its pose worst (`reject_inconsistent`, --reject).
 2. Wild joints on real detections.  The run's own development-split test set with Stacked Hourglass
    detections (16-joint runs only): P-MPJPE over the view-poses that have a joint more than 100 px from
-   the projected ground truth, and over those that have none.
+   the projected ground truth, and over those that have none; lifted as given, with the rejection, and
+   with exactly the wild joints lifted as missing (what a perfect rejection would give).
 
 Writes a JSON of every number (--out) and prints markdown tables.
 """
@@ -95,11 +97,16 @@ def displaced(point: np.ndarray, condition, margin: float, rng: np.random.Genera
     return None
 
 
-def sensitivity(lifter, keypoints, K, conditions, margin_fraction, policy: bool, rng) -> dict:
-    """{condition: {"median_mm", "p95_mm", "cases"}}, see the module docstring."""
+PASSES = ("as_given", "policy", "rejecting")
+
+
+def sensitivity(lifter, keypoints, K, conditions, margin_fraction, lifting: str, reject: float, rng) -> dict:
+    """{condition: {"median_mm", "p95_mm", "cases"}} for one of `PASSES`, see the module docstring."""
     M, J, _ = keypoints.shape
     margin = margin_fraction * max(IMAGE_SIZE)
-    options = dict(image_size=IMAGE_SIZE, outside_margin=margin_fraction if policy else None)
+    options = dict(image_size=IMAGE_SIZE, outside_margin=None if lifting == "as_given" else margin_fraction)
+    if lifting == "rejecting":
+        options["reject_inconsistent"] = reject
     base = lifter.predict(keypoints, K, **options)
     results = {}
     for condition in conditions:
@@ -127,9 +134,11 @@ def sensitivity(lifter, keypoints, K, conditions, margin_fraction, policy: bool,
     return results
 
 
-def wild_joint_errors(lifter, data_dir: pathlib.Path) -> dict | None:
-    """P-MPJPE (mm) of the lifter on the dev split's SH test set, view-poses with / without a joint
-    more than WILD_PX from the projected ground truth."""
+def wild_joint_errors(lifter, data_dir: pathlib.Path, reject: float) -> dict | None:
+    """P-MPJPE (mm) of the lifter on the dev split's SH test set, over the view-poses with / without a
+    joint more than WILD_PX from the projected ground truth: lifted as given, with `predict`'s
+    reject_inconsistent=`reject` (and the share of view-poses it rejects a joint of), and, as the bound
+    of any rejection, with exactly the wild joints lifted as missing (an oracle)."""
     sh = dev_split(data_dir, "sh")
     if sh.skeleton.joint_names != lifter.joint_names:
         return None
@@ -138,25 +147,36 @@ def wild_joint_errors(lifter, data_dir: pathlib.Path) -> dict | None:
     projected = gt.keypoints2d[:, :, index]
     if projected.shape != sh.keypoints2d.shape:
         raise SystemExit(f"SH {sh.keypoints2d.shape} and ground-truth 2D {projected.shape} test sets differ")
-    offset = np.linalg.norm(sh.keypoints2d - projected, axis=-1)  # [N, C, J]
-    wild = (offset > WILD_PX).any(-1)
-    undistorted = sh.undistorted()
     N, C, J, _ = sh.keypoints2d.shape
+    offset = np.linalg.norm(sh.keypoints2d - projected, axis=-1).reshape(N * C, J)
+    wild_joint = (offset > WILD_PX) & (np.arange(J) != 0)  # the root is never lifted as missing
+    wild = (offset > WILD_PX).any(-1)
+    keypoints = sh.undistorted().keypoints2d.reshape(N * C, J, 2)
     K = np.asarray(sh.rigs.K)[sh.rig_index].reshape(N * C, 3, 3)
-    pred = lifter.predict(undistorted.keypoints2d.reshape(N * C, J, 2), K, sh.confidence.reshape(N * C, J))
+    confidence = sh.confidence.reshape(N * C, J)
     target, valid = ground_truth_in_views(sh)
-    errors = np.asarray(p_mpjpe(pred, target.reshape(N * C, J, 3))).reshape(N, C)
-    result = {}
+    target, valid = target.reshape(N * C, J, 3), valid.reshape(N * C)
+    rejected = lifter.inconsistent_joints(keypoints, K, confidence, threshold=reject)
+    lifts = {
+        "as_given": confidence,
+        "rejecting": np.where(rejected, 0.0, confidence),
+        "wild_joints_missing": np.where(wild_joint, 0.0, confidence),
+    }
+    result = {"share_wild": float((wild & valid).sum() / valid.sum()), "reject": reject}
+    for lifting, scores in lifts.items():
+        pred = lifter.predict(keypoints, K, scores.astype(np.float32))
+        errors = np.asarray(p_mpjpe(pred, target))
+        entry = result[lifting] = {}
+        for name, mask in (("wild", wild & valid), ("clean", ~wild & valid)):
+            entry[name] = {"p_mpjpe_mm": float(errors[mask].mean()), "view_poses": int(mask.sum())}
+        # On the poses with a wild joint, the error of the OTHER joints (aligned on them alone): what the
+        # wild joint did to the rest of the pose.
+        kept = offset <= WILD_PX
+        others = [float(p_mpjpe(pred[i][kept[i]], target[i][kept[i]])) for i in np.flatnonzero(wild & valid)]
+        entry["wild"]["p_mpjpe_other_joints_mm"] = float(np.mean(others))
     for name, mask in (("wild", wild & valid), ("clean", ~wild & valid)):
-        result[name] = {"p_mpjpe_mm": float(errors[mask].mean()), "view_poses": int(mask.sum())}
-    # On the poses with a wild joint, the error of the OTHER joints (aligned on them alone): what one
-    # wild joint did to the rest of the pose.
-    rows = np.argwhere(wild & valid)
-    pred = pred.reshape(N, C, J, 3)
-    target = target.reshape(N, C, J, 3)
-    others = [float(p_mpjpe(pred[n, c][offset[n, c] <= WILD_PX], target[n, c][offset[n, c] <= WILD_PX])) for n, c in rows]
-    result["wild"]["p_mpjpe_other_joints_mm"] = float(np.mean(others))
-    result["share_wild"] = float((wild & valid).sum() / valid.sum())
+        result["rejecting"][name]["rejected_share"] = float(rejected.any(-1)[mask].mean())
+    result["rejecting"]["wild"]["wild_joint_rejected_share"] = float((rejected & wild_joint).any(-1)[wild & valid].mean())
     return result
 
 
@@ -167,6 +187,9 @@ def main(argv=None) -> dict:
     parser.add_argument("--poses", type=int, default=200, help="test poses (one view each)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--margin", type=float, default=inference.DEFAULT_OUTSIDE_MARGIN, help="--outside-margin of predict")
+    parser.add_argument(
+        "--reject", type=float, default=inference.DEFAULT_INCONSISTENT_RESIDUAL, help="--reject-inconsistent of predict"
+    )
     parser.add_argument("--out", type=pathlib.Path, default=pathlib.Path("runs/benchmarks/sensitivity.json"))
     args = parser.parse_args(argv)
     gt = dev_split(args.data_dir, "gt")
@@ -179,27 +202,38 @@ def main(argv=None) -> dict:
             raise SystemExit(f"{run}: a temporal lifter ({lifter.model_config.temporal_window} frames); this benchmark moves joints of single poses")
         keypoints, K = sample_poses(gt, lifter.joint_names, args.poses, np.random.default_rng(args.seed))
         entry = {"normalization": lifter.model_config.input_normalization, "poses": len(keypoints)}
-        for policy in (False, True):
-            rng = np.random.default_rng(args.seed + 1)  # the same displacements for both
-            entry["policy" if policy else "as_given"] = sensitivity(lifter, keypoints, K, conditions, args.margin, policy, rng)
-        entry["wild"] = wild_joint_errors(lifter, args.data_dir)
+        for lifting in PASSES:
+            rng = np.random.default_rng(args.seed + 1)  # the same displacements for all
+            entry[lifting] = sensitivity(lifter, keypoints, K, conditions, args.margin, lifting, args.reject, rng)
+        entry["wild"] = wild_joint_errors(lifter, args.data_dir, args.reject)
         entry["seconds"] = time.perf_counter() - start
         report["runs"][str(run)] = entry
         print(f"\n### {run} ({entry['normalization']}, {entry['poses']} poses)\n")
-        print("| one joint moved | as given: median / p95 (mm) | missing-keypoint policy: median / p95 (mm) |")
-        print("|---|---|---|")
+        print(
+            "| one joint moved | as given: median / p95 (mm) | missing-keypoint policy: median / p95 (mm) |"
+            f" policy + rejection (residual > {args.reject:g}): median / p95 (mm) |"
+        )
+        print("|---|---|---|---|")
         for condition in conditions:
-            a, b = entry["as_given"][str(condition)], entry["policy"][str(condition)]
+            cells = [entry[lifting][str(condition)] for lifting in PASSES]
             label = f"{condition} px" if isinstance(condition, int) else condition
-            print(f"| {label} | {a['median_mm']:.1f} / {a['p95_mm']:.1f} | {b['median_mm']:.1f} / {b['p95_mm']:.1f} |")
-        if entry["wild"] is not None:
-            w = entry["wild"]
+            print(f"| {label} | " + " | ".join(f"{c['median_mm']:.1f} / {c['p95_mm']:.1f}" for c in cells) + " |")
+        w = entry["wild"]
+        if w is not None:
             print(
-                f"\nSH test view-poses with a joint > {WILD_PX:.0f} px off: {w['wild']['view_poses']}"
-                f" ({100 * w['share_wild']:.1f}%), P-MPJPE {w['wild']['p_mpjpe_mm']:.1f} mm (their other joints alone:"
-                f" {w['wild']['p_mpjpe_other_joints_mm']:.1f} mm); without:"
-                f" {w['clean']['view_poses']}, P-MPJPE {w['clean']['p_mpjpe_mm']:.1f} mm"
+                f"\nSH test view-poses with a joint > {WILD_PX:.0f} px off: {w['as_given']['wild']['view_poses']}"
+                f" ({100 * w['share_wild']:.1f}%); without: {w['as_given']['clean']['view_poses']}\n"
             )
+            print("| lifted | P-MPJPE with (mm) | their other joints alone (mm) | P-MPJPE without (mm) | poses with a joint rejected: with / without |")
+            print("|---|---|---|---|---|")
+            for lifting, label in (
+                ("as_given", "as given"),
+                ("rejecting", f"rejecting (residual > {args.reject:g})"),
+                ("wild_joints_missing", "the wild joints as missing (oracle)"),
+            ):
+                a, b = w[lifting]["wild"], w[lifting]["clean"]
+                share = f"{100 * a['rejected_share']:.1f}% / {100 * b['rejected_share']:.2f}%" if "rejected_share" in a else "-"
+                print(f"| {label} | {a['p_mpjpe_mm']:.1f} | {a['p_mpjpe_other_joints_mm']:.1f} | {b['p_mpjpe_mm']:.1f} | {share} |")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=2) + "\n")
     return report

@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpose import checkpoint
-from jaxpose.camera import Cameras, undistort_points
+from jaxpose.camera import Cameras, masked_median, normalize_keypoints, undistort_points
 from jaxpose.config import ModelConfig
 from jaxpose.chunks import map_in_chunks
 from jaxpose.data.dataset import window_rows
@@ -84,6 +84,50 @@ def implausible_joints(
             beyond = (x < -margin) | (x > width + margin) | (y < -margin) | (y > height + margin)
             outside = given & ~non_finite & ~low & beyond
     return {"non_finite": non_finite, "low_confidence": low, "outside_image": outside}
+
+
+DEFAULT_INCONSISTENT_RESIDUAL = 2.0
+"""The measured choice for `jaxpose.predict --reject-inconsistent` (off by default): how far, in median
+joint-to-root distances of the pose, a joint may lie from where the rest of the pose puts it (see
+`leave_one_out_residuals`).  With a Human3.6M development lifter trained with `--train.augment.drop 0.1`,
+a joint moved 200 px changes the others by 37.8 mm at the median instead of 106.9, and 0.4% of the clean
+SH test poses lose a joint (P-MPJPE +0.1 mm); with one trained without dropping, 1.0% (+0.6 mm), which
+is why it is not on by default (docs/robust_input.md)."""
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def leave_one_out_residuals(eval_step: Callable[..., jax.Array], variables, keypoints, K, confidence) -> jax.Array:
+    """How badly each joint fits the rest of its pose: f32[N, J] for undistorted keypoints [N, J, 2] px.
+
+    Joint j is lifted as missing and the lifted pose's (x, y) is compared with the detected pose, both
+    root-relative and divided by their median joint-to-root distance over the other given joints (the
+    camera-frame (x, y) of a root-relative pose is its image up to scale, under weak perspective).  The
+    residual is how far detected joint j lies from where the rest of the pose puts it, in those units.
+    A wild joint left out is far from its prediction; a good joint left out is predicted near where it
+    is, if the lifter fills in missing joints well, as one trained with `--train.augment.drop` does
+    (docs/robust_input.md).  Medians, not a least-squares fit, so that a far joint cannot set the scale
+    of every other joint's residual.  0 for the root and for missing joints.
+    """
+    N, J = confidence.shape
+    given = (confidence > 0) & (jnp.arange(J) != 0)
+    others = given[:, None, :] & ~jnp.eye(J, dtype=bool)[1:]  # [N, J-1, J]: the joints given, but the left-out one
+
+    def in_median_units(points):  # [N, J-1, J, 2] root-relative -> divided by the median distance of `others`
+        scale = masked_median(jnp.linalg.norm(points, axis=-1), others)
+        return points / jnp.maximum(scale, 1e-12)[..., None, None]
+
+    relative = normalize_keypoints(keypoints, K, confidence, "intrinsics")
+    lifted = eval_step(
+        variables,
+        jnp.broadcast_to(keypoints[:, None], (N, J - 1, J, 2)).reshape(-1, J, 2),
+        jnp.broadcast_to(K[:, None], (N, J - 1, 3, 3)).reshape(-1, 3, 3),
+        jnp.where(jnp.eye(J, dtype=bool)[1:], 0.0, confidence[:, None, :]).reshape(-1, J),
+    ).reshape(N, J - 1, J, 3)[..., :2]
+    left_out = jnp.arange(1, J)
+    detected = in_median_units(jnp.broadcast_to(relative[:, None], lifted.shape))[:, left_out - 1, left_out]
+    predicted = in_median_units(lifted)[:, left_out - 1, left_out]
+    residual = jnp.linalg.norm(detected - predicted, axis=-1)  # [N, J-1]
+    return jnp.concatenate([jnp.zeros((N, 1), residual.dtype), jnp.where(given[:, 1:], residual, 0.0)], axis=1)
 
 
 def default_intrinsics(image_size: Sequence[float]) -> np.ndarray:
@@ -152,6 +196,7 @@ class Lifter3D:
         image_size: Sequence[float] | None = None,
         min_confidence: float = 0.0,
         outside_margin: float | None = None,
+        reject_inconsistent: float | None = None,
     ) -> np.ndarray:
         """Root-relative 3D poses f32[N, J, 3] in mm, in each camera's frame (x right, y down, z forward).
 
@@ -167,12 +212,75 @@ class Lifter3D:
         min_confidence: joints scored below this are lifted as missing (default 0: every score > 0 counts).
         outside_margin: with `image_size`, joints more than this fraction of the larger image side
                      outside the image are lifted as missing (`implausible_joints`; None = no check).
+        reject_inconsistent: a residual (e.g. `DEFAULT_INCONSISTENT_RESIDUAL`): in each pose, the joint that
+                     fits the rest of the pose worst is lifted as missing if its residual is larger
+                     (`inconsistent_joints`; None = no check).  Frame lifters only.
         Rows whose root (joint 0) is missing are NaN.  Non-finite keypoints with confidence > 0 are an
         error here (`jaxpose.predict` reports them and lifts them as missing).
         """
+        single = np.ndim(keypoints2d) == 2
+        keypoints, K, confidence = self._prepare(
+            keypoints2d, intrinsics, confidence, distortion, image_size, min_confidence, outside_margin
+        )
+        if reject_inconsistent is not None:
+            rejected = self._inconsistent(keypoints, K, confidence, reject_inconsistent)
+            confidence = np.where(rejected, 0.0, confidence).astype(np.float32)
+            keypoints = np.where(rejected[..., None], 0.0, keypoints).astype(np.float32)
+        count = len(keypoints)
+        poses = np.full((count, self.num_joints, 3), np.nan, np.float32)
+        liftable = np.flatnonzero(confidence[:, ROOT] > 0)
+        if len(liftable):
+            lift = functools.partial(self.eval_step, self.variables)
+            window = self.model_config.temporal_window
+            if window > 1:  # [N, T, J, 2]: each frame's window in the sequence
+                frames = window_rows(liftable, np.array([[0, count]]).repeat(len(liftable), 0), window)
+                inputs = (keypoints[frames], K[liftable], confidence[frames])
+            else:
+                inputs = (keypoints[liftable], K[liftable], confidence[liftable])
+            poses[liftable] = map_in_chunks(lift, inputs, _chunk_size(len(liftable), self.batch_size))
+        return poses[0] if single else poses
+
+    def inconsistent_joints(
+        self,
+        keypoints2d,
+        intrinsics=None,
+        confidence=None,
+        distortion=None,
+        image_size: Sequence[float] | None = None,
+        threshold: float = DEFAULT_INCONSISTENT_RESIDUAL,
+    ) -> np.ndarray:
+        """bool[N, J]: per pose, the joint `predict(..., reject_inconsistent=threshold)` lifts as missing
+        (at most one: the largest `leave_one_out_residuals`, where it exceeds `threshold`).  Arguments as
+        `predict`'s; the joints given as missing stay so and are not counted."""
+        keypoints, K, confidence = self._prepare(keypoints2d, intrinsics, confidence, distortion, image_size)
+        rejected = self._inconsistent(keypoints, K, confidence, threshold)
+        return rejected[0] if np.ndim(keypoints2d) == 2 else rejected
+
+    def _inconsistent(self, keypoints: np.ndarray, K: np.ndarray, confidence: np.ndarray, threshold: float) -> np.ndarray:
+        if self.model_config.temporal_window > 1:
+            raise ValueError("rejecting inconsistent joints needs a frame lifter; this one reads windows of frames")
+        if not threshold > 0:
+            raise ValueError(f"the residual threshold for inconsistent joints must be > 0, got {threshold}")
+        rows = np.flatnonzero(confidence[:, ROOT] > 0)
+        rejected = np.zeros(confidence.shape, bool)
+        if len(rows):
+            residual = map_in_chunks(
+                functools.partial(leave_one_out_residuals, self.eval_step, self.variables),
+                (keypoints[rows], K[rows], confidence[rows]),
+                _chunk_size(len(rows), max(1, self.batch_size // self.num_joints)),
+            )
+            worst = residual.argmax(-1)
+            flagged = residual[np.arange(len(rows)), worst] > threshold
+            rejected[rows[flagged], worst[flagged]] = True
+        return rejected
+
+    def _prepare(
+        self, keypoints2d, intrinsics, confidence, distortion, image_size, min_confidence=0.0, outside_margin=None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Checked [N, J, 2] undistorted keypoints (missing ones zero), K [N, 3, 3] and confidence [N, J]
+        (0 where missing, below `min_confidence` or outside the image by `outside_margin`)."""
         keypoints = np.asarray(keypoints2d, np.float32)
-        single = keypoints.ndim == 2
-        if single:
+        if keypoints.ndim == 2:
             keypoints = keypoints[None]
             confidence = None if confidence is None else np.asarray(confidence)[None]
         keypoints, confidence = self._check_keypoints(keypoints, confidence)
@@ -190,18 +298,7 @@ class Lifter3D:
             keypoints = np.asarray(_undistort(K, dist, keypoints))
             # Missing joints were zeroed, and undistorting (0, 0) may diverge: keep them at zero.
             keypoints = np.where(confidence[..., None] > 0, keypoints, 0.0).astype(np.float32)
-        poses = np.full((count, self.num_joints, 3), np.nan, np.float32)
-        liftable = np.flatnonzero(confidence[:, ROOT] > 0)
-        if len(liftable):
-            lift = functools.partial(self.eval_step, self.variables)
-            window = self.model_config.temporal_window
-            if window > 1:  # [N, T, J, 2]: each frame's window in the sequence
-                frames = window_rows(liftable, np.array([[0, count]]).repeat(len(liftable), 0), window)
-                inputs = (keypoints[frames], K[liftable], confidence[frames])
-            else:
-                inputs = (keypoints[liftable], K[liftable], confidence[liftable])
-            poses[liftable] = map_in_chunks(lift, inputs, _chunk_size(len(liftable), self.batch_size))
-        return poses[0] if single else poses
+        return keypoints, K, confidence
 
     def _check_keypoints(self, keypoints: np.ndarray, confidence) -> tuple[np.ndarray, np.ndarray]:
         """Shapes and values of keypoints/confidence; returns them with missing joints zeroed."""

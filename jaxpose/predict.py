@@ -37,7 +37,10 @@ Keypoints that cannot be right are lifted as missing, and the command says how m
 poses it treated so, per reason (`jaxpose.inference.implausible_joints`): NaN or infinite coordinates
 with a positive score, a score below --min-confidence (default 0.05), and, where the image size is known
 (--image-size, or the --intrinsics calibration's), a keypoint more than --outside-margin (default 10%) of
-the larger image side outside the image.  One wild keypoint would otherwise move the whole lifted pose
+the larger image side outside the image.  Then, in each pose, the joint that fits the rest of the pose
+worst can be lifted as missing where it lies more than --reject-inconsistent (2 for a lifter trained with
+--train.augment.drop 0.1; off by default) median joint-to-root distances from where the rest of the pose
+puts it (frame lifters; `jaxpose.inference.inconsistent_joints`), and the command says how many.  One wild keypoint would otherwise move the whole lifted pose
 (docs/robust_input.md).
 
 A pose whose root (the pelvis; for COCO/OpenPose both hips) was not detected cannot be lifted: it is null,
@@ -363,6 +366,12 @@ class PredictArgs:
     outside_margin: float | None = inference.DEFAULT_OUTSIDE_MARGIN
     """Keypoints more than this fraction of the larger image side outside the image are lifted as missing
     (needs the image size: --image-size or a calibration that has it); None disables the check."""
+    reject_inconsistent: float | None = None
+    """In each pose, the joint that fits the rest of the pose worst is lifted as missing where it lies farther
+    than this many median joint-to-root distances from where the rest of the pose puts it (frame lifters;
+    `jaxpose.inference.leave_one_out_residuals`).  2 is the measured choice for a lifter trained with
+    --train.augment.drop 0.1; off by default, as it costs a lifter trained without it accuracy
+    (docs/robust_input.md)."""
 
 
 def run(args: PredictArgs) -> np.ndarray:
@@ -380,6 +389,8 @@ def run(args: PredictArgs) -> np.ndarray:
         raise ValueError(f"--min-confidence must lie in [0, 1], got {args.min_confidence}")
     if args.outside_margin is not None and not args.outside_margin >= 0:
         raise ValueError(f"--outside-margin must be >= 0, got {args.outside_margin}")
+    if args.reject_inconsistent is not None and not args.reject_inconsistent > 0:
+        raise ValueError(f"--reject-inconsistent must be > 0, got {args.reject_inconsistent}")
     detections = read_detections(args.input)
     lifter = inference.load(args.checkpoint, batch_size=args.batch_size)
     K, dist, image_size = (None, None, None) if args.intrinsics is None else read_intrinsics(args.intrinsics)
@@ -399,15 +410,25 @@ def run(args: PredictArgs) -> np.ndarray:
     count = len(keypoints)
     not_followed = 0  # a temporal lifter's other people in a frame
     if lifter.model_config.temporal_window > 1:
+        if args.reject_inconsistent is not None:
+            print("--reject-inconsistent: frame lifters only, not applied to this temporal lifter", file=sys.stderr)
         poses, not_followed = lift_sequence(lifter, keypoints, confidence, K, dist, image_size, detections)
     else:
         poses = np.empty((count, lifter.num_joints, 3), np.float32)
+        rejected = np.zeros(confidence.shape, bool)
         with tqdm(total=count, desc="lifting", unit="pose", disable=count <= LIFT_BLOCK) as bar:
             for start in range(0, count, LIFT_BLOCK):
                 rows = slice(start, min(start + LIFT_BLOCK, count))
                 per_pose_K = K if K is None or K.ndim == 2 else K[rows]
-                poses[rows] = lifter.predict(keypoints[rows], per_pose_K, confidence[rows], dist, image_size)
+                if args.reject_inconsistent is not None:
+                    rejected[rows] = lifter.inconsistent_joints(
+                        keypoints[rows], per_pose_K, confidence[rows], dist, image_size, args.reject_inconsistent
+                    )
+                kept = np.where(rejected[rows], 0.0, confidence[rows]).astype(np.float32)
+                poses[rows] = lifter.predict(keypoints[rows], per_pose_K, kept, dist, image_size)
                 bar.update(rows.stop - rows.start)
+        if args.reject_inconsistent is not None:
+            print(rejection_report(rejected, keypoints, lifter.joint_names, args.reject_inconsistent), file=sys.stderr)
     write_poses(args.output, poses, detections.image_ids, lifter.joint_names, args.fps)
     lifted = int(np.isfinite(poses).all((1, 2)).sum())
     rootless = count - lifted - not_followed
@@ -459,6 +480,18 @@ def lift_sequence(lifter, keypoints, confidence, K, dist, image_size, detections
 
 def _count(number: int, noun: str) -> str:
     return f"{number} {noun}" + ("" if number == 1 else "s")
+
+
+def rejection_report(rejected: np.ndarray, keypoints: np.ndarray, names: Sequence[str], threshold: float) -> str:
+    """What --reject-inconsistent lifted as missing (rejected bool[N, J], in the lifter's joints)."""
+    if not rejected.any():
+        return f"no joint lay farther than --reject-inconsistent {threshold:g} from where the rest of its pose puts it"
+    pose, joint = np.argwhere(rejected)[0]
+    return (
+        f"lifted {_count(int(rejected.sum()), 'joint')} as missing (at most one per pose) that lay farther than"
+        f" --reject-inconsistent {threshold:g} median joint-to-root distances from where the rest of the pose puts"
+        f" it (first: pose {pose}, {names[joint]} at {[round(float(v), 1) for v in keypoints[pose, joint]]})"
+    )
 
 
 def drop_implausible(

@@ -15,7 +15,7 @@ import numpy as np
 import onnxruntime
 import pytest
 from geometry_helpers import exact_batch, random_poses, random_rig
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jaxpose import export, inference, predict
@@ -248,3 +248,88 @@ def test_exported_forms_use_the_median_normalisation(trained_run, median_lifter,
     rms = dataclasses.replace(median_lifter.model_config, input_normalization="intrinsics_scale")
     other = make_eval_step(rms.build(median_lifter.num_joints), rms)(median_lifter.variables, keypoints, K, confidence)
     assert np.abs(np.asarray(other)[3] - expected[3]).max() > 1.0  # the forms would tell the two apart
+
+
+def test_leave_one_out_residuals_match_a_numpy_oracle(trained_run, lifter):
+    """Each joint lifted as missing by `predict`, the lifted (x, y) and the detected pose both divided by
+    their median joint-to-root distance over the other given joints: the residual is their distance."""
+    keypoints, K = _test_poses(trained_run[1], 6)
+    confidence = np.ones(keypoints.shape[:2], np.float32)
+    confidence[2, 7] = 0.0  # a missing joint: residual 0, and out of every median
+    J = keypoints.shape[1]
+    got = np.asarray(inference.leave_one_out_residuals(lifter.eval_step, lifter.variables, keypoints, K, confidence))
+    rays = np.einsum("nij,nkj->nki", np.linalg.inv(K.astype(np.float64)), np.concatenate([keypoints, np.ones((6, J, 1))], -1))
+    detected = rays[..., :2] / rays[..., 2:] - (rays[..., :2] / rays[..., 2:])[:, :1]
+    expected = np.zeros((6, J))
+    for j in range(1, J):
+        without = confidence.copy()
+        without[:, j] = 0.0
+        lifted = lifter.predict(keypoints, K, without)[..., :2].astype(np.float64)
+        for n in range(6):
+            if confidence[n, j] == 0:
+                continue
+            others = (without[n] > 0) & (np.arange(J) > 0)
+            a = detected[n, j] / np.median(np.linalg.norm(detected[n, others], axis=-1))
+            b = lifted[n, j] / np.median(np.linalg.norm(lifted[n, others], axis=-1))
+            expected[n, j] = np.linalg.norm(a - b)
+    np.testing.assert_allclose(got, expected, atol=2e-3)
+    assert got[2, 7] == 0.0 and (got[:, 0] == 0).all()
+
+
+def _lifter_that_knows(lifter, pose_in_camera: np.ndarray):
+    """`lifter` with its network replaced by one that returns this root-relative pose for every input."""
+    pose = jnp.asarray(pose_in_camera - pose_in_camera[:1])
+
+    def eval_step(variables, keypoints, K, confidence):
+        return jnp.broadcast_to(pose, (keypoints.shape[0], *pose.shape))
+
+    return dataclasses.replace(lifter, eval_step=eval_step)
+
+
+@given(
+    seed=st.integers(0, 2**16),
+    joint=st.integers(1, 16),
+    angle=st.floats(0.0, 2 * np.pi),
+    far=st.floats(4.0, 50.0),
+)
+@settings(max_examples=10)  # each example compiles its own network
+def test_with_a_lifter_that_knows_the_pose_exactly_the_moved_joint_is_rejected(lifter, seed, joint, angle, far):
+    """A body 6 m away fits its weak-perspective image to within 1 median distance (clean: nothing is
+    rejected).  One joint moved by `far` >= 4 median distances lies >= 3 from where the rest puts it, and
+    moves every other joint's residual by at most the one-rank change of their median: it alone is
+    rejected, and `predict` lifts the pose as with the rejected joint missing."""
+    rng = np.random.default_rng(seed)
+    body = random_poses(rng, 1, 17)[0].astype(np.float64)
+    body = body - body.mean(0) + np.array([0.0, 0.0, 6000.0])
+    K = np.array([[1000.0, 0.0, 500.0], [0.0, 1000.0, 500.0], [0.0, 0.0, 1.0]], np.float32)
+    keypoints = (body[:, :2] / body[:, 2:] * 1000.0 + 500.0).astype(np.float32)[None]
+    knows = _lifter_that_knows(lifter, body.astype(np.float32))
+    assert not knows.inconsistent_joints(keypoints, K, threshold=1.0).any()
+    median = np.median(np.linalg.norm(keypoints[0, 1:] - keypoints[0, :1], axis=-1))
+    moved = keypoints.copy()
+    moved[0, joint] += far * median * np.array([np.cos(angle), np.sin(angle)], np.float32)
+    rejected = knows.inconsistent_joints(moved, K, threshold=inference.DEFAULT_INCONSISTENT_RESIDUAL)
+    assert np.argwhere(rejected).tolist() == [[0, joint]]
+    # `predict` lifts the joints `inconsistent_joints` finds as missing (here with the shared tiny lifter).
+    rejected = lifter.inconsistent_joints(moved, K)
+    np.testing.assert_array_equal(
+        lifter.predict(moved, K, reject_inconsistent=inference.DEFAULT_INCONSISTENT_RESIDUAL),
+        lifter.predict(moved, K, np.where(rejected, 0.0, 1.0).astype(np.float32)),
+    )
+
+
+def test_cli_rejects_inconsistent_joints_and_says_how_many(trained_run, lifter, tmp_path, capsys):
+    keypoints, K = _test_poses(trained_run[1], 8)
+    keypoints[3, 12] += (400.0, -300.0)  # a wrist far from where the rest of the pose puts it
+    path = tmp_path / "poses.npz"
+    np.savez(path, keypoints=keypoints, K=K)
+    common = ["--checkpoint", str(trained_run[0]), "--input", str(path), "--min-confidence", "0"]
+    poses = predict.main([*common, "--output", str(tmp_path / "out.npz"), "--reject-inconsistent", "1.0"])
+    rejected = lifter.inconsistent_joints(keypoints, K, threshold=1.0)
+    assert rejected[3, 12]
+    np.testing.assert_array_equal(poses, lifter.predict(keypoints, K, reject_inconsistent=1.0))
+    noun = "joint" if rejected.sum() == 1 else "joints"
+    assert f"lifted {int(rejected.sum())} {noun} as missing (at most one per pose)" in capsys.readouterr().err
+    # Off by default: every given joint is lifted as given.
+    np.testing.assert_array_equal(predict.main([*common, "--output", str(tmp_path / "plain.npz")]), lifter.predict(keypoints, K))
+    assert "--reject-inconsistent" not in capsys.readouterr().err
