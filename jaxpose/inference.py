@@ -95,6 +95,9 @@ SH test poses lose a joint (P-MPJPE +0.1 mm); with one trained without dropping,
 is why it is not on by default (docs/robust_input.md)."""
 
 
+MIN_JOINTS_FOR_RESIDUAL = 3
+
+
 @functools.partial(jax.jit, static_argnums=0)
 def leave_one_out_residuals(eval_step: Callable[..., jax.Array], variables, keypoints, K, confidence) -> jax.Array:
     """How badly each joint fits the rest of its pose: f32[N, J] for undistorted keypoints [N, J, 2] px.
@@ -106,10 +109,12 @@ def leave_one_out_residuals(eval_step: Callable[..., jax.Array], variables, keyp
     A wild joint left out is far from its prediction; a good joint left out is predicted near where it
     is, if the lifter fills in missing joints well, as one trained with `--train.augment.drop` does
     (docs/robust_input.md).  Medians, not a least-squares fit, so that a far joint cannot set the scale
-    of every other joint's residual.  0 for the root and for missing joints.
+    of every other joint's residual.  0 for the root, for missing joints, for every joint of a pose
+    whose root is missing, and where fewer than `MIN_JOINTS_FOR_RESIDUAL` other joints are given (their
+    median says nothing of the pose's size).
     """
     N, J = confidence.shape
-    given = (confidence > 0) & (jnp.arange(J) != 0)
+    given = (confidence > 0) & (jnp.arange(J) != 0) & (confidence[:, :1] > 0)
     others = given[:, None, :] & ~jnp.eye(J, dtype=bool)[1:]  # [N, J-1, J]: the joints given, but the left-out one
 
     def in_median_units(points):  # [N, J-1, J, 2] root-relative -> divided by the median distance of `others`
@@ -127,7 +132,8 @@ def leave_one_out_residuals(eval_step: Callable[..., jax.Array], variables, keyp
     detected = in_median_units(jnp.broadcast_to(relative[:, None], lifted.shape))[:, left_out - 1, left_out]
     predicted = in_median_units(lifted)[:, left_out - 1, left_out]
     residual = jnp.linalg.norm(detected - predicted, axis=-1)  # [N, J-1]
-    return jnp.concatenate([jnp.zeros((N, 1), residual.dtype), jnp.where(given[:, 1:], residual, 0.0)], axis=1)
+    measurable = given[:, 1:] & (others.sum(-1) >= MIN_JOINTS_FOR_RESIDUAL)
+    return jnp.concatenate([jnp.zeros((N, 1), residual.dtype), jnp.where(measurable, residual, 0.0)], axis=1)
 
 
 def default_intrinsics(image_size: Sequence[float]) -> np.ndarray:
@@ -247,12 +253,17 @@ class Lifter3D:
         confidence=None,
         distortion=None,
         image_size: Sequence[float] | None = None,
+        min_confidence: float = 0.0,
+        outside_margin: float | None = None,
         threshold: float = DEFAULT_INCONSISTENT_RESIDUAL,
     ) -> np.ndarray:
         """bool[N, J]: per pose, the joint `predict(..., reject_inconsistent=threshold)` lifts as missing
         (at most one: the largest `leave_one_out_residuals`, where it exceeds `threshold`).  Arguments as
-        `predict`'s; the joints given as missing stay so and are not counted."""
-        keypoints, K, confidence = self._prepare(keypoints2d, intrinsics, confidence, distortion, image_size)
+        `predict`'s; the joints missing already (given so, or by `min_confidence` / `outside_margin`) are
+        not counted."""
+        keypoints, K, confidence = self._prepare(
+            keypoints2d, intrinsics, confidence, distortion, image_size, min_confidence, outside_margin
+        )
         rejected = self._inconsistent(keypoints, K, confidence, threshold)
         return rejected[0] if np.ndim(keypoints2d) == 2 else rejected
 
@@ -260,7 +271,7 @@ class Lifter3D:
         if self.model_config.temporal_window > 1:
             raise ValueError("rejecting inconsistent joints needs a frame lifter; this one reads windows of frames")
         if not threshold > 0:
-            raise ValueError(f"the residual threshold for inconsistent joints must be > 0, got {threshold}")
+            raise ValueError(f"reject_inconsistent (the residual threshold) must be > 0, got {threshold}")
         rows = np.flatnonzero(confidence[:, ROOT] > 0)
         rejected = np.zeros(confidence.shape, bool)
         if len(rows):

@@ -40,8 +40,8 @@ with a positive score, a score below --min-confidence (default 0.05), and, where
 the larger image side outside the image.  Then, in each pose, the joint that fits the rest of the pose
 worst can be lifted as missing where it lies more than --reject-inconsistent (2 for a lifter trained with
 --train.augment.drop 0.1; off by default) median joint-to-root distances from where the rest of the pose
-puts it (frame lifters; `jaxpose.inference.inconsistent_joints`), and the command says how many.  One wild keypoint would otherwise move the whole lifted pose
-(docs/robust_input.md).
+puts it (frame lifters; `jaxpose.inference.inconsistent_joints`), and the command says how many.  One
+wild keypoint would otherwise move the whole lifted pose (docs/robust_input.md).
 
 A pose whose root (the pelvis; for COCO/OpenPose both hips) was not detected cannot be lifted: it is null,
 NaN or empty in the output.
@@ -422,13 +422,15 @@ def run(args: PredictArgs) -> np.ndarray:
                 per_pose_K = K if K is None or K.ndim == 2 else K[rows]
                 if args.reject_inconsistent is not None:
                     rejected[rows] = lifter.inconsistent_joints(
-                        keypoints[rows], per_pose_K, confidence[rows], dist, image_size, args.reject_inconsistent
-                    )
+                        keypoints[rows], per_pose_K, confidence[rows], dist, image_size,
+                        threshold=args.reject_inconsistent,
+                    )  # fmt: skip
                 kept = np.where(rejected[rows], 0.0, confidence[rows]).astype(np.float32)
                 poses[rows] = lifter.predict(keypoints[rows], per_pose_K, kept, dist, image_size)
                 bar.update(rows.stop - rows.start)
         if args.reject_inconsistent is not None:
             print(rejection_report(rejected, keypoints, lifter.joint_names, args.reject_inconsistent), file=sys.stderr)
+            confidence = np.where(rejected, 0.0, confidence).astype(np.float32)  # the plots show them as missing
     write_poses(args.output, poses, detections.image_ids, lifter.joint_names, args.fps)
     lifted = int(np.isfinite(poses).all((1, 2)).sum())
     rootless = count - lifted - not_followed

@@ -276,6 +276,22 @@ def test_leave_one_out_residuals_match_a_numpy_oracle(trained_run, lifter):
     assert got[2, 7] == 0.0 and (got[:, 0] == 0).all()
 
 
+def test_residuals_need_the_root_and_three_other_joints_and_chunks_change_nothing(trained_run, lifter):
+    keypoints, K = _test_poses(trained_run[1], 5)
+    confidence = np.ones(keypoints.shape[:2], np.float32)
+    confidence[1, 0] = 0.0  # no root: nothing is measurable
+    confidence[2, 4:] = 0.0  # the root and 3 joints: each left out has 2 others, whose median says nothing
+    got = np.asarray(inference.leave_one_out_residuals(lifter.eval_step, lifter.variables, keypoints, K, confidence))
+    assert (got[1] == 0).all() and (got[2] == 0).all() and (got[[0, 3, 4], 1:] > 0).all()
+    rejected = lifter.inconsistent_joints(keypoints, K, confidence, threshold=0.5)
+    assert rejected.any() and not rejected[[1, 2]].any()
+    one_per_call = dataclasses.replace(lifter, batch_size=lifter.num_joints)
+    np.testing.assert_array_equal(one_per_call.inconsistent_joints(keypoints, K, confidence, threshold=0.5), rejected)
+    np.testing.assert_array_equal(lifter.inconsistent_joints(keypoints[3], K[3], threshold=0.5), rejected[3])
+    with pytest.raises(ValueError, match=r"reject_inconsistent \(the residual threshold\) must be > 0"):
+        lifter.inconsistent_joints(keypoints, K, threshold=0.0)
+
+
 def _lifter_that_knows(lifter, pose_in_camera: np.ndarray):
     """`lifter` with its network replaced by one that returns this root-relative pose for every input."""
     pose = jnp.asarray(pose_in_camera - pose_in_camera[:1])
