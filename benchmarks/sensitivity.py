@@ -163,6 +163,7 @@ def wild_joint_errors(lifter, data_dir: pathlib.Path, reject: float) -> dict | N
         "wild_joints_missing": np.where(wild_joint, 0.0, confidence),
     }
     result = {"share_wild": float((wild & valid).sum() / valid.sum()), "reject": reject}
+    kept = offset <= WILD_PX
     for lifting, scores in lifts.items():
         pred = lifter.predict(keypoints, K, scores.astype(np.float32))
         errors = np.asarray(p_mpjpe(pred, target))
@@ -171,7 +172,6 @@ def wild_joint_errors(lifter, data_dir: pathlib.Path, reject: float) -> dict | N
             entry[name] = {"p_mpjpe_mm": float(errors[mask].mean()), "view_poses": int(mask.sum())}
         # On the poses with a wild joint, the error of the OTHER joints (aligned on them alone): what the
         # wild joint did to the rest of the pose.
-        kept = offset <= WILD_PX
         others = [float(p_mpjpe(pred[i][kept[i]], target[i][kept[i]])) for i in np.flatnonzero(wild & valid)]
         entry["wild"]["p_mpjpe_other_joints_mm"] = float(np.mean(others))
     for name, mask in (("wild", wild & valid), ("clean", ~wild & valid)):

@@ -456,10 +456,11 @@ def run(args: PredictArgs) -> np.ndarray:
 
 
 def lift_sequence(lifter, keypoints, confidence, K, dist, image_size, detections: DetectionFile) -> tuple[np.ndarray, int]:
-    """A temporal lifter's poses f32[N, J, 3] and how many of them were not followed: the input's frames in sequence order (`animation_frames`:
-    OpenPose frames in frame-number order, image ids in numerical order), one person per frame (the
-    highest mean score), each lifted with the window of frames around it; a frame without a pose is a
-    frame of missing joints in its neighbours' windows.  The other people's poses are NaN, and said so."""
+    """A temporal lifter's poses f32[N, J, 3] and how many of them were not followed: the input's frames
+    in sequence order (`animation_frames`: OpenPose frames in frame-number order, image ids in numerical
+    order), one person per frame (the highest mean score), each lifted with the window of frames around
+    it; a frame without a pose is a frame of missing joints in its neighbours' windows.  The other
+    people's poses are NaN, and said so."""
     count = len(keypoints)
     # Ranked by score alone: nothing is lifted yet.
     frames, shown = animation_frames(detections.image_ids, confidence, np.ones(count, bool), detections.frame_ids)

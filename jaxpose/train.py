@@ -70,12 +70,6 @@ def normalize_views(keypoints2d: jax.Array, K: jax.Array, confidence: jax.Array,
     return normalize_keypoints(keypoints2d, K, confidence, mode)
 
 
-def lifter_inputs(batch: MultiViewBatch, mode: str) -> jax.Array:
-    """The lifter input of every view, [B, C, J, 2] or [B, C, T, J, 2] (detections must be undistorted pixels)."""
-    keypoints, confidence = lifter_input_2d(batch)
-    return normalize_views(keypoints, batch.cameras.K, confidence, mode)
-
-
 def augment_inputs(
     key: jax.Array,
     keypoints2d: jax.Array,

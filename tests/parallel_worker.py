@@ -31,7 +31,7 @@ from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.data.synthetic import SyntheticConfig
 from jaxpose.model import LifterNetwork
-from jaxpose.train import TrainState, init_train_state, jit_train_step, lifter_inputs, make_train_step
+from jaxpose.train import TrainState, init_train_state, jit_train_step, lifter_input_2d, make_train_step, normalize_views
 
 STEPS = 5
 SMALL = ModelConfig(width=64)  # dropout 0.5 and BatchNorm on, as in the paper's network
@@ -77,7 +77,8 @@ def sharded_run(problem: Problem, mesh) -> tuple[TrainState, dict]:
 
 def zero_patterns(model, variables, batch: MultiViewBatch, key) -> dict:
     """Where every layer's training-mode output is zero: dropout's masks (and ReLU's zeros)."""
-    inputs = lifter_inputs(batch, SMALL.input_normalization)
+    keypoints, confidence = lifter_input_2d(batch)
+    inputs = normalize_views(keypoints, batch.cameras.K, confidence, SMALL.input_normalization)
     _, captured = model.apply(
         variables,
         inputs,
