@@ -53,7 +53,7 @@ def measure(data_dir: str, detections: str, stride: int) -> dict:
     """Runs in a child process: import cost, then one `load_h36m`, with peak RSS."""
     import warnings
 
-    import jaxpose.data.h36m as h36m
+    import jaxpose.datasets.h36m as h36m
 
     baseline = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     start = time.perf_counter()

@@ -1,4 +1,4 @@
-"""Reading a camera's OpenPose JSON folder with `jaxpose.data.keypoint_files`: frames per second.
+"""Reading a camera's OpenPose JSON folder with `jaxpose.formats.keypoint_files`: frames per second.
 
     python -m benchmarks.keypoint_files [--frames 20000] [--rounds 3] [--out runs/benchmarks/keypoint_files.json]
 
@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxpose.data import keypoint_files
+from jaxpose.formats import keypoint_files
 
 ROOT = Path(__file__).resolve().parents[1]
 EMPTY_PARTS = ("face_keypoints_2d", "hand_left_keypoints_2d", "hand_right_keypoints_2d", "pose_keypoints_3d",

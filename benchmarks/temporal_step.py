@@ -22,7 +22,7 @@ import numpy as np
 
 from jaxpose import pseudo_labelling
 from jaxpose.config import RESCALED_LOSS, ModelConfig, OptimizerConfig, PseudoLabelConfig
-from jaxpose.data.synthetic import SyntheticConfig, generate
+from jaxpose.synthetic import SyntheticConfig, generate
 from jaxpose.train import init_train_state, jit_train_step, make_train_step
 
 

@@ -4,7 +4,7 @@
 
 Every configuration is the paper's training setup (width 1024, dropout 0.5, BatchNorm, all four
 losses on with `output_triangulation_start=0`, Adam) on a synthetic batch of B samples x C views
-x 17 joints (`jaxpose.data.synthetic`, pseudo-labels included), and runs in a fresh worker process,
+x 17 joints (`jaxpose.synthetic`, pseudo-labels included), and runs in a fresh worker process,
 so that its peak RSS (`resource.getrusage`) is its own.  Per configuration:
 
 - step time (median of `--rounds` timed steps after warm-up), samples/s, view-samples/s, and the
@@ -50,7 +50,7 @@ import numpy as np
 from jaxpose import pseudo_labelling
 from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.data.batch import MultiViewBatch
-from jaxpose.data.synthetic import SyntheticConfig, generate
+from jaxpose.synthetic import SyntheticConfig, generate
 from jaxpose.losses import total_loss
 from jaxpose.train import init_train_state, jit_train_step, make_train_step
 

@@ -27,7 +27,7 @@ import numpy as np
 
 from benchmarks.train_step import PAPER, environment, medians, timed_rounds
 from jaxpose.camera import projection_matrices
-from jaxpose.data.synthetic import SyntheticConfig, generate
+from jaxpose.synthetic import SyntheticConfig, generate
 from jaxpose.triangulation import triangulate
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -22,7 +22,7 @@ import tyro
 from jaxpose.calibration import CalibrationConfig, calibrate, compare_rigs, from_dataset
 from jaxpose.calibration.compare import camera_centres
 from jaxpose.calibration.scale import prior_scale_error
-from jaxpose.data.synthetic import SyntheticConfig, generate
+from jaxpose.synthetic import SyntheticConfig, generate
 
 
 @dataclasses.dataclass(frozen=True)

@@ -34,7 +34,7 @@ import tyro
 from experiments import paper_tables
 from experiments.config import ExperimentConfig
 from experiments.runner import Splits, run
-from jaxpose.data.errors import DataFormatError
+from jaxpose.formats.errors import DataFormatError
 
 SUPERVISED_SUFFIX = "_supervised"
 

@@ -26,7 +26,7 @@ from experiments import cli, paper_tables
 from experiments.config import ExperimentConfig, RunConfig, TrainConfig, mocap_calibration, other_training_calibration
 from experiments.runner import Splits
 from jaxpose.config import RESCALED_LOSS, LossConfig, ModelConfig, OptimizerConfig, PseudoLabelConfig
-from jaxpose.data.h36m import DETECTION_FILES, POSES_3D_FILE, TEST_SUBJECTS, TRAIN_SUBJECTS, load_h36m, subject_rigs
+from jaxpose.datasets.h36m import DETECTION_FILES, POSES_3D_FILE, TEST_SUBJECTS, TRAIN_SUBJECTS, load_h36m, subject_rigs
 
 
 # The Stacked Hourglass detector was trained on MPII: its "Spine" is MPII's thorax (~200 mm from the
@@ -37,7 +37,7 @@ SH_MPII_JOINTS = ("Spine", "Head")
 
 @dataclasses.dataclass(frozen=True)
 class H36MData:
-    """Human3.6M files and protocol (see jaxpose.data.h36m and docs/data.md)."""
+    """Human3.6M files and protocol (see jaxpose.datasets.h36m and docs/data.md)."""
 
     data_dir: pathlib.Path = pathlib.Path("data/h36m")
     """Folder of the Human3.6M files: the h36m.zip tree of Martinez et al. and/or VideoPose3D's npz files."""

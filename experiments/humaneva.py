@@ -23,14 +23,14 @@ from experiments import cli, paper_tables
 from experiments.config import ExperimentConfig, RunConfig, TrainConfig, mocap_calibration, other_training_calibration
 from experiments.runner import Splits
 from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
-from jaxpose.data.humaneva import POSES_3D_FILE, TEST_SUBJECTS, TRAIN_SUBJECTS, load_humaneva, subject_rigs
+from jaxpose.datasets.humaneva import POSES_3D_FILE, TEST_SUBJECTS, TRAIN_SUBJECTS, load_humaneva, subject_rigs
 
 GROUP_LABEL = "action_subject"
 
 
 @dataclasses.dataclass(frozen=True)
 class HumanEvaData:
-    """HumanEva-I files and protocol (see jaxpose.data.humaneva and docs/data.md)."""
+    """HumanEva-I files and protocol (see jaxpose.datasets.humaneva and docs/data.md)."""
 
     data_dir: pathlib.Path = pathlib.Path("data/humaneva")
     """Folder of data_3d_humaneva15.npz, the 2D npz files and cameras.json."""

@@ -9,7 +9,7 @@ cpn, gt or a 17-joint npz): MPI-INF-3DHP's joints are matched index by index to 
 (`jaxpose.skeleton.MPI_INF_3DHP_17`), so the 16-joint Stacked Hourglass model cannot be evaluated.
 
 Protocol: single-view inference on every valid test frame, from the annotated 2D (annot2, as given)
-and the test set's published intrinsics (`jaxpose.data.mpi_inf_3dhp.camera_intrinsics`); the
+and the test set's published intrinsics (`jaxpose.datasets.mpi_inf_3dhp.camera_intrinsics`); the
 prediction is compared root-relative with the universal-skeleton 3D (univ_annot3), with no
 rescaling or alignment, over all 17 joints.  PCK at 150 mm and AUC (PCK averaged over 0-150 mm in
 5 mm steps) are the primary numbers, as in the paper; MPJPE and P-MPJPE are given as extras.
@@ -28,8 +28,8 @@ import tyro
 from jaxpose import evaluation, inference
 from jaxpose.checkpoint import CheckpointError
 from jaxpose.data.dataset import consecutive_spans
-from jaxpose.data.errors import DataFormatError
-from jaxpose.data.mpi_inf_3dhp import ACTIVITY_NAMES, SEQUENCES, load_mpi_inf_3dhp_test
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.datasets.mpi_inf_3dhp import ACTIVITY_NAMES, SEQUENCES, load_mpi_inf_3dhp_test
 from jaxpose.skeleton import H36M_17
 
 # The paper's Table V row for its own method (trained on Human3.6M).

@@ -35,7 +35,7 @@ class PaperTable:
     """The metric of the paper's table (a key of `jaxpose.evaluation.summarize`)."""
 
 
-# Column order and headers of the paper's Table II; group labels are `jaxpose.data.h36m.sequence_action` names.
+# Column order and headers of the paper's Table II; group labels are `jaxpose.datasets.h36m.sequence_action` names.
 H36M_TABLE_II = PaperTable(
     name="Table II",
     caption="Human3.6M, P-MPJPE (mm) per action (Protocol II, rigid alignment), test subjects",

@@ -32,7 +32,7 @@ from experiments.synthetic import DEFAULT, SyntheticData, load_splits
 from jaxpose import pseudo_labelling
 from jaxpose.config import ModelConfig, PseudoLabelConfig
 from jaxpose.data.dataset import MultiViewDataset
-from jaxpose.data.synthetic import SyntheticConfig
+from jaxpose.synthetic import SyntheticConfig
 from jaxpose.robust import PseudoLabelMethod
 
 SCENARIOS = ("default", "default-noconf", "harsh", "harsh-noconf")

@@ -9,7 +9,7 @@
 PROJECT holds one folder per recording, each with the detections of every camera (OpenPose JSON
 folders, COCO results per camera, or a detections.npz), and optionally a calibration (Anipose /
 Pose2Sim / FreeMoCap TOML, EasyMocap intri.yml + extri.yml, or a jaxpose camera file); without one
-the rig is recovered from the recordings.  The layout and every option: `jaxpose.data.rig_project`
+the rig is recovered from the recordings.  The layout and every option: `jaxpose.rig.project`
 and docs/rig.md ("Train on your own rig").
 
 The lifter is trained on the detector's own joints (root first: its mid-hip, derived from the hips
@@ -28,8 +28,8 @@ import pathlib
 from experiments import cli, h36m
 from experiments.config import ExperimentConfig, RunConfig
 from experiments.runner import Splits
-from jaxpose.data.camera_file import save_cameras
-from jaxpose.data.rig_project import RigProject, RigProjectConfig, load_rig_project
+from jaxpose.formats.camera_file import save_cameras
+from jaxpose.rig.project import RigProject, RigProjectConfig, load_rig_project
 
 log = logging.getLogger("jaxpose")
 
@@ -41,7 +41,7 @@ def load_splits(data: RigProjectConfig) -> Splits:
     """The project's training recordings and its held-out part; the embedded example is written first
     when --data.root is left at its default and does not exist yet."""
     if data.root == EXAMPLE_ROOT and not data.root.exists():
-        from jaxpose.data.synthetic.project import write_rig_project
+        from jaxpose.synthetic.project import write_rig_project
 
         log.info("writing the embedded example project to %s", data.root)
         write_rig_project(data.root)

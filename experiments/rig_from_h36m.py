@@ -10,7 +10,7 @@ One recording per sequence (e.g. "Walking 1"), every frame at 50 fps:
 - `calibration.toml` at the project root (omitted with `--no-calibration`): cameras.h5 of the
   subject in the Anipose / Pose2Sim layout in metres.  Human3.6M's distortion has no exact OpenCV
   equivalent; the closest OpenCV coefficients are written and their largest pixel difference is
-  printed (`jaxpose.data.calibration_formats.opencv_from_h36m_distortion`).
+  printed (`jaxpose.formats.rig_calibration.opencv_from_h36m_distortion`).
 
 The development protocol of `experiments.h36m --preset dev` (the first trial of each action trains,
 the other tests, every 5th frame) is then `--data.validation-recordings <the other trials>
@@ -30,10 +30,10 @@ import numpy as np
 import tyro
 
 from experiments.h36m import first_trials
-from jaxpose.data.calibration_formats import opencv_rig_from_h36m, read_rig_calibration, write_anipose_toml
-from jaxpose.data.camera_file import H36M_IMAGE_SIZES
-from jaxpose.data.h36m import CAMERA_NAMES, load_h36m
-from jaxpose.data.rig_project import DETECTIONS_NPZ, GROUND_TRUTH_NPZ
+from jaxpose.formats.rig_calibration import opencv_rig_from_h36m, read_rig_calibration, write_anipose_toml
+from jaxpose.formats.camera_file import H36M_IMAGE_SIZES
+from jaxpose.datasets.h36m import CAMERA_NAMES, load_h36m
+from jaxpose.rig.project import DETECTIONS_NPZ, GROUND_TRUTH_NPZ
 
 
 @dataclasses.dataclass(frozen=True)

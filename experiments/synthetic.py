@@ -15,12 +15,12 @@ from experiments import cli
 from experiments.config import ExperimentConfig, RunConfig, TrainConfig
 from experiments.runner import Splits
 from jaxpose.config import ModelConfig, OptimizerConfig
-from jaxpose.data.synthetic import SyntheticConfig, generate
+from jaxpose.synthetic import SyntheticConfig, generate
 
 
 @dataclasses.dataclass(frozen=True)
 class SyntheticData:
-    """The procedural data set (subjects, motions, rig, detector noise); see jaxpose.data.synthetic."""
+    """The procedural data set (subjects, motions, rig, detector noise); see jaxpose.synthetic."""
 
     generator: SyntheticConfig = SyntheticConfig()
 

@@ -32,7 +32,7 @@ from experiments.config import ExperimentConfig
 from experiments.runner import run
 from jaxpose import validation
 from jaxpose.config import LossConfig, PseudoLabelConfig
-from jaxpose.data.rig_project import RigProjectConfig
+from jaxpose.rig.project import RigProjectConfig
 
 Recipe = Literal["cpu", "dropout_0.5", "plain_dlt_labels", "input_triangulation_only", "paper_loss_weights"]
 

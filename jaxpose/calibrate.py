@@ -28,8 +28,8 @@ from jaxpose.calibration import (
 )  # fmt: skip
 from jaxpose.calibration.compare import camera_centres
 from jaxpose.camera import Cameras
-from jaxpose.data.camera_file import H36M_IMAGE_SIZES, read_calibration, save_cameras, select_views
-from jaxpose.data.h36m import CAMERA_NAMES, load_h36m
+from jaxpose.formats.camera_file import H36M_IMAGE_SIZES, read_calibration, save_cameras, select_views
+from jaxpose.datasets.h36m import CAMERA_NAMES, load_h36m
 
 
 @dataclasses.dataclass(frozen=True)

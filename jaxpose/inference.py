@@ -9,7 +9,7 @@ network's skeleton and `ModelConfig` beside its variables (`jaxpose.checkpoint`)
 data set, no config file and no training: of the newest readable step (an unreadable one is
 reported and the previous one used) only the record and the params and BatchNorm statistics are
 read.  The synthetic main job trains on H36M_17; detections in COCO-17 or OpenPose BODY_25 layout
-are converted to H36M_17 with `jaxpose.keypoint_formats` first.
+are converted to H36M_17 with `jaxpose.layouts` first.
 
 Inputs, in the conventions of docs/conventions.md: keypoints in pixels of the image the intrinsics
 describe; confidence 0 marks a missing joint (its coordinates are ignored, NaN allowed).  The root
@@ -319,7 +319,7 @@ class Lifter3D:
             raise ValueError(
                 f"keypoints2d has {keypoints.shape[1]} joints per pose, but the checkpoint in {self.source} lifts"
                 f" skeleton {self.skeleton.name!r} with J={self.num_joints} joints {self.joint_names}; convert"
-                " detector layouts with jaxpose.keypoint_formats (COCO-17 and OpenPose BODY_25 -> h36m17)"
+                " detector layouts with jaxpose.layouts (COCO-17 and OpenPose BODY_25 -> h36m17)"
             )
         if confidence is None:
             confidence = np.ones(keypoints.shape[:2], np.float32)

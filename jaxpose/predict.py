@@ -3,7 +3,7 @@
     python -m jaxpose.predict --checkpoint runs/synthetic --input detections.json --output poses.json \\
         --image-size 1920 1080 --plot plots/
 
-Inputs (the kind is told by the path; read by `jaxpose.data.keypoint_files`):
+Inputs (the kind is told by the path; read by `jaxpose.formats.keypoint_files`):
 - COCO keypoint results, a ``.json`` list of {"image_id", "category_id", "keypoints": [x, y, score] * 17,
   "score"} (what COCO-style detectors write; AlphaPose's file-name image ids and extra keys too); one pose
   per entry, in file order; layout coco17 unless --format says otherwise.
@@ -16,7 +16,7 @@ Inputs (the kind is told by the path; read by `jaxpose.data.keypoint_files`):
 - ``.npz`` with ``keypoints`` [N, J, 2] px and optionally ``confidence`` [N, J], ``image_id`` [N] and
   ``K`` [N, 3, 3] (one camera per pose); the keypoints are in the checkpoint's own joint layout unless
   --format names one to convert from.
-The keypoints are converted to the checkpoint's joints by `jaxpose.keypoint_formats.to_skeleton`: a lifter
+The keypoints are converted to the checkpoint's joints by `jaxpose.layouts.to_skeleton`: a lifter
 trained on a rig project (`experiments.rig`) takes its detector's own layout, and the H36M_17 lifters of
 the benchmarks take COCO-17, BODY_25 and HALPE_26 (through its COCO-17 keypoints).
 
@@ -26,7 +26,7 @@ Output, by suffix, one pose per input pose, in input order.  Poses are root-rela
 - ``.npz``: ``pose3d_mm`` f32[N, J, 3] (NaN rows), ``valid`` [N], ``image_id`` [N], ``joint_names`` [J];
 - ``.csv``: a header row ``image_id,<joint>_x_mm,<joint>_y_mm,<joint>_z_mm,...``, then a row per pose with
   empty cells for a pose that could not be lifted;
-- ``.trc`` (OpenSim markers, `jaxpose.data.trc`): a data row per pose, Frame# from 1, Time = (Frame# - 1)
+- ``.trc`` (OpenSim markers, `jaxpose.formats.trc`): a data row per pose, Frame# from 1, Time = (Frame# - 1)
   / --fps, a marker per joint (``/`` in a name becomes ``_``), Units m, empty fields for a pose that could
   not be lifted.  Its axes are OpenSim's for a subject facing the camera (X forward, Y up, Z to the
   subject's right): X = -z, Y = -y, Z = -x of the camera frame (a rotation of the camera axes), as line 1
@@ -67,8 +67,8 @@ from tqdm.auto import tqdm
 
 from jaxpose import inference, viz
 from jaxpose.checkpoint import CheckpointError
-from jaxpose.data import keypoint_files, trc
-from jaxpose.keypoint_formats import LAYOUTS, layout_joint_names, layout_of, to_skeleton
+from jaxpose.formats import keypoint_files, trc
+from jaxpose.layouts import LAYOUTS, layout_joint_names, layout_of, to_skeleton
 
 OUTPUT_SUFFIXES = (".json", ".npz", ".csv", ".trc")
 OPENPOSE_SUFFIX = keypoint_files.OPENPOSE_SUFFIX
@@ -93,7 +93,7 @@ class DetectionFile:
     image_ids: list[Any]
     """One per pose (int or str), kept in the output."""
     layout: str | None
-    """The keypoint_formats name of the file's layout; None = the checkpoint's own layout."""
+    """The `jaxpose.layouts` name of the file's layout; None = the checkpoint's own layout."""
     intrinsics: np.ndarray | None = None
     """f32[N, 3, 3], when the file gives a camera per pose."""
     frame_ids: list[Any] | None = None
@@ -180,7 +180,7 @@ def read_intrinsics(values: Sequence[str]) -> tuple[np.ndarray, np.ndarray | Non
     """--intrinsics as (K [3, 3], OpenCV distortion [5] or None, image size or None).
 
     Four numbers fx fy cx cy; a calibration file and a camera name (a rig's calibration as
-    `jaxpose.data.calibration_formats` reads it: Anipose / Pose2Sim / FreeMoCap TOML, EasyMocap
+    `jaxpose.formats.rig_calibration` reads it: Anipose / Pose2Sim / FreeMoCap TOML, EasyMocap
     intri.yml, a jaxpose camera file), e.g. `calibration.toml cam01`; or a JSON file holding one camera
     in the fields of a jaxpose camera file entry: {"K": [[fx, s, cx], [0, fy, cy], [0, 0, 1]], "dist":
     [k1, k2, p1, p2, k3] or null, "image_size": [width, height] or null}; other fields (R, t, name) are
@@ -213,7 +213,7 @@ def read_intrinsics(values: Sequence[str]) -> tuple[np.ndarray, np.ndarray | Non
 
 def _calibration_intrinsics(path: pathlib.Path, camera: str) -> tuple[np.ndarray, np.ndarray | None, tuple[float, float] | None]:
     """One camera of a rig calibration file as (K, OpenCV dist or None, image size or None)."""
-    from jaxpose.data.calibration_formats import read_rig_calibration
+    from jaxpose.formats.rig_calibration import read_rig_calibration
 
     rig = read_rig_calibration(path).select([camera], f"--intrinsics {path} {camera}")
     cameras = rig.cameras

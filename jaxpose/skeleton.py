@@ -2,7 +2,7 @@
 
 Every lifting skeleton has its root (the pelvis) at joint 0; nothing in the library branches on a
 skeleton's name, so a new joint set is one more `Skeleton(...)` value.  `COCO_17` is a detector
-layout, not a lifting skeleton: convert it (and OpenPose BODY_25) with `jaxpose.keypoint_formats`
+layout, not a lifting skeleton: convert it (and OpenPose BODY_25) with `jaxpose.layouts`
 before lifting.
 """
 
@@ -111,7 +111,7 @@ MPI_INF_3DHP_17 = Skeleton(
 )
 
 # COCO-17 detector layout.  Its joint 0 is the nose, so it is a source format for
-# `jaxpose.keypoint_formats`, not a lifting skeleton; the tree below is rooted at the nose.
+# `jaxpose.layouts`, not a lifting skeleton; the tree below is rooted at the nose.
 COCO_17 = Skeleton(
     name="coco17",
     joint_names=(

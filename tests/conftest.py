@@ -5,7 +5,7 @@ import pytest
 
 from experiments import synthetic as synthetic_job
 from jaxpose import inference
-from jaxpose.data.synthetic import SyntheticConfig
+from jaxpose.synthetic import SyntheticConfig
 
 # Property tests jit per example shape; keep them deterministic and within the CI budget.
 hypothesis.settings.register_profile("jaxpose", max_examples=25, deadline=None, derandomize=True)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from jaxpose.keypoint_formats import OPENPOSE_25_JOINT_NAMES
+from jaxpose.layouts import OPENPOSE_25_JOINT_NAMES
 from jaxpose.skeleton import COCO_17, H36M_17
 
 

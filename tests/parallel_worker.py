@@ -29,7 +29,7 @@ from experiments.runner import prepare_run_dir, train
 from jaxpose import parallel, pseudo_labelling
 from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.data.batch import MultiViewBatch
-from jaxpose.data.synthetic import SyntheticConfig
+from jaxpose.synthetic import SyntheticConfig
 from jaxpose.model import LifterNetwork
 from jaxpose.train import TrainState, init_train_state, jit_train_step, lifter_input_2d, make_train_step, normalize_views
 

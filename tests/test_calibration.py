@@ -25,9 +25,9 @@ from jaxpose.calibration import (
 from jaxpose.calibration.compare import camera_centres
 from jaxpose.calibration.scale import LIMBS, limb_joints, metric_scale, prior_scale_error
 from jaxpose.camera import Cameras
-from jaxpose.data.camera_file import load_cameras, save_cameras
+from jaxpose.formats.camera_file import load_cameras, save_cameras
 from jaxpose.data.dataset import MultiViewDataset
-from jaxpose.data.synthetic import SyntheticConfig, generate
+from jaxpose.synthetic import SyntheticConfig, generate
 from jaxpose.skeleton import SKELETONS, H36M_17
 from help_text import assert_every_flag_documented
 

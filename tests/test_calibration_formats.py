@@ -1,4 +1,4 @@
-"""The calibration files users bring (jaxpose.data.calibration_formats), and the fisheye lens model.
+"""The calibration files users bring (jaxpose.formats.rig_calibration), and the fisheye lens model.
 
 The real files are those of `../shared/data/formats` (their README lists each one's quirks); tests
 that need them skip where that folder is absent.  The fixtures written here mirror the real files'
@@ -24,7 +24,7 @@ from hypothesis import given, settings
 from scipy.spatial.transform import Rotation
 
 from jaxpose.camera import Cameras, project, undistort_points
-from jaxpose.data.calibration_formats import (
+from jaxpose.formats.rig_calibration import (
     RigCalibration,
     find_calibration,
     opencv_from_h36m_distortion,
@@ -34,9 +34,9 @@ from jaxpose.data.calibration_formats import (
     rotation_from_rodrigues,
     write_anipose_toml,
 )
-from jaxpose.data.calibration_formats import _read_easymocap_intrinsics
-from jaxpose.data.camera_file import save_cameras
-from jaxpose.data.errors import DataFormatError
+from jaxpose.formats.rig_calibration import _read_easymocap_intrinsics
+from jaxpose.formats.camera_file import save_cameras
+from jaxpose.formats.errors import DataFormatError
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 FORMATS = SHARED / "data" / "formats"

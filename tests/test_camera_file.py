@@ -11,7 +11,7 @@ import pytest
 from fixtures_real_data import h36m_cameras, h36m_project, humaneva_cameras, opencv_project, write_h36m_cameras_h5
 from jaxpose.camera import Cameras, project
 from help_text import assert_every_flag_documented
-from jaxpose.data.camera_file import (
+from jaxpose.formats.camera_file import (
     H36M_IMAGE_SIZES,
     convert_h36m_cameras,
     load_cameras,
@@ -20,7 +20,7 @@ from jaxpose.data.camera_file import (
     read_h36m_cameras,
     save_cameras,
 )
-from jaxpose.data.errors import DataFormatError
+from jaxpose.formats.errors import DataFormatError
 
 RNG = np.random.default_rng(7)
 POINTS = np.stack([RNG.uniform(-900, 900, 40), RNG.uniform(-900, 900, 40), RNG.uniform(0, 1800, 40)], axis=-1)
@@ -96,7 +96,7 @@ def test_cli_convert_and_check(tmp_path, capsys):
 
 @pytest.mark.parametrize("subcommand, arguments", [("convert", ["CAMERAS_H5", "OUT_JSON"]), ("check", ["CAMERAS_JSON"])])
 def test_cli_help_runs_as_a_module_and_documents_every_argument(subcommand, arguments):
-    command = [sys.executable, "-m", "jaxpose.data.camera_file", subcommand, "--help"]
+    command = [sys.executable, "-m", "jaxpose.formats.camera_file", subcommand, "--help"]
     result = subprocess.run(command, capture_output=True, text=True, check=True)
     assert_every_flag_documented(result.stdout.split("positional arguments")[1], arguments)
 

@@ -210,7 +210,7 @@ def flags_of(args: tuple[str, ...]) -> list[str]:
 
 def help_request(command: Command) -> tuple[str, ...]:
     """The arguments to ask this command's help with: its selectors (which change the flags) and a
-    subcommand named before any flag (`python -m jaxpose.data.camera_file check FILE`)."""
+    subcommand named before any flag (`python -m jaxpose.formats.camera_file check FILE`)."""
     request = []
     args = list(command.args)
     for i, token in enumerate(args[:-1]):

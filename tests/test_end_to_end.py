@@ -12,7 +12,7 @@ from experiments.config import ExperimentConfig, RunConfig, TrainConfig
 from experiments.runner import prepare_run_dir, train
 from jaxpose import pseudo_labelling
 from jaxpose.config import ModelConfig
-from jaxpose.data.synthetic import SyntheticConfig
+from jaxpose.synthetic import SyntheticConfig
 
 TINY_ARGS = [
     "--model.width", "64",

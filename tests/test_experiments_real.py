@@ -13,12 +13,12 @@ import pytest
 from experiments import ablation, cli, h36m, humaneva, mpi_inf_3dhp, paper_tables
 from experiments.config import mocap_calibration, other_training_calibration
 from help_text import assert_every_flag_documented, assert_help_documents_every_field
-from jaxpose.data.camera_file import load_cameras, read_h36m_cameras, save_cameras
-from jaxpose.data.h36m import CAMERA_NAMES
+from jaxpose.formats.camera_file import load_cameras, read_h36m_cameras, save_cameras
+from jaxpose.datasets.h36m import CAMERA_NAMES
 from fixtures_real_data import HUMANEVA_CAMERA_NAMES, H36M_SUBJECTS, TINY_TRAINING, write_humaneva_files
 from fixtures_real_data import write_h36m_martinez_tree, write_h36m_videopose3d_files
 from fixtures_real_data import write_mpi_inf_3dhp_test_set
-from jaxpose.data.mpi_inf_3dhp import camera_intrinsics
+from jaxpose.datasets.mpi_inf_3dhp import camera_intrinsics
 
 TABLE_II_HEADER = "| Method | Dir. | Dis. | Eat | Greet | Phone | Photo | Pose | Purch. | Sit | SitD | Smoke | Wait | WalkD | Walk | WalkT | Avg |"
 TABLE_III_HEADER = "| Method | Walking S1 | Walking S2 | Walking S3 | Jogging S1 | Jogging S2 | Jogging S3 | Avg |"

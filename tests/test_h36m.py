@@ -15,9 +15,9 @@ from fixtures_real_data import (
     write_h36m_videopose3d_files,
 )
 from jaxpose.camera import project
-from jaxpose.data.camera_file import convert_h36m_cameras
-from jaxpose.data.errors import DataFormatError
-from jaxpose.data.h36m import CAMERA_NAMES, TEST_SUBJECTS, TRAIN_SUBJECTS, load_h36m, sequence_action
+from jaxpose.formats.camera_file import convert_h36m_cameras
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.datasets.h36m import CAMERA_NAMES, TEST_SUBJECTS, TRAIN_SUBJECTS, load_h36m, sequence_action
 from jaxpose.skeleton import H36M_16, H36M_17
 
 MOCAP_16 = [index for index, name in zip(H36M_MOCAP_17, H36M_17.joint_names) if name != "Neck/Nose"]

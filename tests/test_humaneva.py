@@ -9,8 +9,8 @@ import pytest
 
 from fixtures_real_data import HUMANEVA_SEQUENCES, opencv_project, write_humaneva_files
 from jaxpose.camera import project
-from jaxpose.data.errors import DataFormatError
-from jaxpose.data.humaneva import TEST_ACTIONS, load_humaneva
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.datasets.humaneva import TEST_ACTIONS, load_humaneva
 from jaxpose.skeleton import HUMANEVA_15
 
 
@@ -41,7 +41,7 @@ def _check(dataset, fixture, partition, stride):
 
 
 def test_train_split_all_actions_with_2d_file(files, caplog):
-    with caplog.at_level(logging.INFO, logger="jaxpose.data.humaneva"):
+    with caplog.at_level(logging.INFO, logger="jaxpose.datasets.humaneva"):
         dataset = _load(files, "train", detections="detectron_pt_coco")
     assert dataset.skeleton == HUMANEVA_15 and dataset.num_views == 3
     assert set(dataset.labels["action"]) == {"Walk", "Jog", "Box"}
@@ -111,7 +111,7 @@ def test_argument_checks(files):
 
 
 def test_walking_spelled_either_way_is_a_walk_test_action():
-    from jaxpose.data.humaneva import _action
+    from jaxpose.datasets.humaneva import _action
 
     assert _action("Walk 1 chunk0") == _action("Walking 1 chunk3") == "Walk"
     assert _action("Jog 1 chunk0") == "Jog" and _action("ThrowCatch 1 chunk0") == "ThrowCatch"

@@ -18,7 +18,7 @@ from detection_helpers import body25_from_coco, coco_from_h36m, views
 from help_text import assert_help_documents_every_field
 from jaxpose import checkpoint, evaluation, inference, predict
 from jaxpose.camera import project_from_camera, world_to_camera
-from jaxpose.keypoint_formats import OPENPOSE_25_JOINT_NAMES, coco17_to_h36m17
+from jaxpose.layouts import OPENPOSE_25_JOINT_NAMES, coco17_to_h36m17
 from jaxpose.skeleton import COCO_17, H36M_17
 
 METHOD = "Lifter, self-supervised (ours)"

@@ -33,10 +33,10 @@ from hypothesis import strategies as st
 from jaxpose import pseudo_labelling
 from jaxpose.data import BatchValidationError, validate_batch
 from jaxpose.data.dataset import MultiViewDataset
-from jaxpose.data.errors import DataFormatError
-from jaxpose.data.h36m import load_h36m
-from jaxpose.data.humaneva import load_humaneva
-from jaxpose.data.mpi_inf_3dhp import load_mpi_inf_3dhp_test
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.datasets.h36m import load_h36m
+from jaxpose.datasets.humaneva import load_humaneva
+from jaxpose.datasets.mpi_inf_3dhp import load_mpi_inf_3dhp_test
 
 # Few examples keep the suite fast; HARDEN_EXAMPLES=500 explores more (it passed so when written).
 SMALL = settings(

@@ -1,4 +1,4 @@
-"""Per-camera 2D detection files (`jaxpose.data.keypoint_files`): the real samples as they are, the
+"""Per-camera 2D detection files (`jaxpose.formats.keypoint_files`): the real samples as they are, the
 refusals, frame numbers, the process pool and the cache."""
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jaxpose.data import keypoint_files as kf
-from jaxpose.data.errors import DataFormatError
+from jaxpose.formats import keypoint_files as kf
+from jaxpose.formats.errors import DataFormatError
 
 FORMATS = Path(__file__).resolve().parents[2] / "shared" / "data" / "formats"
 needs_formats = pytest.mark.skipif(not FORMATS.is_dir(), reason=f"{FORMATS} (the real format samples) is absent")
@@ -502,7 +502,7 @@ def test_predict_reads_the_real_samples():
     full = kf.read_openpose_folder(HALPE26 / "cam03", progress=False)
     np.testing.assert_array_equal(halpe.keypoints, full.keypoints[:, 0])
     # An H36M_17 lifter takes HALPE_26 through its first 17 keypoints, which are COCO-17's.
-    from jaxpose.keypoint_formats import coco17_to_h36m17, to_skeleton
+    from jaxpose.layouts import coco17_to_h36m17, to_skeleton
     from jaxpose.skeleton import H36M_17
 
     for converted, expected in zip(

@@ -1,9 +1,9 @@
-"""Tests of jaxpose.keypoint_formats on hand-made COCO-17 and OpenPose BODY_25 detections."""
+"""Tests of jaxpose.layouts on hand-made COCO-17 and OpenPose BODY_25 detections."""
 
 import numpy as np
 import pytest
 
-from jaxpose.keypoint_formats import (
+from jaxpose.layouts import (
     FORMATS,
     OPENPOSE_25_JOINT_NAMES,
     coco17_to_h36m17,
@@ -12,7 +12,7 @@ from jaxpose.keypoint_formats import (
     openpose25_to_h36m17,
     to_h36m17,
 )
-from jaxpose.keypoint_formats import infer_layout, layout_of, lifting_skeleton, to_lifting_skeleton, to_skeleton
+from jaxpose.layouts import infer_layout, layout_of, lifting_skeleton, to_lifting_skeleton, to_skeleton
 from jaxpose.skeleton import COCO_17, DETECTOR_LAYOUTS, H36M_17, get_skeleton
 
 H = H36M_17.index

@@ -8,8 +8,8 @@ import pytest
 import scipy.io
 
 from fixtures_real_data import MPI_FILE_INDEX_OF_OURS, write_mpi_inf_3dhp_test_set
-from jaxpose.data.errors import DataFormatError
-from jaxpose.data.mpi_inf_3dhp import ACTIVITY_NAMES, camera_intrinsics, load_mpi_inf_3dhp_test
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.datasets.mpi_inf_3dhp import ACTIVITY_NAMES, camera_intrinsics, load_mpi_inf_3dhp_test
 from jaxpose.skeleton import MPI_INF_3DHP_17
 
 

@@ -1,4 +1,4 @@
-"""Training on your own rig (`experiments.rig`, `jaxpose.data.rig_project`): the example project end to
+"""Training on your own rig (`experiments.rig`, `jaxpose.rig.project`): the example project end to
 end, the person choice, frame offsets, the ground-truth-free measures, and every refusal."""
 
 import dataclasses
@@ -14,13 +14,13 @@ from experiments import rig as rig_job
 from jaxpose import predict, validation
 from jaxpose import camera
 from jaxpose.camera import Cameras, projection_matrices
-from jaxpose.data.calibration_formats import read_rig_calibration, write_anipose_toml
-from jaxpose.data.errors import DataFormatError
-from jaxpose.data.people import choose_person
-from jaxpose.data.rig_project import RigProjectConfig, load_rig_project
-from jaxpose.data.sync import estimate_offsets
-from jaxpose.data.synthetic.project import ExampleProjectConfig, write_rig_project
-from jaxpose.data.trc import read_trc
+from jaxpose.formats.rig_calibration import read_rig_calibration, write_anipose_toml
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.rig.people import choose_person
+from jaxpose.rig.project import RigProjectConfig, load_rig_project
+from jaxpose.rig.sync import estimate_offsets
+from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
+from jaxpose.formats.trc import read_trc
 
 SMALL = ExampleProjectConfig(recordings=2, frames_per_recording=240)
 
@@ -304,8 +304,8 @@ def test_messy_projects_load(project_copy):
     """A camera that never sees anybody, a recording without one camera and with its own jaxpose camera file
     of the cameras it has, CAMERA=N offsets for a camera only some recordings have, and a crowd of
     detections in one frame."""
-    from jaxpose.data.calibration_formats import read_rig_calibration
-    from jaxpose.data.camera_file import save_cameras
+    from jaxpose.formats.rig_calibration import read_rig_calibration
+    from jaxpose.formats.camera_file import save_cameras
 
     first, second = sorted(p for p in project_copy.iterdir() if p.is_dir() and not p.name.startswith("."))
     for frame in (first / "cam02_json").glob("*.json"):

@@ -13,7 +13,7 @@ from scipy.stats import spearmanr
 
 from jaxpose.camera import Cameras, project
 from jaxpose.data.batch import MultiViewBatch, validate_batch, validate_cameras
-from jaxpose.data.synthetic import (
+from jaxpose.synthetic import (
     ANGLE_NAMES,
     ANKLE_HEIGHT_MM,
     DETECTOR_SIGMA_PX,

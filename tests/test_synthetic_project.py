@@ -1,4 +1,4 @@
-"""The embedded example rig project (`jaxpose.data.synthetic.project`): OpenPose JSON frames as OpenPose
+"""The embedded example rig project (`jaxpose.synthetic.project`): OpenPose JSON frames as OpenPose
 writes them, a calibration that reads back to the generator's rig, ground truth that projects onto the
 detections, a desynchronized camera, a second person, determinism, both layouts, the command line."""
 
@@ -15,10 +15,10 @@ import pytest
 from help_text import assert_every_flag_documented
 
 from jaxpose.camera import project
-from jaxpose.data.calibration_formats import read_rig_calibration
-from jaxpose.data.synthetic import ExampleProjectConfig, keypoints3d, rig_calibration, write_rig_project
-from jaxpose.data.synthetic.project import main
-from jaxpose.keypoint_formats import OPENPOSE_25_JOINT_NAMES
+from jaxpose.formats.rig_calibration import read_rig_calibration
+from jaxpose.synthetic import ExampleProjectConfig, keypoints3d, rig_calibration, write_rig_project
+from jaxpose.synthetic.project import main
+from jaxpose.layouts import OPENPOSE_25_JOINT_NAMES
 from jaxpose.skeleton import COCO_17
 
 # Small projects: a fast walk (so that a 3-frame shift shows) and a slower motion, a second person
@@ -240,8 +240,8 @@ def test_deterministic_for_a_seed(tmp_path):
 
 def test_keypoints3d_are_anatomical():
     config = ExampleProjectConfig()
-    from jaxpose.data.synthetic import sample_bone_lengths, sample_motion
-    from jaxpose.data.synthetic.config import Stream, stream_rng
+    from jaxpose.synthetic import sample_bone_lengths, sample_motion
+    from jaxpose.synthetic.config import Stream, stream_rng
 
     synthetic = config.synthetic_config()
     bones = sample_bone_lengths(stream_rng(synthetic, Stream.BODY, 0))

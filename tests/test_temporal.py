@@ -19,7 +19,7 @@ from jaxpose import export, inference, predict
 from jaxpose.camera import Cameras
 from jaxpose.config import ModelConfig
 from jaxpose.data.dataset import MultiViewDataset, concatenate, consecutive_spans, window_rows
-from jaxpose.keypoint_formats import to_skeleton
+from jaxpose.layouts import to_skeleton
 from jaxpose.model import LifterNetwork
 from jaxpose.skeleton import H36M_17
 
@@ -270,7 +270,7 @@ def test_cli_follows_one_person_through_an_openpose_folder(temporal_run, tmp_pat
 def test_mpi_inf_3dhp_lifts_each_stretch_of_valid_frames_as_its_own_sequence(temporal_run, tmp_path):
     from experiments import mpi_inf_3dhp
     from fixtures_real_data import write_mpi_inf_3dhp_test_set
-    from jaxpose.data.mpi_inf_3dhp import camera_intrinsics, load_mpi_inf_3dhp_test
+    from jaxpose.datasets.mpi_inf_3dhp import camera_intrinsics, load_mpi_inf_3dhp_test
 
     K = {name: camera_intrinsics(name) for name in ("TS1", "TS5")}
     data = write_mpi_inf_3dhp_test_set(tmp_path / "3dhp", {"TS1": "v7.3", "TS5": "v5"}, K=K)

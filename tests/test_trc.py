@@ -1,4 +1,4 @@
-"""OpenSim marker files (`jaxpose.data.trc`) and predict's .trc / .csv outputs."""
+"""OpenSim marker files (`jaxpose.formats.trc`) and predict's .trc / .csv outputs."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import pytest
 
 from detection_helpers import body25_from_coco, coco_from_h36m, views
 from jaxpose import predict
-from jaxpose.data.errors import DataFormatError
-from jaxpose.data.trc import HEADER_KEYS, marker_name, read_trc, write_trc
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats.trc import HEADER_KEYS, marker_name, read_trc, write_trc
 from jaxpose.skeleton import H36M_17
 
 TRC = Path(__file__).resolve().parents[2] / "shared" / "data" / "formats" / "trc"

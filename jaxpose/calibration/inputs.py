@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxpose.data.camera_file import DISTORTION_MODELS
+from jaxpose.formats.camera_file import DISTORTION_MODELS
 from jaxpose.data.dataset import MultiViewDataset
-from jaxpose.data.errors import DataFormatError
-from jaxpose.data.files import read_npz_arrays
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats.files import read_npz_arrays
 from jaxpose.skeleton import SKELETONS, Skeleton, get_skeleton
 
 

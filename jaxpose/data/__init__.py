@@ -1,4 +1,4 @@
-"""Multi-view data: the batch contract, the in-memory data set, and the loaders."""
+"""Multi-view data: the batch contract and the in-memory data set (the loaders are in `jaxpose.datasets` and `jaxpose.rig`)."""
 
 from jaxpose.data.batch import BatchValidationError, MultiViewBatch, validate_batch, validate_cameras
 from jaxpose.data.dataset import (

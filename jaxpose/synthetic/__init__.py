@@ -19,7 +19,7 @@ The modules, in the order the data is made: `config` (what to simulate, random s
 calibration file, OpenPose JSON frames, ground truth) from them.  Their public names are re-exported here.
 """
 
-from jaxpose.data.synthetic.body import (
+from jaxpose.synthetic.body import (
     ANGLE_NAMES,
     JOINT_LIMITS_DEG,
     NOMINAL_BONE_MM,
@@ -27,11 +27,11 @@ from jaxpose.data.synthetic.body import (
     forward_kinematics,
     sample_bone_lengths,
 )
-from jaxpose.data.synthetic.config import SyntheticConfig
-from jaxpose.data.synthetic.dataset import generate
-from jaxpose.data.synthetic.detector import DETECTOR_SIGMA_PX, SimulatedDetections, detector_sigma, simulate_detector
-from jaxpose.data.synthetic.motion import ANKLE_HEIGHT_MM, MOTION_FAMILIES, Motion, SubjectMotion, sample_motion, simulate_subject
-from jaxpose.data.synthetic.rig import make_rig, project_points
+from jaxpose.synthetic.config import SyntheticConfig
+from jaxpose.synthetic.dataset import generate
+from jaxpose.synthetic.detector import DETECTOR_SIGMA_PX, SimulatedDetections, detector_sigma, simulate_detector
+from jaxpose.synthetic.motion import ANKLE_HEIGHT_MM, MOTION_FAMILIES, Motion, SubjectMotion, sample_motion, simulate_subject
+from jaxpose.synthetic.rig import make_rig, project_points
 
 __all__ = [
     "ANGLE_NAMES", "ANKLE_HEIGHT_MM", "DETECTOR_SIGMA_PX", "JOINT_LIMITS_DEG", "MOTION_FAMILIES", "NOMINAL_BONE_MM",
@@ -41,7 +41,7 @@ __all__ = [
     "write_rig_project",
 ]  # fmt: skip
 
-# `project`'s names are imported on first use (PEP 562), so that `python -m jaxpose.data.synthetic.project`
+# `project`'s names are imported on first use (PEP 562), so that `python -m jaxpose.synthetic.project`
 # does not find its module already imported by this package, and the simulator alone does not import
 # the calibration readers.
 _PROJECT_NAMES = ("ExampleProjectConfig", "keypoints3d", "rig_calibration", "write_rig_project")
@@ -49,7 +49,7 @@ _PROJECT_NAMES = ("ExampleProjectConfig", "keypoints3d", "rig_calibration", "wri
 
 def __getattr__(name: str):
     if name in _PROJECT_NAMES:
-        from jaxpose.data.synthetic import project
+        from jaxpose.synthetic import project
 
         return getattr(project, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

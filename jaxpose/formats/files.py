@@ -19,7 +19,7 @@ import h5py
 import numpy as np
 import scipy.io
 
-from jaxpose.data.errors import DataFormatError
+from jaxpose.formats.errors import DataFormatError
 
 # What numpy, zipfile, zlib and pickle raise on an empty, truncated, garbled or foreign .npz file.
 _NPZ_ERRORS = (

@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpose.camera import Cameras, project_from_camera, world_to_camera
-from jaxpose.data.synthetic.body import axis_rotation
-from jaxpose.data.synthetic.config import SyntheticConfig
+from jaxpose.synthetic.body import axis_rotation
+from jaxpose.synthetic.config import SyntheticConfig
 
 
 def _look_at(centers: np.ndarray, targets: np.ndarray, roll_degrees: np.ndarray) -> np.ndarray:

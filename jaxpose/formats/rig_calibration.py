@@ -14,7 +14,7 @@ the library's conventions, image sizes) from any of:
 2. **EasyMocap / OpenCV FileStorage YAML**: `intri.yml` (`names`, `K_<cam>`, `dist_<cam>`) and
    `extri.yml` (`R_<cam>` Rodrigues 3x1 or 1x3, `Rot_<cam>` 3x3, `T_<cam>` in metres).  The rig is
    the cameras of both files.
-3. **The project's camera file** (`*.json`, `jaxpose.data.camera_file`), millimetres.
+3. **The project's camera file** (`*.json`, `jaxpose.formats.camera_file`), millimetres.
 4. **Human3.6M's `cameras.h5`** (`*.h5`), millimetres, one rig per subject.
 
 `find_calibration` finds the calibration file in a recording folder by content, and
@@ -41,9 +41,9 @@ import numpy as np
 import yaml
 
 from jaxpose.camera import Cameras
-from jaxpose.data.camera_file import H36M_IMAGE_SIZES, _parse as _parse_camera_file, _read_h36m
-from jaxpose.data.errors import DataFormatError
-from jaxpose.data.files import read_json
+from jaxpose.formats.camera_file import H36M_IMAGE_SIZES, _parse as _parse_camera_file, _read_h36m
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats.files import read_json
 
 __all__ = [
     "CalibrationUnit",

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 
-from jaxpose.data.synthetic.config import SyntheticConfig
+from jaxpose.synthetic.config import SyntheticConfig
 from jaxpose.skeleton import H36M_17
 
 # Per-axis standard deviation (px) of the detector's Gaussian noise at noise_sigma_scale 1: the

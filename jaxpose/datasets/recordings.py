@@ -19,7 +19,7 @@ import numpy as np
 from jaxpose.camera import Cameras, project
 from jaxpose.chunks import map_in_chunks
 from jaxpose.data.dataset import MultiViewDataset
-from jaxpose.data.errors import DataFormatError
+from jaxpose.formats.errors import DataFormatError
 from jaxpose.skeleton import Skeleton
 
 logger = logging.getLogger(__name__)

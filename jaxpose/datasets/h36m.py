@@ -42,12 +42,12 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from jaxpose.camera import Cameras
-from jaxpose.data.camera_file import read_calibration, select_views
+from jaxpose.formats.camera_file import read_calibration, select_views
 from jaxpose.data.dataset import MultiViewDataset
-from jaxpose.data.errors import DataFormatError
-from jaxpose.data.files import read_h5_dataset
-from jaxpose.data.recordings import Recording, build_dataset, stack_views, warn_incomplete
-from jaxpose.data.videopose3d import load_positions, subject_poses3d, subject_views2d
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats.files import read_h5_dataset
+from jaxpose.datasets.recordings import Recording, build_dataset, stack_views, warn_incomplete
+from jaxpose.datasets.videopose3d import load_positions, subject_poses3d, subject_views2d
 from jaxpose.skeleton import H36M_16, H36M_17, H36M_32_TO_17
 
 TRAIN_SUBJECTS = ("S1", "S5", "S6", "S7", "S8")

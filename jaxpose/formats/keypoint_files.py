@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxpose.data.errors import DataFormatError
+from jaxpose.formats.errors import DataFormatError
 
 try:  # optional fast path: same results, about twice as fast on compact frames
     import orjson

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxpose.data.errors import DataFormatError
-from jaxpose.data.files import load_npz_object, real_array
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats.files import load_npz_object, real_array
 
 
 def load_positions(path: Path, key: str, what: str) -> Mapping:

@@ -4,7 +4,7 @@ Files in `data_dir` (docs/conventions.md)::
 
     data_3d_humaneva15.npz            positions_3d: "Train/S1" -> "Walk 1 chunk0" -> f32[N, 15, 3] world m
     data_2d_humaneva15_<source>.npz   positions_2d: same keys -> 3 x f32[N, 15, 2] pixels (C1, C2, C3)
-    cameras.json                      a jaxpose camera file (`jaxpose.data.camera_file`) with subjects
+    cameras.json                      a jaxpose camera file (`jaxpose.formats.camera_file`) with subjects
                                       "S1".."S3", cameras "C1", "C2", "C3" (used for both partitions)
 
 Protocol: the training split is Train/S1-S3, all actions; the test split Validate/S1-S3, Walk and
@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxpose.data.camera_file import load_cameras, select_views
+from jaxpose.formats.camera_file import load_cameras, select_views
 from jaxpose.data.dataset import MultiViewDataset
-from jaxpose.data.errors import DataFormatError
-from jaxpose.data.recordings import Recording, build_dataset, stack_views, warn_incomplete
-from jaxpose.data.videopose3d import load_positions, subject_poses3d, subject_views2d
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.datasets.recordings import Recording, build_dataset, stack_views, warn_incomplete
+from jaxpose.datasets.videopose3d import load_positions, subject_poses3d, subject_views2d
 from jaxpose.skeleton import HUMANEVA_15
 
 logger = logging.getLogger(__name__)

@@ -6,10 +6,10 @@ import numpy as np
 
 from jaxpose.camera import Cameras
 from jaxpose.data.dataset import MultiViewDataset
-from jaxpose.data.synthetic.config import Stream, SyntheticConfig, stream_rng
-from jaxpose.data.synthetic.detector import simulate_detector
-from jaxpose.data.synthetic.motion import simulate_subject
-from jaxpose.data.synthetic.rig import jitter_rig, make_rig, project_points
+from jaxpose.synthetic.config import Stream, SyntheticConfig, stream_rng
+from jaxpose.synthetic.detector import simulate_detector
+from jaxpose.synthetic.motion import simulate_subject
+from jaxpose.synthetic.rig import jitter_rig, make_rig, project_points
 from jaxpose.skeleton import H36M_17
 
 

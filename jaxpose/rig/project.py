@@ -14,22 +14,22 @@ A project folder::
         ground_truth.npz         optional, evaluation only: points3d [N, J, 3] world mm (the
                                  calibration's world frame), frames [N], joint_names [J]
 
-Calibrations (`jaxpose.data.calibration_formats`): a jaxpose camera file, an Anipose / Pose2Sim /
+Calibrations (`jaxpose.formats.rig_calibration`): a jaxpose camera file, an Anipose / Pose2Sim /
 FreeMoCap TOML, or EasyMocap's intri.yml + extri.yml, found in a folder by their content.  Cameras
 are matched to the detection folders by name (a folder's name without `_json`), ignoring case,
 separators and leading zeros where that matches them one to one ("cam_01" is folder "cam01_json").  Without any
 calibration the rig is recovered from the recordings (`jaxpose.calibrate`).
 
 What loading does to each recording, in order:
-1. reads every camera's detections (parsed once, then cached: `jaxpose.data.keypoint_files`);
+1. reads every camera's detections (parsed once, then cached: `jaxpose.formats.keypoint_files`);
 2. converts them from the detector's layout to its lifting skeleton (the detector's own joints,
-   root first: `jaxpose.keypoint_formats.to_lifting_skeleton`); scores below `min_confidence` are
+   root first: `jaxpose.layouts.to_lifting_skeleton`); scores below `min_confidence` are
    treated as missing;
 3. aligns the cameras in time: camera c's frame f shows instant f + offset[c]; offsets given, or
-   estimated (`jaxpose.data.sync`); instants seen by no camera are absent, a camera without a
+   estimated (`jaxpose.rig.sync`); instants seen by no camera are absent, a camera without a
    frame at an instant has confidence 0 there;
 4. undistorts the keypoints with the calibration (the data sets' rigs are then pinhole);
-5. keeps one person per instant, the one the views agree on (`jaxpose.data.people`);
+5. keeps one person per instant, the one the views agree on (`jaxpose.rig.people`);
 6. attaches the ground truth where there is one, over the joints it shares with the lifting
    skeleton by name (the derived root from the hips where the ground truth has both).
 """
@@ -48,15 +48,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpose.camera import Cameras, projection_matrices, undistort_points
-from jaxpose.data.calibration_formats import CalibrationUnit, RigCalibration, find_calibration, read_rig_calibration
+from jaxpose.formats.rig_calibration import CalibrationUnit, RigCalibration, find_calibration, read_rig_calibration
 from jaxpose.data.dataset import MultiViewDataset, concatenate
-from jaxpose.data.errors import DataFormatError
-from jaxpose.data.files import read_npz_arrays
-from jaxpose.data.keypoint_files import CameraDetections, read_camera_detections
-from jaxpose.data.people import DEFAULT_THRESHOLD_PX, choose_person
-from jaxpose.data.sync import SyncEstimate, estimate_offsets
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats.files import read_npz_arrays
+from jaxpose.formats.keypoint_files import CameraDetections, read_camera_detections
+from jaxpose.rig.people import DEFAULT_THRESHOLD_PX, choose_person
+from jaxpose.rig.sync import SyncEstimate, estimate_offsets
 from jaxpose.evaluation import ground_truth_joints
-from jaxpose.keypoint_formats import LAYOUTS, infer_layout, layout_joint_names, lifting_skeleton, to_lifting_skeleton
+from jaxpose.layouts import LAYOUTS, infer_layout, layout_joint_names, lifting_skeleton, to_lifting_skeleton
 from jaxpose.skeleton import DETECTOR_LAYOUTS, Skeleton
 
 log = logging.getLogger(__name__)
@@ -70,7 +70,7 @@ MIN_ALIGNMENT_POINTS = 50  # ground-truth joints needed to align it with a recov
 
 @dataclasses.dataclass(frozen=True)
 class RigProjectConfig:
-    """A rig project folder and how its recordings are read (see `jaxpose.data.rig_project`)."""
+    """A rig project folder and how its recordings are read (see `jaxpose.rig.project`)."""
 
     root: pathlib.Path = pathlib.Path("runs/rig_example/project")
     """The project folder: one sub-folder per recording, and optionally a calibration file."""
@@ -413,7 +413,7 @@ def _undistorted(calibration: RigCalibration | None, camera: str, keypoints: np.
 
 
 def _estimate_sync(recording: _Recording, views: Mapping, camera_order: Sequence[str], config: RigProjectConfig) -> SyncEstimate:
-    """`jaxpose.data.sync.estimate_offsets` on the frames where each camera sees one person."""
+    """`jaxpose.rig.sync.estimate_offsets` on the frames where each camera sees one person."""
     frames, keypoints, confidence = [], [], []
     for camera in camera_order:
         camera_frames, camera_keypoints, camera_confidence = views[camera]

@@ -56,13 +56,13 @@ import numpy as np
 import tyro
 
 from jaxpose.camera import Cameras, project_from_camera, undistort_points, world_to_camera
-from jaxpose.data.calibration_formats import RigCalibration, write_anipose_toml
-from jaxpose.data.synthetic.body import JOINT_INDEX, NOMINAL_BONE_MM, axis_rotation, sample_bone_lengths
-from jaxpose.data.synthetic.config import Stream, SyntheticConfig, stream_rng
-from jaxpose.data.synthetic.detector import DETECTOR_SIGMA_PX, simulate_detector
-from jaxpose.data.synthetic.motion import MOTION_FAMILIES, sample_motion
-from jaxpose.data.synthetic.rig import make_rig
-from jaxpose.keypoint_formats import OPENPOSE_25_JOINT_NAMES
+from jaxpose.formats.rig_calibration import RigCalibration, write_anipose_toml
+from jaxpose.synthetic.body import JOINT_INDEX, NOMINAL_BONE_MM, axis_rotation, sample_bone_lengths
+from jaxpose.synthetic.config import Stream, SyntheticConfig, stream_rng
+from jaxpose.synthetic.detector import DETECTOR_SIGMA_PX, simulate_detector
+from jaxpose.synthetic.motion import MOTION_FAMILIES, sample_motion
+from jaxpose.synthetic.rig import make_rig
+from jaxpose.layouts import OPENPOSE_25_JOINT_NAMES
 from jaxpose.skeleton import COCO_17, H36M_17
 
 __all__ = [
@@ -193,7 +193,7 @@ class ExampleProjectConfig:
 
 
 class _Stream(enum.IntEnum):
-    """This module's random streams, numbered after `jaxpose.data.synthetic.config.Stream`'s so that
+    """This module's random streams, numbered after `jaxpose.synthetic.config.Stream`'s so that
     no generator is shared with the simulator's own."""
 
     LENS = 10
@@ -353,7 +353,7 @@ def rig_calibration(config: ExampleProjectConfig = ExampleProjectConfig()) -> Ri
         camera_names=config.camera_names,
         cameras=cameras,
         image_size=np.tile(np.asarray(config.image_size, np.int64), (C, 1)),
-        source=f"jaxpose.data.synthetic.project (seed {config.seed})",
+        source=f"jaxpose.synthetic.project (seed {config.seed})",
         unit="m",
     )
 
@@ -651,7 +651,7 @@ class WriteArgs(ExampleProjectConfig):
 
 def main(argv: Sequence[str] | None = None) -> Path:
     args = tyro.cli(
-        WriteArgs, args=argv, prog="python -m jaxpose.data.synthetic.project", description=WriteArgs.__doc__
+        WriteArgs, args=argv, prog="python -m jaxpose.synthetic.project", description=WriteArgs.__doc__
     )
     fields = dataclasses.fields(ExampleProjectConfig)
     config = ExampleProjectConfig(**{field.name: getattr(args, field.name) for field in fields})

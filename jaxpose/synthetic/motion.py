@@ -6,8 +6,8 @@ import dataclasses
 
 import numpy as np
 
-from jaxpose.data.synthetic.body import ANGLE_NAMES, JOINT_INDEX, angle_limits, forward_kinematics, sample_bone_lengths
-from jaxpose.data.synthetic.config import Stream, SyntheticConfig, stream_rng
+from jaxpose.synthetic.body import ANGLE_NAMES, JOINT_INDEX, angle_limits, forward_kinematics, sample_bone_lengths
+from jaxpose.synthetic.config import Stream, SyntheticConfig, stream_rng
 
 MOTION_FAMILIES = ("walking", "turning", "sitting", "crouching", "reaching", "waving", "gesturing", "bending")
 

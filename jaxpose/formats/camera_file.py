@@ -30,8 +30,8 @@ Brown-Conrady model, "h36m" the variant Human3.6M was calibrated with, its `dist
 
 Command line::
 
-    python -m jaxpose.data.camera_file convert cameras.h5 cameras.json   # Human3.6M calibration
-    python -m jaxpose.data.camera_file check cameras.json                # validate and summarize
+    python -m jaxpose.formats.camera_file convert cameras.h5 cameras.json   # Human3.6M calibration
+    python -m jaxpose.formats.camera_file check cameras.json                # validate and summarize
 """
 
 from __future__ import annotations
@@ -47,8 +47,8 @@ import numpy as np
 import tyro
 
 from jaxpose.camera import Cameras
-from jaxpose.data.errors import DataFormatError
-from jaxpose.data.files import h5_dataset, open_h5, read_json
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats.files import h5_dataset, open_h5, read_json
 
 FORMAT_NAME = "jaxpose-cameras"
 FORMAT_VERSION = 1
@@ -350,7 +350,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     command = tyro.cli(
         Annotated[Convert, tyro.conf.subcommand("convert")] | Annotated[Check, tyro.conf.subcommand("check")],
         args=argv,
-        prog="python -m jaxpose.data.camera_file",
+        prog="python -m jaxpose.formats.camera_file",
         description="Convert and check jaxpose camera files.",
     )
     try:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxpose.data.errors import DataFormatError
+from jaxpose.formats.errors import DataFormatError
 
 HEADER_KEYS = ("DataRate", "CameraRate", "NumFrames", "NumMarkers", "Units", "OrigDataRate", "OrigDataStartFrame",
                "OrigNumFrames")  # fmt: skip

@@ -36,8 +36,8 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxpose.data.errors import DataFormatError
-from jaxpose.data.files import read_mat, real_array
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats.files import read_mat, real_array
 from jaxpose.skeleton import MPI_INF_3DHP_17, Skeleton
 
 SEQUENCES = ("TS1", "TS2", "TS3", "TS4", "TS5", "TS6")
