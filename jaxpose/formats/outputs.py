@@ -1,0 +1,53 @@
+"""Files a command writes where the user told it to: never over an existing file unless asked, never
+over one of its own inputs, and never half-written.
+
+`check_output` refuses, before any work is done, an output that exists (unless `--overwrite`), that
+is a folder, or that is one of the command's inputs (even with `--overwrite`: that would destroy
+the data the output is computed from).  `atomic_output` gives a temporary path beside the output,
+with the same suffix (writers such as `np.savez` and matplotlib choose the format by it), and
+renames it into place only when the writer finished: an interrupted or failed write leaves the
+previous file, if any, as it was.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+OVERWRITE_FLAG = "--overwrite"
+
+
+class OutputError(ValueError):
+    """An output path that would destroy something or cannot be written; the message names it."""
+
+
+def check_output(path: str | Path, overwrite: bool, inputs: Iterable[str | Path] = (), flag: str = "--output") -> Path:
+    """`path` as a Path once it is safe to write there later; else an `OutputError` naming it and `flag`."""
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(f"{flag} {path}: is a folder; give a file name (e.g. {path / 'poses'}{path.suffix or '.json'})")
+    target = path.resolve()
+    for given in inputs:
+        if target == Path(given).resolve():
+            raise OutputError(f"{flag} {path}: is this command's input {given}; writing there would destroy it, choose another file")
+    if path.exists() and not overwrite:
+        raise OutputError(f"{flag} {path}: exists; pass {OVERWRITE_FLAG} to replace it")
+    if not path.parent.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+    if not os.access(path.parent, os.W_OK):
+        raise OutputError(f"{flag} {path}: its folder {path.parent} cannot be written")
+    return path
+
+
+@contextlib.contextmanager
+def atomic_output(path: str | Path) -> Iterator[Path]:
+    """A temporary path to write `path`'s content to; renamed onto `path` when the block ends normally."""
+    path = Path(path)
+    temporary = path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")
+    try:
+        yield temporary
+        os.replace(temporary, path)
+    finally:
+        temporary.unlink(missing_ok=True)
