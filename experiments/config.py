@@ -10,9 +10,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import pathlib
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Generic, TypeVar
 
+from jaxpose.camera import Cameras
 from jaxpose.config import InputAugmentation, LossConfig, ModelConfig, OptimizerConfig, PseudoLabelConfig
+from jaxpose.data.dataset import MultiViewDataset
 
 DataT = TypeVar("DataT")
 
@@ -103,6 +106,25 @@ class ExperimentConfig(Generic[DataT]):
     parallel: ParallelConfig = ParallelConfig()
 
 
+def paper_preset(data: DataT, *, batch_size: int, epochs: int, checkpoint_every: int, run_dir: str) -> ExperimentConfig[DataT]:
+    """Sec. IV-A of the paper on `data`: the authors' network (ModelConfig defaults), loss weights 1, 1,
+    0.001, 0.01 with L_out in the last 10% (LossConfig defaults), Adam at a constant 1e-3, and the data
+    set's batch size and epochs."""
+    return ExperimentConfig(
+        data=data,
+        model=ModelConfig(),
+        loss=LossConfig(),
+        optimizer=OptimizerConfig(learning_rate=1e-3, schedule="constant"),
+        train=TrainConfig(batch_size=batch_size, epochs=epochs, checkpoint_every=checkpoint_every),
+        run=RunConfig(run_dir=pathlib.Path(run_dir)),
+    )
+
+
+def paper_note(preset: ExperimentConfig) -> str:
+    """The `--help` line of a `paper_preset`."""
+    return f"the paper: authors' network, Adam 1e-3 constant, batch {preset.train.batch_size}, {preset.train.epochs} epochs"
+
+
 def mocap_calibration(given: pathlib.Path | None, default: pathlib.Path, training: pathlib.Path | None) -> pathlib.Path:
     """The motion capture's calibration, in whose world frame the 3D ground truth is: the one
     `given` (--data.reference-cameras-path), else the data set's own `default` where it exists, else
@@ -118,6 +140,29 @@ def other_training_calibration(training: pathlib.Path | None, reference: pathlib
     if training is None or training.resolve() == reference.resolve():
         return None
     return training
+
+
+def on_training_calibration(
+    train: MultiViewDataset,
+    training: pathlib.Path | None,
+    reference: pathlib.Path,
+    subject_rigs: Callable[[pathlib.Path, Sequence[str]], Mapping[str, Cameras]],
+    subjects: Sequence[str],
+) -> MultiViewDataset:
+    """The training split on the `training` calibration (--data.cameras-path) where it is another than the
+    `reference`, with the rigs of its `subjects` read by the data set's `subject_rigs`.  Only the training
+    split: the test samples keep the reference, in whose world frame their ground truth is."""
+    other = other_training_calibration(training, reference)
+    return train if other is None else train.recalibrated(subject_rigs(other, subjects))
+
+
+def calibration_lines(training: pathlib.Path | None, reference: pathlib.Path, kind: str = "") -> list[str]:
+    """The two calibrations a real-data run reads, for the message when a file is missing or malformed;
+    `kind` describes the training calibration's file."""
+    return [
+        f"  cameras (--data.cameras-path):  {training or reference}{kind}",
+        f"  reference cameras (--data.reference-cameras-path):  {reference}",
+    ]
 
 
 def to_json_dict(config: Any) -> Any:

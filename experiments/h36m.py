@@ -23,9 +23,10 @@ from typing import Literal
 import numpy as np
 
 from experiments import cli, paper_tables
-from experiments.config import ExperimentConfig, RunConfig, TrainConfig, mocap_calibration, other_training_calibration
+from experiments.config import ExperimentConfig, RunConfig, TrainConfig, paper_note, paper_preset
+from experiments.config import calibration_lines, mocap_calibration, on_training_calibration
 from experiments.runner import Splits
-from jaxpose.config import RESCALED_LOSS, LossConfig, ModelConfig, OptimizerConfig, PseudoLabelConfig
+from jaxpose.config import RESCALED_LOSS, ModelConfig, OptimizerConfig, PseudoLabelConfig
 from jaxpose.datasets.h36m import DETECTION_FILES, POSES_3D_FILE, TEST_SUBJECTS, TRAIN_SUBJECTS, load_h36m, subject_rigs
 
 
@@ -93,12 +94,8 @@ def load_splits(data: H36MData) -> Splits:
         train = np.isin(dataset.labels["subject"], list(data.train_subjects))
         test = ~train
     train_set = dataset.subset(np.flatnonzero(train))
-    training_calibration = other_training_calibration(data.cameras_path, reference)
-    if training_calibration is not None:
-        # The test samples keep the reference, in whose world frame their ground truth is.
-        train_set = train_set.recalibrated(subject_rigs(training_calibration, data.train_subjects))
     return Splits(
-        train=train_set,
+        train=on_training_calibration(train_set, data.cameras_path, reference, subject_rigs, data.train_subjects),
         test=dataset.subset(np.flatnonzero(test)),
         group_label="action",
         detector_specific_joints=SH_MPII_JOINTS if data.detections == "sh" else (),
@@ -137,15 +134,13 @@ def expected_files(data: H36MData) -> str:
         poses2d = f"{root}/{DETECTION_FILES[data.detections]} (VideoPose3D)"
     else:
         poses2d = str(data.detections)
-    cameras = data.cameras_path or reference_calibration(data)
     subjects = f"{' '.join(data.train_subjects)} (train), {' '.join(data.test_subjects)} (test)"
     return "\n".join(
         [
             f"This run reads Human3.6M from --data.data-dir {root}:",
             f"  3D poses (--data.layout {data.layout}):  {poses3d[data.layout]}",
             f"  2D (--data.detections {data.detections}):  {poses2d}",
-            f"  cameras (--data.cameras-path):  {cameras}",
-            f"  reference cameras (--data.reference-cameras-path):  {reference_calibration(data)}",
+            *calibration_lines(data.cameras_path, reference_calibration(data)),
             f"  subjects:  {subjects}",
         ]
     )
@@ -177,18 +172,9 @@ CPU = ExperimentConfig(
     run=RunConfig(run_dir=pathlib.Path("runs/h36m_cpu")),
 )
 
-# Preset "paper": Sec. IV-A of the paper.  Adam at a constant 1e-3, batch 8192, 500 epochs, loss
-# weights 1, 1, 0.001, 0.01 with L_out in the last 10% (LossConfig defaults), the authors' network
-# (ModelConfig defaults), CPN detections.  ~9 steps per epoch, ~4,750 steps of ~10 s each on 2 CPU
-# cores: a job for an accelerator.
-PAPER = ExperimentConfig(
-    data=H36MData(),
-    model=ModelConfig(),
-    loss=LossConfig(),
-    optimizer=OptimizerConfig(learning_rate=1e-3, schedule="constant"),
-    train=TrainConfig(batch_size=8192, epochs=500, checkpoint_every=250),
-    run=RunConfig(run_dir=pathlib.Path("runs/h36m_paper")),
-)
+# Preset "paper": Sec. IV-A of the paper (`paper_preset`): batch 8192, 500 epochs, CPN detections.
+# ~9 steps per epoch, ~4,750 steps of ~10 s each on 2 CPU cores: a job for an accelerator.
+PAPER = paper_preset(H36MData(), batch_size=8192, epochs=500, checkpoint_every=250, run_dir="runs/h36m_paper")
 
 # Preset "dev": the development protocol on one subject (e.g. S1 of the h36m.zip tree), one trial of
 # every action to train and the other to test, Stacked Hourglass detections, the cpu preset's
@@ -204,7 +190,7 @@ DEV = dataclasses.replace(
 PRESETS: dict[str, ExperimentConfig] = {"cpu": CPU, "paper": PAPER, "dev": DEV}
 PRESET_NOTES = {
     "cpu": "width-512 lifter, batch 128, 30 epochs, cosine schedule, RANSAC pseudo-labels, rescaled loss weights: ~18 min on 2 CPU cores",
-    "paper": "the paper: authors' network, Adam 1e-3 constant, batch 8192, 500 epochs",
+    "paper": paper_note(PAPER),
     "dev": "development protocol: S1 only, first trial of each action trains, the other tests; SH 2D; cpu recipe",
 }
 DEFAULT = CPU

@@ -20,9 +20,10 @@ import pathlib
 import numpy as np
 
 from experiments import cli, paper_tables
-from experiments.config import ExperimentConfig, RunConfig, TrainConfig, mocap_calibration, other_training_calibration
+from experiments.config import ExperimentConfig, RunConfig, TrainConfig, paper_note, paper_preset
+from experiments.config import calibration_lines, mocap_calibration, on_training_calibration
 from experiments.runner import Splits
-from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
+from jaxpose.config import ModelConfig, OptimizerConfig
 from jaxpose.datasets.humaneva import POSES_3D_FILE, TEST_SUBJECTS, TRAIN_SUBJECTS, load_humaneva, subject_rigs
 
 GROUP_LABEL = "action_subject"
@@ -70,10 +71,7 @@ def load_splits(data: HumanEvaData) -> Splits:
 
     train = load("train", data.train_subjects, data.train_stride)
     test = load("test", data.test_subjects, data.test_stride)
-    training_calibration = other_training_calibration(data.cameras_path, reference)
-    if training_calibration is not None:
-        # The test samples keep the reference, in whose world frame their ground truth is.
-        train = train.recalibrated(subject_rigs(training_calibration, data.train_subjects))
+    train = on_training_calibration(train, data.cameras_path, reference, subject_rigs, data.train_subjects)
     labels = test.labels
     action_subject = np.array([f"{action} {subject}" for action, subject in zip(labels["action"], labels["subject"])])
     test = dataclasses.replace(test, labels={**labels, GROUP_LABEL: action_subject})
@@ -94,14 +92,13 @@ def expected_files(data: HumanEvaData) -> str:
         poses2d = str(data.detections)
     else:
         poses2d = f"{root}/data_2d_humaneva15_{data.detections}.npz (VideoPose3D)"
-    cameras = data.cameras_path or reference_calibration(data)
+    camera_file = " (a jaxpose camera file: subjects S1-S3, cameras C1-C3)"
     return "\n".join(
         [
             f"This run reads HumanEva-I from --data.data-dir {root}:",
             f"  3D poses:  {root}/{POSES_3D_FILE} (VideoPose3D)",
             f"  2D (--data.detections {data.detections}):  {poses2d}",
-            f"  cameras (--data.cameras-path):  {cameras} (a jaxpose camera file: subjects S1-S3, cameras C1-C3)",
-            f"  reference cameras (--data.reference-cameras-path):  {reference_calibration(data)}",
+            *calibration_lines(data.cameras_path, reference_calibration(data), camera_file),
             f"  subjects:  {' '.join(data.train_subjects)} (train), {' '.join(data.test_subjects)} (test)",
         ]
     )
@@ -124,23 +121,15 @@ CPU = ExperimentConfig(
     run=RunConfig(run_dir=pathlib.Path("runs/humaneva_cpu")),
 )
 
-# Preset "paper": Sec. IV-A of the paper.  Adam at a constant 1e-3, batch 1600, 5000 epochs, loss
-# weights 1, 1, 0.001, 0.01 with L_out in the last 10% (LossConfig defaults), the authors' network.
-# The paper's HumanEva 2D (its own Mask R-CNN + Stacked Hourglass run) is not published; the closest
-# published source is VideoPose3D's detectron_pt_coco (also not fine-tuned on HumanEva).
-PAPER = ExperimentConfig(
-    data=HumanEvaData(),
-    model=ModelConfig(),
-    loss=LossConfig(),
-    optimizer=OptimizerConfig(learning_rate=1e-3, schedule="constant"),
-    train=TrainConfig(batch_size=1600, epochs=5000, checkpoint_every=1000),
-    run=RunConfig(run_dir=pathlib.Path("runs/humaneva_paper")),
-)
+# Preset "paper": Sec. IV-A of the paper (`paper_preset`): batch 1600, 5000 epochs.  The paper's
+# HumanEva 2D (its own Mask R-CNN + Stacked Hourglass run) is not published; the closest published
+# source is VideoPose3D's detectron_pt_coco (also not fine-tuned on HumanEva).
+PAPER = paper_preset(HumanEvaData(), batch_size=1600, epochs=5000, checkpoint_every=1000, run_dir="runs/humaneva_paper")
 
 PRESETS: dict[str, ExperimentConfig] = {"cpu": CPU, "paper": PAPER}
 PRESET_NOTES = {
     "cpu": "width-512 lifter, batch 256, 400 epochs, cosine schedule: ~45 min on 2 CPU cores",
-    "paper": "the paper: authors' network, Adam 1e-3 constant, batch 1600, 5000 epochs",
+    "paper": paper_note(PAPER),
 }
 DEFAULT = CPU
 EXPERIMENT = cli.Experiment(

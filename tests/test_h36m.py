@@ -68,6 +68,7 @@ def test_martinez_stacked_hourglass(tree):
     with pytest.warns(UserWarning) as record:
         dataset = _load(tree.root, train_stride=5, test_stride=2)
     messages = [str(warning.message) for warning in record]
+    assert {warning.filename for warning in record} == {__file__}  # attributed to the loader's caller
     assert any("1 sequences miss some views" in m and "S9 'Walking 1' (no 2D for cameras ['54138969'])" in m for m in messages)
     assert any("skipped 1 sequences" in m and "S9 'Eating_2' (2D without 3D)" in m for m in messages)
     assert dataset.skeleton == H36M_16 and dataset.num_views == 4

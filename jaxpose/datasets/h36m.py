@@ -46,7 +46,7 @@ from jaxpose.formats.camera_file import read_calibration, select_views
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.files import read_h5_dataset
-from jaxpose.datasets.recordings import Recording, build_dataset, stack_views, warn_incomplete
+from jaxpose.datasets.recordings import PlannedSequence, Recording, SequencePlan, build_dataset, stack_views
 from jaxpose.datasets.videopose3d import load_positions, subject_poses3d, subject_views2d
 from jaxpose.skeleton import H36M_16, H36M_17, H36M_32_TO_17
 
@@ -122,34 +122,20 @@ def load_h36m(
         positions = load_positions(path, "positions_2d", "VideoPose3D 2D detections")
         read_2d = functools.partial(_npz_2d, path, positions)
 
-    plan, skipped, partial = [], [], []
+    plan = SequencePlan("Human3.6M", CAMERA_NAMES)
     for subject in subjects:
         sequences3d = read_3d(subject)
         by_key = _index_by_key(sequences3d, f"{data_dir} subject {subject} 3D sequences")
         sources2d = {} if read_2d is None else read_2d(subject)
-        orphans = sorted(set(sources2d) - set(by_key))
-        skipped += [f"{subject} {sources2d[key][0]!r} (2D without 3D)" for key in orphans]
-        stride = test_stride if subject in TEST_SUBJECTS else train_stride
+        plan.skip_2d_without_3d(subject, [sources2d[key][0] for key in sorted(set(sources2d) - set(by_key))])
         for key, name in sorted(by_key.items(), key=lambda item: item[1]):
-            views = None
-            if read_2d is not None:
-                views = sources2d.get(key, (None, {}))[1]
-                if not views:
-                    skipped.append(f"{subject} {name!r} (no 2D)")
-                    continue
-                missing = [camera for camera in CAMERA_NAMES if camera not in views]
-                if missing:
-                    partial.append(f"{subject} {name!r} (no 2D for cameras {missing})")
-            plan.append((subject, name, sequences3d[name], views, stride))
-    warn_incomplete("Human3.6M", partial, skipped)
-    if not plan:
-        raise DataFormatError(
-            data_dir, f"Human3.6M sequences of subjects {list(subjects)}", "none with both 3D and 2D"
-        )
+            views = None if read_2d is None else sources2d.get(key, (None, {}))[1]
+            plan.add(subject, name, sequences3d[name], views)
+    sequences = plan.sequences(data_dir, f"Human3.6M sequences of subjects {list(subjects)}")
 
     recordings = [
-        _read_recording(subject, name, read3d, views, stride, joints3d)
-        for subject, name, read3d, views, stride in tqdm(plan, desc="Human3.6M", unit="seq", disable=not progress)
+        _read_recording(sequence, test_stride if sequence.subject in TEST_SUBJECTS else train_stride, joints3d)
+        for sequence in tqdm(sequences, desc="Human3.6M", unit="seq", disable=not progress)
     ]
     return build_dataset(skeleton, recordings, rigs)
 
@@ -261,15 +247,14 @@ def _npz_2d(path: Path, positions: Mapping, subject: str) -> Sources2D:
     return sources
 
 
-def _read_recording(
-    subject: str, name: str, read3d: Reader, views: Mapping[str, Reader] | None, stride: int, joints3d: np.ndarray
-) -> Recording:
+def _read_recording(sequence: PlannedSequence, stride: int, joints3d: np.ndarray) -> Recording:
     """Read one sequence, every frame (the samples are every `stride`-th), and check that its 2D covers its 3D."""
-    points = read3d()
+    subject, name = sequence.subject, sequence.name
+    points = sequence.poses3d()
     frames = np.arange(len(points), dtype=np.int32)
     keypoints = confidence = None
-    if views is not None:
-        read = {camera: reader() for camera, reader in views.items()}
+    if sequence.views is not None:
+        read = {camera: reader() for camera, reader in sequence.views.items()}
         keypoints, confidence = stack_views(f"Human3.6M {subject} {name!r}", read, CAMERA_NAMES, len(points), frames)
     return Recording(
         subject=subject,

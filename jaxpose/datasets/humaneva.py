@@ -24,7 +24,7 @@ from tqdm.auto import tqdm
 from jaxpose.formats.camera_file import load_cameras, select_views
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.formats.errors import DataFormatError
-from jaxpose.datasets.recordings import Recording, build_dataset, stack_views, warn_incomplete
+from jaxpose.datasets.recordings import PlannedSequence, Recording, SequencePlan, build_dataset, stack_views
 from jaxpose.datasets.videopose3d import load_positions, subject_poses3d, subject_views2d
 from jaxpose.skeleton import HUMANEVA_15
 
@@ -75,33 +75,22 @@ def load_humaneva(
         path2d = Path(detections) if is_path else data_dir / f"data_2d_humaneva15_{detections}.npz"
         positions2d = load_positions(path2d, "positions_2d", "VideoPose3D HumanEva-I 2D keypoints")
 
-    plan, skipped, partial = [], [], []
+    plan = SequencePlan("HumanEva-I", CAMERA_NAMES)
     for subject in subjects:
         poses = subject_poses3d(path3d, positions3d, subject, HUMANEVA_15.num_joints)
         views = {}
         if positions2d is not None:
             views = subject_views2d(path2d, positions2d, subject, CAMERA_NAMES, HUMANEVA_15.num_joints)
-            skipped += [f"{subject} {name!r} (2D without 3D)" for name in sorted(set(views) - set(poses))]
+            plan.skip_2d_without_3d(subject, sorted(set(views) - set(poses)))
         for name in sorted(poses):
             if split == "test" and _action(name) not in TEST_ACTIONS:
                 continue
-            cameras = None
-            if positions2d is not None:
-                cameras = views.get(name, {})
-                if not cameras:
-                    skipped.append(f"{subject} {name!r} (no 2D)")
-                    continue
-                missing = [camera for camera in CAMERA_NAMES if camera not in cameras]
-                if missing:
-                    partial.append(f"{subject} {name!r} (no 2D for cameras {missing})")
-            plan.append((subject, name, poses[name], cameras))
-    warn_incomplete("HumanEva-I", partial, skipped)
-    if not plan:
-        raise DataFormatError(data_dir, f"HumanEva-I {split} sequences of {list(subjects)}", "none with both 3D and 2D")
+            plan.add(subject, name, poses[name], None if positions2d is None else views.get(name, {}))
+    sequences = plan.sequences(data_dir, f"HumanEva-I {split} sequences of {list(subjects)}")
 
     recordings, dropped = [], 0
-    for subject, name, poses, cameras in tqdm(plan, desc=f"HumanEva-I {split}", unit="seq", disable=not progress):
-        recording, invalid = _read_recording(subject, name, poses, cameras, stride)
+    for sequence in tqdm(sequences, desc=f"HumanEva-I {split}", unit="seq", disable=not progress):
+        recording, invalid = _read_recording(sequence, stride)
         recordings.append(recording)
         dropped += invalid
     kept = sum(len(r.kept) for r in recordings)
@@ -135,17 +124,16 @@ def subject_rigs(path: Path, subjects: tuple[str, ...]) -> dict:
     return rigs
 
 
-def _read_recording(
-    subject: str, name: str, poses: np.ndarray, cameras: dict[str, np.ndarray] | None, stride: int
-) -> tuple[Recording, int]:
+def _read_recording(sequence: PlannedSequence, stride: int) -> tuple[Recording, int]:
     """One sequence, every frame, with its invalid frames dropped (the samples are the valid ones among every
     `stride`-th); also returns how many of those were dropped."""
+    subject, name, poses = sequence.subject, sequence.name, sequence.poses3d
     frames = np.arange(len(poses), dtype=np.int32)
     points = poses.astype(np.float64) * 1000.0  # metres -> mm
     valid = np.isfinite(points).all((1, 2)) & ~(points == 0).all(-1).any(-1)
     keypoints = confidence = None
-    if cameras is not None:
-        keypoints, confidence = stack_views(f"HumanEva-I {subject} {name!r}", cameras, CAMERA_NAMES, len(poses), frames)
+    if sequence.views is not None:
+        keypoints, confidence = stack_views(f"HumanEva-I {subject} {name!r}", sequence.views, CAMERA_NAMES, len(poses), frames)
         valid &= np.isfinite(keypoints).all((1, 2, 3))
         keypoints, confidence = keypoints[valid], confidence[valid]
     recording = Recording(

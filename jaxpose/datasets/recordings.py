@@ -1,9 +1,11 @@
 """From per-sequence arrays of a real data set to one `MultiViewDataset`.
 
-The Human3.6M and HumanEva-I loaders read files into `Recording`s (one subject's sequence, every frame,
-with the frames to keep as samples) and hand them to `build_dataset`, which stacks them, attaches one
-rig per subject, where a recording carries no 2D projects its 3D ground truth through the real cameras,
-and keeps every frame's 2D as the samples' `FrameContext` (the windows of a temporal lifter).
+The Human3.6M and HumanEva-I loaders match each subject's 3D sequences with their 2D in a
+`SequencePlan` (which names the sequences skipped or kept with views missing), read the planned
+sequences into `Recording`s (one subject's sequence, every frame, with the frames to keep as samples)
+and hand them to `build_dataset`, which stacks them, attaches one rig per subject, where a recording
+carries no 2D projects its 3D ground truth through the real cameras, and keeps every frame's 2D as the
+samples' `FrameContext` (the windows of a temporal lifter).
 """
 
 from __future__ import annotations
@@ -11,7 +13,9 @@ from __future__ import annotations
 import dataclasses
 import logging
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
@@ -136,11 +140,53 @@ def stack_views(
     return keypoints, confidence
 
 
-def warn_incomplete(dataset: str, partial: Sequence[str], skipped: Sequence[str]) -> None:
-    """One warning naming the sequences kept with some views missing, one naming those skipped;
-    attributed to the caller of the loader that calls this."""
-    if partial:
-        message = f"{dataset}: {len(partial)} sequences miss some views, which get confidence 0: " + "; ".join(partial)
-        warnings.warn(message, stacklevel=3)
-    if skipped:
-        warnings.warn(f"{dataset}: skipped {len(skipped)} sequences: " + "; ".join(skipped), stacklevel=3)
+@dataclasses.dataclass(frozen=True)
+class PlannedSequence:
+    """One sequence a loader will read: its 3D (an array, or a function reading it) and its cameras' 2D
+    (camera name -> array or reader; None where the 2D is the projected ground truth)."""
+
+    subject: str
+    name: str
+    poses3d: Any
+    views: Mapping[str, Any] | None
+
+
+class SequencePlan:
+    """The sequences of a data set that have both 3D and 2D, in the order added.
+
+    A sequence whose 2D is missing altogether, and 2D without a 3D sequence, are skipped; a sequence
+    missing some cameras' 2D is kept (those views get confidence 0).  `sequences()` names both kinds
+    in one warning each, attributed to the caller of the loader.
+    """
+
+    def __init__(self, dataset: str, camera_names: Sequence[str]):
+        self.dataset = dataset
+        self.camera_names = tuple(camera_names)
+        self.planned: list[PlannedSequence] = []
+        self.partial: list[str] = []
+        self.skipped: list[str] = []
+
+    def skip_2d_without_3d(self, subject: str, names: Iterable[str]) -> None:
+        self.skipped += [f"{subject} {name!r} (2D without 3D)" for name in names]
+
+    def add(self, subject: str, name: str, poses3d: Any, views: Mapping[str, Any] | None) -> None:
+        """Plan one 3D sequence with its cameras' 2D (`views`; None for ground-truth 2D, empty when it has none)."""
+        if views is not None:
+            if not views:
+                self.skipped.append(f"{subject} {name!r} (no 2D)")
+                return
+            missing = [camera for camera in self.camera_names if camera not in views]
+            if missing:
+                self.partial.append(f"{subject} {name!r} (no 2D for cameras {missing})")
+        self.planned.append(PlannedSequence(subject, name, poses3d, views))
+
+    def sequences(self, where: str | Path, expected: str) -> list[PlannedSequence]:
+        """The planned sequences, after the warnings; `DataFormatError` (`expected` at `where`) if there are none."""
+        if self.partial:
+            message = f"{self.dataset}: {len(self.partial)} sequences miss some views, which get confidence 0: "
+            warnings.warn(message + "; ".join(self.partial), stacklevel=3)
+        if self.skipped:
+            warnings.warn(f"{self.dataset}: skipped {len(self.skipped)} sequences: " + "; ".join(self.skipped), stacklevel=3)
+        if not self.planned:
+            raise DataFormatError(where, expected, "none with both 3D and 2D")
+        return self.planned
