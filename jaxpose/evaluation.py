@@ -16,6 +16,7 @@ import numpy as np
 from jaxpose.camera import world_to_camera
 from jaxpose.chunks import map_in_chunks
 from jaxpose.data.dataset import MultiViewDataset
+from jaxpose.data.ground_truth import ground_truth_joints
 from jaxpose.metrics import JOINT_METRICS, per_joint_metrics, pose_metrics
 from jaxpose.skeleton import ROOT
 
@@ -28,20 +29,6 @@ def poses_in_views(dataset: MultiViewDataset, poses_world: np.ndarray) -> np.nda
     cameras = dataset.cameras_for(np.arange(len(dataset)))
     in_camera = np.asarray(jax.jit(world_to_camera)(cameras, jnp.asarray(poses_world)[:, None]))
     return in_camera - in_camera[..., :1, :]
-
-
-def ground_truth_joints(dataset: MultiViewDataset) -> np.ndarray:
-    """Indices of the joints the 3D ground truth gives: every joint, unless it covers fewer (a rig
-    project's ground truth shares only some joint names with the detector's skeleton; NaN elsewhere).
-    A joint counts where it is known in most instants that have ground truth; the root always counts
-    (evaluation is root-relative), and an instant lacking any counted joint has no ground truth."""
-    finite = np.isfinite(dataset.target3d).all(-1)  # [N, J]
-    rows = finite.any(-1)
-    if not rows.any():
-        return np.arange(dataset.skeleton.num_joints)
-    counted = finite[rows].mean(0) >= 0.5
-    counted[ROOT] = True
-    return np.flatnonzero(counted)
 
 
 def ground_truth_in_views(dataset: MultiViewDataset) -> tuple[np.ndarray, np.ndarray]:

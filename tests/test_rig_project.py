@@ -329,6 +329,7 @@ def test_messy_projects_load(project_copy):
 
 def test_a_lost_marker_costs_its_instant_not_the_report(project):
     from jaxpose import evaluation
+    from jaxpose.data.ground_truth import ground_truth_joints
 
     data = load_rig_project(RigProjectConfig(root=project, frame_offsets=("cam03=3",)), progress=False)
     test = data.validation
@@ -337,7 +338,7 @@ def test_a_lost_marker_costs_its_instant_not_the_report(project):
     target[1, 5] = np.nan  # another joint lost in another
     _, valid_before = evaluation.ground_truth_in_views(test)
     test = dataclasses.replace(test, target3d=target)
-    joints = evaluation.ground_truth_joints(test)
+    joints = ground_truth_joints(test)
     assert len(joints) == test.skeleton.num_joints  # both still evaluated where known
     truth, valid = evaluation.ground_truth_in_views(test)
     assert valid_before[:2].any()  # the two instants were evaluated before the loss

@@ -49,13 +49,13 @@ import numpy as np
 
 from jaxpose.camera import Cameras, projection_matrices, undistort_points
 from jaxpose.formats.rig_calibration import CalibrationUnit, RigCalibration, find_calibration, read_rig_calibration
+from jaxpose.data import ground_truth
 from jaxpose.data.dataset import MultiViewDataset, concatenate
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.files import read_npz_arrays
 from jaxpose.formats.keypoint_files import CameraDetections, read_camera_detections
 from jaxpose.rig.people import DEFAULT_THRESHOLD_PX, choose_person
 from jaxpose.rig.sync import SyncEstimate, estimate_offsets
-from jaxpose.evaluation import ground_truth_joints
 from jaxpose.layouts import LAYOUTS, infer_layout, layout_joint_names, lifting_skeleton, to_lifting_skeleton
 from jaxpose.skeleton import DETECTOR_LAYOUTS, Skeleton
 
@@ -464,22 +464,11 @@ def _ground_truth(folder: pathlib.Path, skeleton: Skeleton, layout: str, instant
             path, "points3d [N, J, 3], frames [N], joint_names [J] of matching sizes",
             f"points3d {points.shape}, frames {frames.shape}, {len(names)} joint names",
         )  # fmt: skip
-    columns = {name: points[:, i] for i, name in enumerate(names)}
     root_from = DETECTOR_LAYOUTS[layout].root_from if layout in DETECTOR_LAYOUTS else None
-    root = skeleton.joint_names[0]
-    if root_from is not None and all(name in columns for name in root_from):
-        # The detector's root is the hips' midpoint by definition; a mocap "pelvis" may lie elsewhere.
-        columns[root] = 0.5 * (columns[root_from[0]] + columns[root_from[1]])
-    if root not in columns:
-        hips = f" or both of {list(root_from)}" if root_from is not None else ""
-        raise DataFormatError(
-            f"{path}, array 'joint_names'", f"the root joint {root!r}{hips} (evaluation is root-relative)", f"joints {names}"
-        )
+    matched = ground_truth.on_skeleton(points, names, skeleton, root_from, f"{path}, array 'joint_names'")
     target = np.full((len(instants), skeleton.num_joints, 3), np.nan, np.float32)
     _, rows, gt_rows = np.intersect1d(instants, frames, return_indices=True)
-    for j, name in enumerate(skeleton.joint_names):
-        if name in columns:
-            target[rows, j] = columns[name][gt_rows]
+    target[rows] = matched[gt_rows]
     return target, len(rows)
 
 
@@ -690,14 +679,7 @@ def load_rig_project(config: RigProjectConfig, progress: bool = True) -> RigProj
         camera_names=tuple(camera_order),
         layout=layout,
         recordings=tuple(summaries),
-        ground_truth_joints=_ground_truth_joint_names(validation_set) if ground_truth_seen else (),
+        ground_truth_joints=ground_truth.ground_truth_joint_names(validation_set) if ground_truth_seen else (),
         recovered_calibration=recovered,
     )
-
-
-def _ground_truth_joint_names(dataset: MultiViewDataset) -> tuple[str, ...]:
-    if not len(dataset) or not np.isfinite(dataset.target3d).any():
-        return ()
-    return tuple(dataset.skeleton.joint_names[j] for j in ground_truth_joints(dataset))
-
 
