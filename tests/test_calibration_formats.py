@@ -14,13 +14,11 @@ import shutil
 import warnings
 from pathlib import Path
 
-import hypothesis.strategies as st
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from fixtures_real_data import ring_of_cameras
-from hypothesis import given, settings
 from scipy.spatial.transform import Rotation
 
 from jaxpose.camera import Cameras, project, undistort_points
@@ -30,13 +28,12 @@ from jaxpose.formats.rig_calibration import (
     opencv_from_h36m_distortion,
     opencv_rig_from_h36m,
     read_rig_calibration,
-    rodrigues_from_rotation,
-    rotation_from_rodrigues,
     write_anipose_toml,
 )
 from jaxpose.formats.rig_calibration import _read_easymocap_intrinsics
 from jaxpose.formats.camera_file import save_cameras
 from jaxpose.formats.errors import DataFormatError
+from jaxpose.rotations import rotation_from_rodrigues
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 FORMATS = SHARED / "data" / "formats"
@@ -613,33 +610,6 @@ def test_find_calibration_other_formats(tmp_path):
     assert find_calibration(tmp_path / "empty") is None
     with pytest.raises(DataFormatError, match="none among"):
         read_rig_calibration(tmp_path / "empty")
-
-
-# ----------------------------------------------------------------------------------------------
-# Rodrigues vectors
-
-
-@settings(max_examples=200)
-@given(st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3), st.floats(0.0, np.pi))
-def test_rodrigues_against_scipy(direction, angle):
-    direction = np.asarray(direction)
-    norm = np.linalg.norm(direction)
-    vector = np.zeros(3) if norm < 1e-6 else direction / norm * angle
-    matrix = rotation_from_rodrigues(vector)
-    np.testing.assert_allclose(matrix, Rotation.from_rotvec(vector).as_matrix(), atol=1e-13)
-    back = rodrigues_from_rotation(matrix)
-    np.testing.assert_allclose(rotation_from_rodrigues(back), matrix, atol=1e-13)
-    if np.linalg.norm(vector) < np.pi - 1e-6:  # at pi, +axis and -axis are the same rotation
-        np.testing.assert_allclose(back, vector, atol=1e-9)
-        np.testing.assert_allclose(back, Rotation.from_matrix(matrix).as_rotvec(), atol=1e-9)
-
-
-def test_rodrigues_batches_and_half_turns():
-    vectors = np.array([[np.pi, 0, 0], [0, 0, -np.pi], np.array([1, 1, 1]) / np.sqrt(3) * np.pi, [0, 0, 0], [1e-9, 0, 0]])
-    matrices = rotation_from_rodrigues(vectors)
-    np.testing.assert_allclose(matrices, Rotation.from_rotvec(vectors).as_matrix(), atol=1e-14)
-    np.testing.assert_allclose(rotation_from_rodrigues(rodrigues_from_rotation(matrices)), matrices, atol=1e-14)
-    np.testing.assert_allclose(np.linalg.norm(rodrigues_from_rotation(matrices)[:3], axis=-1), np.pi, atol=1e-12)
 
 
 # ----------------------------------------------------------------------------------------------

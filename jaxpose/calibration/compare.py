@@ -9,6 +9,7 @@ import jax
 import numpy as np
 
 from jaxpose.camera import Cameras, camera_centers
+from jaxpose.rotations import nearest_rotation
 
 
 @dataclasses.dataclass(frozen=True)
@@ -33,11 +34,6 @@ def camera_centres(R: np.ndarray, t: np.ndarray) -> np.ndarray:
         return np.asarray(camera_centers(Cameras(K=np.eye(3), R=np.asarray(R, np.float64), t=np.asarray(t, np.float64))))
 
 
-def _nearest_rotation(matrix: np.ndarray) -> np.ndarray:
-    u, _, vt = np.linalg.svd(matrix)
-    return u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
-
-
 def compare_rigs(R: np.ndarray, t: np.ndarray, R_ref: np.ndarray, t_ref: np.ndarray) -> RigComparison:
     """Align the recovered rig (R [C, 3, 3], t [C, 3]) to the reference and measure the errors.
 
@@ -46,7 +42,7 @@ def compare_rigs(R: np.ndarray, t: np.ndarray, R_ref: np.ndarray, t_ref: np.ndar
     chordal mean), which is defined for any number of cameras, even two; s and u then fit the
     camera centres by least squares.
     """
-    Q = _nearest_rotation(np.einsum("cji,cjk->ik", R_ref, R))
+    Q = nearest_rotation(np.einsum("cji,cjk->ik", R_ref, R))
     centres, reference = camera_centres(R, t) @ Q.T, camera_centres(R_ref, t_ref)
     centred, reference_centred = centres - centres.mean(0), reference - reference.mean(0)
     s = float(np.sum(centred * reference_centred) / np.sum(centred**2))

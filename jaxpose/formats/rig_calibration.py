@@ -41,6 +41,7 @@ import numpy as np
 import yaml
 
 from jaxpose.camera import Cameras
+from jaxpose.rotations import nearest_rotation, rodrigues_from_rotation, rotation_from_rodrigues
 from jaxpose.formats.camera_file import H36M_IMAGE_SIZES, _parse as _parse_camera_file, _read_h36m
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.files import read_json
@@ -52,8 +53,6 @@ __all__ = [
     "opencv_from_h36m_distortion",
     "opencv_rig_from_h36m",
     "read_rig_calibration",
-    "rodrigues_from_rotation",
-    "rotation_from_rodrigues",
     "write_anipose_toml",
 ]
 
@@ -170,70 +169,6 @@ def _resolve_unit(unit: CalibrationUnit, R: np.ndarray, t_file: np.ndarray, meta
         size, what = float(np.linalg.norm(t_file[0])), "camera distance from the world origin"
     resolved = "m" if size < AUTO_METRES_BELOW else "mm"
     return resolved, f"'auto': {what} {size:.6g} file units {'<' if resolved == 'm' else '>='} {AUTO_METRES_BELOW:g}"
-
-
-# ----------------------------------------------------------------------------------------------
-# Rodrigues vectors
-
-
-def rotation_from_rodrigues(rvec: np.ndarray) -> np.ndarray:
-    """Rodrigues (axis-angle) vectors [..., 3] -> rotation matrices [..., 3, 3], as cv2.Rodrigues.
-
-    R = I + sin(theta)/theta [r]x + (1 - cos(theta))/theta^2 [r]x^2, with the second coefficient
-    written as 2 sin^2(theta/2)/theta^2 (no cancellation) and Taylor series near theta = 0.
-    """
-    r = np.asarray(rvec, np.float64)
-    theta = np.linalg.norm(r, axis=-1)[..., None, None]
-    zero = np.zeros(r.shape[:-1])
-    cross = np.stack(
-        [
-            np.stack([zero, -r[..., 2], r[..., 1]], -1),
-            np.stack([r[..., 2], zero, -r[..., 0]], -1),
-            np.stack([-r[..., 1], r[..., 0], zero], -1),
-        ],
-        -2,
-    )
-    small = theta < 1e-6
-    safe = np.where(small, 1.0, theta)
-    a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - theta**2 / 24.0, 2.0 * np.sin(0.5 * safe) ** 2 / safe**2)
-    return np.eye(3) + a * cross + b * (cross @ cross)
-
-
-def rodrigues_from_rotation(R: np.ndarray) -> np.ndarray:
-    """Rotation matrices [..., 3, 3] -> Rodrigues vectors [..., 3] with angle in [0, pi].
-
-    The angle is atan2(sin, cos) from the antisymmetric part and the trace (accurate at every
-    angle).  Up to 90 degrees the axis is the antisymmetric part's direction; beyond, where that
-    part vanishes towards 180 degrees, the axis comes from the symmetric part (1 - cos) a a^T and
-    takes the antisymmetric part's sign.
-    """
-    R = np.asarray(R, np.float64)
-    v = 0.5 * np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
-    s = np.linalg.norm(v, axis=-1)
-    c = np.clip(0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1.0), -1.0, 1.0)
-    theta = np.arctan2(s, c)
-    # Small and moderate angles: r = theta / sin(theta) * v.
-    tiny = s < 1e-12
-    ratio = np.where(tiny, 1.0 + theta**2 / 6.0, theta / np.where(tiny, 1.0, s))
-    near = ratio[..., None] * v
-    # Large angles: a a^T = (sym(R) - c I) / (1 - c); the column of the largest diagonal entry.
-    outer = (0.5 * (R + np.swapaxes(R, -1, -2)) - c[..., None, None] * np.eye(3)) / np.maximum(1.0 - c, 1e-12)[
-        ..., None, None
-    ]
-    column = np.argmax(np.diagonal(outer, axis1=-2, axis2=-1), axis=-1)
-    picked = np.take_along_axis(outer, column[..., None, None], axis=-1)[..., 0]
-    diagonal = np.take_along_axis(picked, column[..., None], axis=-1)
-    axis = picked / np.sqrt(np.maximum(diagonal, 1e-300))
-    axis = np.where(np.sum(axis * v, axis=-1, keepdims=True) < 0.0, -axis, axis)
-    far = theta[..., None] * axis
-    return np.where((c < 0.0)[..., None], far, near)
-
-
-def _nearest_rotation(matrix: np.ndarray) -> np.ndarray:
-    """The rotation closest to an (already nearly orthonormal) 3x3 matrix, by SVD."""
-    u, _, vt = np.linalg.svd(matrix)
-    return u @ vt
 
 
 # ----------------------------------------------------------------------------------------------
@@ -375,7 +310,7 @@ def _rotation_matrix(value: Any, where: str, expected: str) -> np.ndarray:
         return rotation_from_rodrigues(array.reshape(3))
     if np.abs(array @ array.T - np.eye(3)).max() > 1e-4 or np.linalg.det(array) <= 0:
         raise DataFormatError(where, "a rotation matrix (R R^T = I, det R = +1)", str(array.tolist()))
-    return _nearest_rotation(array)
+    return nearest_rotation(array)
 
 
 def _read_toml(path: Path, unit: CalibrationUnit) -> RigCalibration:
@@ -651,7 +586,7 @@ def _extri_rotation(extri: Path, document: dict[str, Any], name: str) -> np.ndar
     matrix = _yaml_matrix(extri, document, f"Rot_{name}", [(3, 3)], "a 3x3 rotation matrix")
     if np.abs(matrix @ matrix.T - np.eye(3)).max() > 1e-4 or np.linalg.det(matrix) <= 0:
         raise DataFormatError(f"{extri}: key 'Rot_{name}'", "a rotation matrix (R R^T = I, det R = +1)", str(matrix.tolist()))
-    matrix = _nearest_rotation(matrix)
+    matrix = nearest_rotation(matrix)
     if rodrigues is not None:
         angle = float(np.linalg.norm(rodrigues_from_rotation(matrix @ rodrigues.T)))
         if angle > 1e-3:
