@@ -3,7 +3,7 @@
     python -m jaxpose.predict --checkpoint runs/synthetic --input detections.json --output poses.json \\
         --image-size 1920 1080 --plot plots/
 
-Inputs (the kind is told by the path; read by `jaxpose.formats.keypoint_files`):
+Inputs (the kind is told by the path; read by `jaxpose.formats.detection_file`):
 - COCO keypoint results, a ``.json`` list of {"image_id", "category_id", "keypoints": [x, y, score] * 17,
   "score"} (what COCO-style detectors write; AlphaPose's file-name image ids and extra keys too); one pose
   per entry, in file order; layout coco17 unless --format says otherwise.
@@ -67,11 +67,10 @@ from tqdm.auto import tqdm
 
 from jaxpose import inference, viz
 from jaxpose.checkpoint import CheckpointError
-from jaxpose.formats import keypoint_files, trc
+from jaxpose.formats import detection_file, files, trc
 from jaxpose.layouts import LAYOUTS, layout_joint_names, layout_of, to_skeleton
 
 OUTPUT_SUFFIXES = (".json", ".npz", ".csv", ".trc")
-OPENPOSE_SUFFIX = keypoint_files.OPENPOSE_SUFFIX
 # OpenPose-style values per person -> (layout, joints of the file that layout reads: the first ones).
 OPENPOSE_LAYOUTS = {75: "body25", 78: "halpe26", 51: "coco17", 54: "coco18"}
 # The .trc axes from the camera frame's (x right, y down, z forward): X = -z, Y = -y, Z = -x, a rotation
@@ -80,100 +79,6 @@ TRC_AXES = np.array([[0, 0, -1], [0, -1, 0], [-1, 0, 0]], np.float32)
 TRC_NOTE = "(jaxpose: root-relative; X=-z Y=-y Z=-x of the camera's x right y down z forward)"
 # Poses per `Lifter3D.predict` call; inputs larger than this get a progress bar.
 LIFT_BLOCK = 16384
-
-
-@dataclasses.dataclass(frozen=True)
-class DetectionFile:
-    """Poses read from an input file, in the file's joint layout."""
-
-    keypoints: np.ndarray
-    """f32[N, J, 2] pixels."""
-    scores: np.ndarray | None
-    """f32[N, J] detector scores, or None (all detected)."""
-    image_ids: list[Any]
-    """One per pose (int or str), kept in the output."""
-    layout: str | None
-    """The `jaxpose.layouts` name of the file's layout; None = the checkpoint's own layout."""
-    intrinsics: np.ndarray | None = None
-    """f32[N, 3, 3], when the file gives a camera per pose."""
-    frame_ids: list[Any] | None = None
-    """Every frame in sequence order, those without a pose too (OpenPose files); None: the sorted image_ids."""
-
-
-def _load_json(path: pathlib.Path) -> Any:
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as error:
-        raise ValueError(f"{path} is not valid JSON: {error}") from None
-
-
-def _from_rows(
-    rows: np.ndarray, image_ids: list[Any], layout: str, where: str, frame_ids: list[Any] | None = None
-) -> DetectionFile:
-    """rows f32[N, J, 3] of [x, y, score]."""
-    if not len(rows):
-        raise ValueError(f"{where}: no poses to lift")
-    return DetectionFile(rows[..., :2], rows[..., 2], image_ids, layout, frame_ids=frame_ids)
-
-
-def read_coco_results(path: pathlib.Path) -> DetectionFile:
-    """COCO keypoint results: one pose per entry, in file order, the image ids as written."""
-    image_ids, rows = keypoint_files.load_coco_entries(path)
-    return _from_rows(rows, image_ids, "coco17", str(path))
-
-
-def _openpose_image_id(name: str) -> str:
-    return name.removesuffix(OPENPOSE_SUFFIX) if name.endswith(OPENPOSE_SUFFIX) else name.removesuffix(".json")
-
-
-def read_openpose(path: pathlib.Path) -> DetectionFile:
-    """OpenPose JSON: a folder of per-frame files (in frame-number order) or one such file."""
-    detections = keypoint_files.read_openpose_folder(path)
-    names = [path.name] if path.is_file() else [file.name for _, file in keypoint_files.frame_files(path)]
-    frame_ids = [_openpose_image_id(name) for name in names]
-    count = detections.values_per_person
-    if count and count not in OPENPOSE_LAYOUTS:
-        raise ValueError(
-            f"{path}: {count} values per person ({count // 3} joints); predict reads BODY_25 or BODY_25B (75 values),"
-            " HALPE_26 (78), COCO-18 (54) and COCO-17 (51)"
-        )
-    layout = OPENPOSE_LAYOUTS.get(count, "body25")
-    present = np.arange(detections.keypoints.shape[1]) < detections.people[:, None]  # [F, P]
-    rows = np.concatenate([detections.keypoints, detections.scores[..., None]], -1)[present]
-    image_ids = np.repeat(np.array(frame_ids, object), detections.people).tolist()
-    return _from_rows(rows, image_ids, layout, str(path), frame_ids)
-
-
-def read_npz(path: pathlib.Path) -> DetectionFile:
-    """keypoints [N, J, 2], optional confidence [N, J], image_id [N], K [N, 3, 3]."""
-    with np.load(path, allow_pickle=False) as data:
-        if "keypoints" not in data:
-            raise ValueError(f"{path}: no 'keypoints' array (found {sorted(data.files)})")
-        keypoints = np.asarray(data["keypoints"], np.float32)
-        if keypoints.ndim != 3 or keypoints.shape[-1] != 2:
-            raise ValueError(f"{path}: 'keypoints' must be [N, J, 2] pixels, got shape {keypoints.shape}")
-        count = len(keypoints)
-        scores = np.asarray(data["confidence"], np.float32) if "confidence" in data else None
-        image_ids = data["image_id"].tolist() if "image_id" in data else list(range(count))
-        intrinsics = np.asarray(data["K"], np.float32) if "K" in data else None
-    if len(image_ids) != count:
-        raise ValueError(f"{path}: 'image_id' has {len(image_ids)} entries for {count} poses")
-    if intrinsics is not None and intrinsics.shape != (count, 3, 3):
-        raise ValueError(f"{path}: 'K' must be [N, 3, 3] = {(count, 3, 3)}, got {intrinsics.shape}")
-    return DetectionFile(keypoints, scores, image_ids, None, intrinsics)
-
-
-def read_detections(path: pathlib.Path) -> DetectionFile:
-    """Dispatch on the path: folder -> OpenPose, .npz, .json (COCO results list or one OpenPose frame)."""
-    if not path.exists():
-        raise FileNotFoundError(f"input {path} does not exist")
-    if path.is_dir() or path.name.endswith(OPENPOSE_SUFFIX):
-        return read_openpose(path)
-    if path.suffix == ".npz":
-        return read_npz(path)
-    if path.suffix == ".json":
-        return read_openpose(path) if keypoint_files.is_openpose_frame_file(path) else read_coco_results(path)
-    raise ValueError(f"input {path}: expected a COCO results .json, an OpenPose folder or a .npz")
 
 
 def read_intrinsics(values: Sequence[str]) -> tuple[np.ndarray, np.ndarray | None, tuple[float, float] | None]:
@@ -199,7 +104,7 @@ def read_intrinsics(values: Sequence[str]) -> tuple[np.ndarray, np.ndarray | Non
     path = pathlib.Path(values[0])
     if not path.is_file():
         raise FileNotFoundError(f"--intrinsics file {path} does not exist")
-    camera = _load_json(path)
+    camera = files.read_json(path, "an --intrinsics camera")
     if not isinstance(camera, dict) or "K" not in camera:
         raise ValueError(f"{path}: expected a camera {{'K': 3x3, 'dist': [5] or null, 'image_size': [w, h]}}")
     dist = camera.get("dist")
@@ -312,14 +217,24 @@ def save_animation(
     return viz.save_pose_animation(path, poses, skeleton, keypoints, confidence, image_size, titles, fps)
 
 
-def input_layout(skeleton, detections: DetectionFile) -> str | None:
+def input_layout(skeleton, detections: detection_file.DetectionFile) -> str | None:
     """The layout the input is read in: the checkpoint's own detector layout (`<layout>_lifting`) where
     the file's keypoint count fits it (so BODY_25B reads as such for a lifter trained on it), else the
-    file's (None: the checkpoint's own joints)."""
+    file's (None for an .npz: the checkpoint's own joints)."""
+    if detections.kind == "npz":
+        return None
+    joints = detections.keypoints.shape[1]
     own = layout_of(skeleton)
-    if own is not None and detections.layout is not None and detections.keypoints.shape[1] == len(layout_joint_names(own)):
+    if own is not None and joints == len(layout_joint_names(own)):
         return own
-    return detections.layout
+    if detections.kind == "coco":
+        return "coco17"
+    if 3 * joints not in OPENPOSE_LAYOUTS:
+        raise ValueError(
+            f"{detections.source}: {3 * joints} values per person ({joints} joints); predict reads BODY_25 or BODY_25B"
+            " (75 values), HALPE_26 (78), COCO-18 (54) and COCO-17 (51)"
+        )
+    return OPENPOSE_LAYOUTS[3 * joints]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -391,7 +306,7 @@ def run(args: PredictArgs) -> np.ndarray:
         raise ValueError(f"--outside-margin must be >= 0, got {args.outside_margin}")
     if args.reject_inconsistent is not None and not args.reject_inconsistent > 0:
         raise ValueError(f"--reject-inconsistent must be > 0, got {args.reject_inconsistent}")
-    detections = read_detections(args.input)
+    detections = detection_file.read_detections(args.input)
     lifter = inference.load(args.checkpoint, batch_size=args.batch_size)
     K, dist, image_size = (None, None, None) if args.intrinsics is None else read_intrinsics(args.intrinsics)
     if detections.intrinsics is not None:
@@ -455,7 +370,7 @@ def run(args: PredictArgs) -> np.ndarray:
     return poses
 
 
-def lift_sequence(lifter, keypoints, confidence, K, dist, image_size, detections: DetectionFile) -> tuple[np.ndarray, int]:
+def lift_sequence(lifter, keypoints, confidence, K, dist, image_size, detections: detection_file.DetectionFile) -> tuple[np.ndarray, int]:
     """A temporal lifter's poses f32[N, J, 3] and how many of them were not followed: the input's frames
     in sequence order (`animation_frames`: OpenPose frames in frame-number order, image ids in numerical
     order), one person per frame (the highest mean score), each lifted with the window of frames around

@@ -486,32 +486,31 @@ def test_frames_without_people(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------
-# jaxpose.predict reads through these readers
+# jaxpose.predict's input, a pose per row (`jaxpose.formats.detection_file`), reads through these readers
 
 
 @needs_formats
-def test_predict_reads_the_real_samples():
-    from jaxpose import predict
-
-    body25b = predict.read_detections(BODY25B / "cam01_json")  # 75 values: read as BODY_25
-    assert body25b.layout == "body25" and body25b.keypoints.shape == (40, 25, 2)
-    assert body25b.image_ids[:3] == ["cam01.0000", "cam01.0000", "cam01.0001"]
-    assert body25b.frame_ids == [f"cam01.{i:04d}" for i in range(20)]
-    halpe = predict.read_detections(HALPE26 / "cam03")
-    assert halpe.layout == "halpe26" and halpe.keypoints.shape == (20, 26, 2) and halpe.image_ids[0] == "frame_00001"
-    full = kf.read_openpose_folder(HALPE26 / "cam03", progress=False)
-    np.testing.assert_array_equal(halpe.keypoints, full.keypoints[:, 0])
-    # An H36M_17 lifter takes HALPE_26 through its first 17 keypoints, which are COCO-17's.
+def test_detection_file_reads_the_real_samples():
+    from jaxpose.formats import detection_file
     from jaxpose.layouts import coco17_to_h36m17, to_skeleton
     from jaxpose.skeleton import H36M_17
 
+    body25b = detection_file.read_detections(BODY25B / "cam01_json")
+    assert body25b.kind == "openpose" and body25b.keypoints.shape == (40, 25, 2)
+    assert body25b.image_ids[:3] == ["cam01.0000", "cam01.0000", "cam01.0001"]
+    assert body25b.frame_ids == [f"cam01.{i:04d}" for i in range(20)]
+    halpe = detection_file.read_detections(HALPE26 / "cam03")
+    assert halpe.keypoints.shape == (20, 26, 2) and halpe.image_ids[0] == "frame_00001"
+    full = kf.read_openpose_folder(HALPE26 / "cam03", progress=False)
+    np.testing.assert_array_equal(halpe.keypoints, full.keypoints[:, 0])
+    # An H36M_17 lifter takes HALPE_26 through its first 17 keypoints, which are COCO-17's.
     for converted, expected in zip(
         to_skeleton("halpe26", H36M_17, halpe.keypoints, halpe.scores),
         coco17_to_h36m17(halpe.keypoints[:, :17], halpe.scores[:, :17]),
     ):
         np.testing.assert_array_equal(converted, expected)
-    spin = predict.read_detections(SPIN / "im1010_openpose.json")
-    assert spin.image_ids == ["im1010_openpose"] and spin.keypoints.shape == (1, 25, 2)
-    alphapose = predict.read_detections(ALPHAPOSE)
-    assert alphapose.layout == "coco17" and alphapose.image_ids == ["out-002.jpg"] * 13
+    spin = detection_file.read_detections(SPIN / "im1010_openpose.json")
+    assert spin.image_ids == ["im1010_openpose"] and spin.keypoints.shape == (1, 25, 2) and spin.frame_ids == ["im1010_openpose"]
+    alphapose = detection_file.read_detections(ALPHAPOSE)
+    assert alphapose.kind == "coco" and alphapose.image_ids == ["out-002.jpg"] * 13 and alphapose.frame_ids is None
     np.testing.assert_array_equal(alphapose.scores, kf.read_coco_results(ALPHAPOSE).scores[0])

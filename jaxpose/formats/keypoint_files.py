@@ -95,29 +95,33 @@ class CameraDetections:
 # Frame numbers
 
 
+def frame_stem(name: str) -> str:
+    """A frame file's name without ``_keypoints.json`` (OpenPose's suffix) or ``.json``: the frame's image id."""
+    return name.removesuffix(OPENPOSE_SUFFIX) if name.endswith(OPENPOSE_SUFFIX) else name.removesuffix(".json")
+
+
 def frame_number(name: str) -> int:
-    """The frame number of a file name: its last run of digits once ``_keypoints.json`` / ``.json`` is removed.
+    """The frame number of a file name: the last run of digits of its `frame_stem`.
 
     ``clip_000000000123_keypoints.json`` -> 123, ``cam01.0010.json`` -> 10, ``frame_00001.json`` -> 1.
     """
-    stem = name.removesuffix(OPENPOSE_SUFFIX) if name.endswith(OPENPOSE_SUFFIX) else name.removesuffix(".json")
-    match = _LAST_DIGITS.search(stem)
+    match = _LAST_DIGITS.search(frame_stem(name))
     if match is None:
         raise DataFormatError(name, "a frame number in the file name (e.g. cam01.0010.json)", "no digits")
     return int(match.group(1))
 
 
-def frame_files(folder: str | Path) -> list[tuple[int, Path]]:
-    """The ``.json`` files of an OpenPose folder as (frame number, path), sorted by frame number.
+def frame_files(path: str | Path) -> list[tuple[int, str]]:
+    """The frame files of OpenPose output as (frame number, path), sorted by frame number: the ``.json``
+    files of a folder, or one frame file, whose frame number is that of its name (0 without digits).
 
-    Files that are not ``.json``, and hidden files (name starting with a dot), are ignored.  Two files
-    with one frame number, or a name without digits, raise `DataFormatError` naming the files.
+    In a folder, files that are not ``.json``, and hidden files (name starting with a dot), are ignored.
+    Two files with one frame number, or a name without digits, raise `DataFormatError` naming the files.
     """
-    return [(frame, Path(entry.path)) for frame, entry in _frame_entries(Path(folder))]
-
-
-def _frame_entries(folder: Path) -> list[tuple[int, os.DirEntry]]:
-    return _numbered(folder, _json_entries(folder))
+    path = Path(path)
+    if path.is_file():
+        return [(frame_number(path.name) if re.search(r"\d", path.name) else 0, str(path))]
+    return [(frame, entry.path) for frame, entry in _numbered(path, _json_entries(path))]
 
 
 def _json_entries(folder: Path) -> list[os.DirEntry]:
@@ -279,19 +283,8 @@ def _length_error(people: np.ndarray, lengths: np.ndarray, source: str, owners: 
 
 
 def read_openpose_folder(folder: str | Path, progress: bool = True, workers: int | None = None) -> CameraDetections:
-    """Read an OpenPose-style folder of per-frame JSON files (or one such file) as `CameraDetections`.
-
-    A single file's frame number is that of its name, or 0 when the name has no digits.
-
-    `workers` processes parse chunks of `CHUNK_FILES` files (default ``os.cpu_count()``; one process below
-    `POOL_MIN_FILES` files, where a pool does not pay).  `progress` shows a tqdm bar for long reads.
-    """
-    path = Path(folder)
-    if path.is_file():
-        frame = frame_number(path.name) if re.search(r"\d", path.name) else 0
-        return _read_openpose([frame], [str(path)], str(path), False, 1)
-    entries = _frame_entries(path)
-    return _read_openpose([f for f, _ in entries], [e.path for _, e in entries], str(path), progress, workers)
+    """Read an OpenPose-style folder of per-frame JSON files (or one such file) as `CameraDetections`."""
+    return read_openpose_frames(frame_files(folder), str(folder), progress, workers)
 
 
 def _pool_context() -> tuple[Any, int]:
@@ -302,9 +295,17 @@ def _pool_context() -> tuple[Any, int]:
     return None, POOL_MIN_FILES_SPAWN
 
 
-def _read_openpose(
-    frames: list[int], paths: list[str], source: str, progress: bool, workers: int | None
+def read_openpose_frames(
+    files: Sequence[tuple[int, str]], source: str, progress: bool = True, workers: int | None = None
 ) -> CameraDetections:
+    """The OpenPose frame files `files`, (frame number, path) in frame order as `frame_files` lists them,
+    as `CameraDetections` of `source`.
+
+    `workers` processes parse chunks of `CHUNK_FILES` files (default ``os.cpu_count()``; one process below
+    `POOL_MIN_FILES` files, where a pool does not pay).  `progress` shows a tqdm bar for long reads.
+    """
+    frames = [frame for frame, _ in files]
+    paths = [path for _, path in files]
     chunks = [paths[i : i + CHUNK_FILES] for i in range(0, len(paths), CHUNK_FILES)]
     context, threshold = _pool_context()
     workers = min(workers or os.cpu_count() or 1, len(chunks))
@@ -438,8 +439,8 @@ def read_camera_detections(path: str | Path, progress: bool = True, cache: bool 
         stats = [(e.name, e.stat()) for e in listing]  # the frame numbers only when the cache misses
 
         def parse() -> CameraDetections:
-            entries = _numbered(path, listing)
-            return _read_openpose([f for f, _ in entries], [e.path for _, e in entries], str(path), progress, None)
+            files = [(frame, entry.path) for frame, entry in _numbered(path, listing)]
+            return read_openpose_frames(files, str(path), progress)
 
     elif path.is_file() and path.suffix == ".json":
         stats = [(path.name, path.stat())]

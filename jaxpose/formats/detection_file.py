@@ -1,0 +1,106 @@
+"""A file of detected 2D poses to lift one at a time (`jaxpose.predict`'s input), laid out a pose per row.
+
+The kind is told by the path:
+- OpenPose output: a folder of per-frame ``.json`` files (``--write_json``; also Pose2Sim's
+  ``cam01.0010.json`` and ``frame_00001.json``), or one such file (``*_keypoints.json``, or a ``.json``
+  file holding one object).  Every person's ``pose_keypoints_2d`` is one pose, frames in frame-number
+  order, the image id the file name without ``_keypoints.json`` (or ``.json``);
+- COCO keypoint results: a ``.json`` list of {"image_id", "keypoints": [x, y, score] * J, ...}, one pose
+  per entry, in file order, the image ids as written (AlphaPose's file names too);
+- ``.npz`` with ``keypoints`` [N, J, 2] px and optionally ``confidence`` [N, J], ``image_id`` [N] and
+  ``K`` [N, 3, 3] (one camera per pose).
+
+The JSON files are parsed by `jaxpose.formats.keypoint_files`, the one parser of each format; this
+module only lays their poses out a row each.  Which joint layout the keypoints are in is the reader's
+caller's to decide (`jaxpose.layouts`): a detector's JSON says it by its keypoint count alone, an
+``.npz`` not at all.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from jaxpose.formats import keypoint_files
+
+
+@dataclasses.dataclass(frozen=True)
+class DetectionFile:
+    """Poses read from an input file, in the file's joint layout."""
+
+    kind: Literal["openpose", "coco", "npz"]
+    """What was read: OpenPose JSON, COCO keypoint results, or an .npz."""
+    source: Path
+    """The file or folder read."""
+    keypoints: np.ndarray
+    """f32[N, J, 2] pixels."""
+    scores: np.ndarray | None
+    """f32[N, J] detector scores, or None (all detected)."""
+    image_ids: list[Any]
+    """One per pose (int or str), kept in the output."""
+    intrinsics: np.ndarray | None = None
+    """f32[N, 3, 3], when the file gives a camera per pose."""
+    frame_ids: list[Any] | None = None
+    """Every frame in sequence order, those without a pose too (OpenPose files); None: the sorted image_ids."""
+
+
+def read_detections(path: Path) -> DetectionFile:
+    """Dispatch on the path: folder -> OpenPose, .npz, .json (COCO results list or one OpenPose frame)."""
+    if not path.exists():
+        raise FileNotFoundError(f"input {path} does not exist")
+    if path.is_dir() or path.name.endswith(keypoint_files.OPENPOSE_SUFFIX):
+        return _read_openpose(path)
+    if path.suffix == ".npz":
+        return _read_npz(path)
+    if path.suffix == ".json":
+        return _read_openpose(path) if keypoint_files.is_openpose_frame_file(path) else _read_coco(path)
+    raise ValueError(f"input {path}: expected a COCO results .json, an OpenPose folder or a .npz")
+
+
+def _from_rows(
+    kind: Literal["openpose", "coco"], rows: np.ndarray, image_ids: list[Any], where: Path, frame_ids: list[Any] | None = None
+) -> DetectionFile:
+    """rows f32[N, J, 3] of [x, y, score]."""
+    if not len(rows):
+        raise ValueError(f"{where}: no poses to lift")
+    return DetectionFile(kind, where, rows[..., :2], rows[..., 2], image_ids, frame_ids=frame_ids)
+
+
+def _read_coco(path: Path) -> DetectionFile:
+    """COCO keypoint results: one pose per entry, in file order, the image ids as written."""
+    image_ids, rows = keypoint_files.load_coco_entries(path)
+    return _from_rows("coco", rows, image_ids, path)
+
+
+def _read_openpose(path: Path) -> DetectionFile:
+    """OpenPose JSON, a folder of per-frame files (in frame-number order) or one such file: a row per person."""
+    files = keypoint_files.frame_files(path)
+    detections = keypoint_files.read_openpose_frames(files, str(path))
+    frame_ids = [keypoint_files.frame_stem(os.path.basename(file)) for _, file in files]
+    present = np.arange(detections.keypoints.shape[1]) < detections.people[:, None]  # [F, P]
+    rows = np.concatenate([detections.keypoints, detections.scores[..., None]], -1)[present]
+    image_ids = np.repeat(np.array(frame_ids, object), detections.people).tolist()
+    return _from_rows("openpose", rows, image_ids, path, frame_ids)
+
+
+def _read_npz(path: Path) -> DetectionFile:
+    """keypoints [N, J, 2], optional confidence [N, J], image_id [N], K [N, 3, 3]."""
+    with np.load(path, allow_pickle=False) as data:
+        if "keypoints" not in data:
+            raise ValueError(f"{path}: no 'keypoints' array (found {sorted(data.files)})")
+        keypoints = np.asarray(data["keypoints"], np.float32)
+        if keypoints.ndim != 3 or keypoints.shape[-1] != 2:
+            raise ValueError(f"{path}: 'keypoints' must be [N, J, 2] pixels, got shape {keypoints.shape}")
+        count = len(keypoints)
+        scores = np.asarray(data["confidence"], np.float32) if "confidence" in data else None
+        image_ids = data["image_id"].tolist() if "image_id" in data else list(range(count))
+        intrinsics = np.asarray(data["K"], np.float32) if "K" in data else None
+    if len(image_ids) != count:
+        raise ValueError(f"{path}: 'image_id' has {len(image_ids)} entries for {count} poses")
+    if intrinsics is not None and intrinsics.shape != (count, 3, 3):
+        raise ValueError(f"{path}: 'K' must be [N, 3, 3] = {(count, 3, 3)}, got {intrinsics.shape}")
+    return DetectionFile("npz", path, keypoints, scores, image_ids, intrinsics)
