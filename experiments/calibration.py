@@ -20,7 +20,7 @@ import numpy as np
 import tyro
 
 from jaxpose.calibration import CalibrationConfig, calibrate, compare_rigs, from_dataset
-from jaxpose.calibration.compare import camera_centres
+from jaxpose.camera import camera_centres
 from jaxpose.calibration.scale import prior_scale_error
 from jaxpose.synthetic import SyntheticConfig, generate
 

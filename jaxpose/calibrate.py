@@ -26,8 +26,7 @@ from jaxpose.calibration import (
     WORLD_FRAME, Calibration, CalibrationConfig, RigComparison, RigDetections, calibrate, compare_rigs, from_dataset,
     read_detections_npz,
 )  # fmt: skip
-from jaxpose.calibration.compare import camera_centres
-from jaxpose.camera import Cameras
+from jaxpose.camera import Cameras, camera_centres
 from jaxpose.formats.camera_file import H36M_IMAGE_SIZES, read_calibration, save_cameras, select_views
 from jaxpose.datasets.h36m import CAMERA_NAMES, load_h36m
 

@@ -25,6 +25,7 @@ from typing import Literal
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 DistortionModel = Literal["opencv", "h36m", "fisheye"]
@@ -60,9 +61,14 @@ class Cameras:
         return self.replace(dist=None)
 
 
-def camera_centers(cameras: Cameras) -> jax.Array:
-    """Camera centres in world coordinates, `-R^T t`: [..., 3]."""
-    return -jnp.einsum("...ji,...j->...i", cameras.R, cameras.t)
+def camera_centres(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """World positions of the camera centres, `-R^T t`: f64[..., 3] for R [..., 3, 3] and t [..., 3],
+    in the unit of t.
+
+    numpy in float64 whatever the inputs (jax arrays included): rig sizes, unit checks and rig
+    comparisons are computed once per rig, outside any jitted function, and must not lose float32's digits.
+    """
+    return -np.einsum("...ji,...j->...i", np.asarray(R, np.float64), np.asarray(t, np.float64))
 
 
 def world_to_camera(cameras: Cameras, points_world: jax.Array) -> jax.Array:

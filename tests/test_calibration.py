@@ -22,9 +22,8 @@ from jaxpose import calibrate as calibrate_cli
 from jaxpose.calibration import (
     CalibrationConfig, CalibrationError, RigDetections, calibrate, compare_rigs, from_dataset, read_detections_npz,
 )  # fmt: skip
-from jaxpose.calibration.compare import camera_centres
 from jaxpose.calibration.scale import LIMBS, limb_joints, metric_scale, prior_scale_error
-from jaxpose.camera import Cameras
+from jaxpose.camera import Cameras, camera_centres
 from jaxpose.formats.camera_file import load_cameras, save_cameras
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.synthetic import SyntheticConfig, generate

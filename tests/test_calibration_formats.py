@@ -21,7 +21,7 @@ import pytest
 from fixtures_real_data import ring_of_cameras
 from scipy.spatial.transform import Rotation
 
-from jaxpose.camera import Cameras, project, undistort_points
+from jaxpose.camera import Cameras, camera_centres, project, undistort_points
 from jaxpose.formats.rig_calibration import (
     RigCalibration,
     find_calibration,
@@ -78,7 +78,7 @@ def check_geometry(rig: RigCalibration) -> None:
         assert rig.cameras.dist.shape == (count, 5)
     if rig.image_size is not None:
         assert rig.image_size.shape == (count, 2) and rig.image_size.dtype == np.int64
-    centres = -np.einsum("cji,cj->ci", rig.cameras.R, rig.cameras.t)
+    centres = camera_centres(rig.cameras.R, rig.cameras.t)
     distances = np.linalg.norm(centres[:, None] - centres[None], axis=-1)[np.triu_indices(count, 1)]
     assert np.all(distances > 50.0) and np.all(distances < 20_000.0), distances  # distinct cameras, a room-sized rig
     assert rig.rig_size_mm() == pytest.approx(distances.max())
@@ -248,7 +248,7 @@ def test_pose2sim_files_read_as_metres_converted_to_millimetres():
     assert rigs[SCENE].camera_names == ("int_cam01_img", "int_cam02_img", "int_cam03_img", "int_cam04_img")
     assert rigs[SARKADAVA].camera_names == ("cam1", "cam2", "cam3")
     # Calib_qualisys and Calib_scene calibrate the same four cameras two ways: same places.
-    centres = [-np.einsum("cji,cj->ci", rigs[name].cameras.R, rigs[name].cameras.t) for name in (QUALISYS, SCENE)]
+    centres = [camera_centres(rigs[name].cameras.R, rigs[name].cameras.t) for name in (QUALISYS, SCENE)]
     assert np.linalg.norm(centres[0] - centres[1], axis=1).max() < 250.0
     assert rigs[QUALISYS].rig_size_mm() == pytest.approx(6689.184, abs=1e-2)
 

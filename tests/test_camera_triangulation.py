@@ -8,7 +8,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from jaxpose.camera import (
-    camera_centers,
+    camera_centres,
     camera_to_world,
     normalize_keypoints,
     project,
@@ -26,7 +26,7 @@ def test_world_camera_round_trip_and_centres():
     back = camera_to_world(cameras, world_to_camera(cameras, points))
     np.testing.assert_allclose(back, points, atol=1e-2)
     # The centre maps to the camera origin.
-    origin = world_to_camera(cameras, camera_centers(cameras)[:, None, :])
+    origin = world_to_camera(cameras, camera_centres(cameras.R, cameras.t)[:, None, :])
     np.testing.assert_allclose(origin, 0.0, atol=1e-2)
 
 

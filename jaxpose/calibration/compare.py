@@ -5,10 +5,9 @@ from __future__ import annotations
 
 import dataclasses
 
-import jax
 import numpy as np
 
-from jaxpose.camera import Cameras, camera_centers
+from jaxpose.camera import camera_centres
 from jaxpose.rotations import nearest_rotation
 
 
@@ -26,12 +25,6 @@ class RigComparison:
     """f64[C, 3] the recovered centres in the reference world frame (after alignment)."""
     aligned_R: np.ndarray
     """f64[C, 3, 3] the recovered rotations in the reference world frame."""
-
-
-def camera_centres(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """f64[C, 3] centres of cameras given as float64 numpy (jaxpose.camera.camera_centers, kept in float64)."""
-    with jax.enable_x64(True):
-        return np.asarray(camera_centers(Cameras(K=np.eye(3), R=np.asarray(R, np.float64), t=np.asarray(t, np.float64))))
 
 
 def compare_rigs(R: np.ndarray, t: np.ndarray, R_ref: np.ndarray, t_ref: np.ndarray) -> RigComparison:

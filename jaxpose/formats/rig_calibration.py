@@ -40,7 +40,7 @@ from typing import Any, Literal, get_args
 import numpy as np
 import yaml
 
-from jaxpose.camera import Cameras
+from jaxpose.camera import Cameras, camera_centres
 from jaxpose.rotations import nearest_rotation, rodrigues_from_rotation, rotation_from_rodrigues
 from jaxpose.formats.camera_file import H36M_IMAGE_SIZES, _parse as _parse_camera_file, _read_h36m
 from jaxpose.formats.errors import DataFormatError
@@ -130,13 +130,8 @@ class RigCalibration:
         return _rig_size(np.asarray(self.cameras.R, np.float64), np.asarray(self.cameras.t, np.float64))
 
 
-def _camera_centres(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """World positions of the camera centres, `-R^T t`: [C, 3], in the unit of t."""
-    return -np.einsum("cji,cj->ci", R, t)
-
-
 def _rig_size(R: np.ndarray, t: np.ndarray) -> float:
-    centres = _camera_centres(R, t)
+    centres = camera_centres(R, t)
     if len(centres) < 2:
         return 0.0
     return float(np.linalg.norm(centres[:, None] - centres[None], axis=-1).max())
