@@ -33,7 +33,8 @@ import tyro
 
 from experiments import paper_tables
 from experiments.config import ExperimentConfig
-from experiments.runner import Splits, run
+from experiments.runner import run
+from experiments.splits import Splits
 from jaxpose.formats.errors import DataFormatError
 
 SUPERVISED_SUFFIX = "_supervised"

@@ -25,7 +25,7 @@ import numpy as np
 from experiments import cli, paper_tables
 from experiments.config import ExperimentConfig, RunConfig, TrainConfig, paper_note, paper_preset
 from experiments.config import calibration_lines, mocap_calibration, on_training_calibration
-from experiments.runner import Splits
+from experiments.splits import Splits
 from jaxpose.config import RESCALED_LOSS, ModelConfig, OptimizerConfig, PseudoLabelConfig
 from jaxpose.datasets.h36m import DETECTION_FILES, POSES_3D_FILE, TEST_SUBJECTS, TRAIN_SUBJECTS, load_h36m, subject_rigs
 

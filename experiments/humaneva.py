@@ -22,7 +22,7 @@ import numpy as np
 from experiments import cli, paper_tables
 from experiments.config import ExperimentConfig, RunConfig, TrainConfig, paper_note, paper_preset
 from experiments.config import calibration_lines, mocap_calibration, on_training_calibration
-from experiments.runner import Splits
+from experiments.splits import Splits
 from jaxpose.config import ModelConfig, OptimizerConfig
 from jaxpose.datasets.humaneva import POSES_3D_FILE, TEST_SUBJECTS, TRAIN_SUBJECTS, load_humaneva, subject_rigs
 

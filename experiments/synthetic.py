@@ -13,7 +13,7 @@ import pathlib
 
 from experiments import cli
 from experiments.config import ExperimentConfig, RunConfig, TrainConfig
-from experiments.runner import Splits
+from experiments.splits import Splits
 from jaxpose.config import ModelConfig, OptimizerConfig
 from jaxpose.synthetic import SyntheticConfig, generate
 

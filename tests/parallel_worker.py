@@ -25,7 +25,8 @@ from geometry_helpers import exact_batch
 
 from experiments import synthetic
 from experiments.config import ExperimentConfig, ParallelConfig, RunConfig, TrainConfig
-from experiments.runner import prepare_run_dir, train
+from experiments.run_directory import prepare_run_dir
+from experiments.training import train
 from jaxpose import parallel, pseudo_labelling
 from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.data.batch import MultiViewBatch

@@ -9,7 +9,8 @@ import pytest
 
 from experiments import synthetic
 from experiments.config import ExperimentConfig, RunConfig, TrainConfig
-from experiments.runner import prepare_run_dir, train
+from experiments.run_directory import prepare_run_dir
+from experiments.training import train
 from jaxpose import pseudo_labelling
 from jaxpose.config import ModelConfig
 from jaxpose.synthetic import SyntheticConfig

@@ -1,0 +1,184 @@
+"""The report of a run: single-view evaluation of the final checkpoint on every test view,
+report.{json,md} with the reference rows and the ground-truth-free measures, and the plots."""
+
+from __future__ import annotations
+
+import json
+import pathlib
+
+import jax
+import numpy as np
+
+from experiments.config import ExperimentConfig, to_json_dict
+from experiments.run_directory import read_jsonl
+from experiments.splits import Splits
+from jaxpose import evaluation, pseudo_labelling, validation, viz
+from jaxpose.data.dataset import MultiViewDataset
+from jaxpose.losses import TERMS
+from jaxpose.train import GRADIENT_SHARE_PREFIX, TrainState, make_eval_step
+
+
+def evaluate_and_report(
+    config: ExperimentConfig,
+    splits: Splits,
+    state: TrainState,
+    model,
+    run_dir: pathlib.Path,
+    method_name: str,
+    wall_time: float,
+) -> dict:
+    """Single-view evaluation on every test view: the ground-truth-free measures (`jaxpose.validation`)
+    always; where the test split has 3D ground truth, the metrics against it with the reference rows;
+    report.{json,md}, plots."""
+    test = splits.test
+    eval_step = make_eval_step(model, config.model)
+    pred = evaluation.lift_every_view(eval_step, state.variables, test, config.train.eval_batch_size, config.model.temporal_window)
+    groups = test.labels.get(splits.group_label)
+    test_triangulated = pseudo_labelling.label(test, config.pseudo_labels)
+    triangulation = evaluation.poses_in_views(test, test_triangulated.pseudo3d)
+    consistency = validation.self_consistency(pred, test_triangulated, test_triangulated.pseudo3d, test_triangulated.pseudo3d_weight > 0)
+    excluded = splits.detector_specific_joints
+    rows, joint_names = {}, test.skeleton.joint_names
+    if test.target3d is not None:
+        joints = evaluation.ground_truth_joints(test)
+        joint_names = tuple(joint_names[j] for j in joints)
+        target, valid = evaluation.ground_truth_in_views(test)
+        mean_pose = np.broadcast_to(evaluation.mean_pose_prediction(splits.train), pred.shape)
+        # Each row with the views it is evaluated on: the triangulation is a reference only where its
+        # root has a label (two agreeing views); elsewhere it is no estimate at all.
+        predictions = {
+            method_name: (pred, valid),
+            "Input triangulation (multi-view, reference)": (triangulation, valid & (test_triangulated.pseudo3d_weight[:, None, 0] > 0)),
+            "Mean pose (baseline)": (np.ascontiguousarray(mean_pose), valid),
+        }
+        agreeing = splits.agreeing_joints()
+        # Every loader labels each sample with its subject, sequence and frame number: the motion metrics
+        # follow them (a sequence name such as "Walking 1" recurs across subjects).
+        sequences = np.char.add(np.char.add(test.labels["subject"].astype(str), "/"), test.labels["sequence"].astype(str))
+        frames = test.labels["frame"]
+        motion_step = f"between test samples {evaluation.frame_step(sequences, frames)} frames apart"
+        rows = {
+            name: evaluation.evaluate_poses(poses[..., joints, :], target[..., joints, :], groups, views, agreeing, sequences, frames)
+            for name, (poses, views) in predictions.items()
+        }
+    history = read_jsonl(run_dir / "metrics.jsonl")
+    last_train = next((r for r in reversed(history) if "loss" in r), {})
+    shares = {k.removeprefix(GRADIENT_SHARE_PREFIX): v for k, v in last_train.items() if k.startswith(GRADIENT_SHARE_PREFIX)}
+    report = {
+        "method": method_name,
+        "results": rows,
+        "ground_truth_free": consistency,
+        "camera_names": list(splits.view_names()),
+        "joint_names": list(joint_names),
+        "detector_specific_joints": list(excluded),
+        "notes": list(splits.notes),
+        "final_gradient_shares": shares,
+        "train_steps": int(state.step),
+        "wall_time_s": wall_time,
+        "devices": [str(d) for d in jax.devices()],
+        "config": to_json_dict(config),
+    }
+    if jax.process_index() == 0:
+        (run_dir / "report.json").write_text(json.dumps(report, indent=2))
+        tables = list(splits.notes)
+        if rows:
+            tables += [
+                evaluation.markdown_table(rows, "p_mpjpe", f"P-MPJPE (mm) per {splits.group_label}"),
+                evaluation.markdown_table(rows, "mpjpe", f"MPJPE (mm) per {splits.group_label}"),
+                evaluation.markdown_table(rows, "n_mpjpe", f"N-MPJPE (mm) per {splits.group_label}"),
+                evaluation.markdown_table(rows, "mpjve", f"Velocity error MPJVE (mm per frame, {motion_step}) per {splits.group_label}"),
+                evaluation.markdown_table(rows, "accel_error", f"Acceleration error (mm per frame², {motion_step}) per {splits.group_label}"),
+                *([agreeing_joints_table(rows, excluded, splits.group_label)] if excluded else []),
+                evaluation.per_joint_table(rows, "p_mpjpe", joint_names, "P-MPJPE (mm) per joint"),
+                evaluation.per_joint_table(rows, "mpjpe", joint_names, "MPJPE (mm) per joint"),
+            ]
+        tables.append(ground_truth_free_table(consistency, splits.view_names()))
+        if shares:
+            tables.append(gradient_share_table(shares, int(state.step)))
+        (run_dir / "report.md").write_text("\n\n".join(tables) + "\n")
+        reference = target if rows and len(joint_names) == test.skeleton.num_joints else triangulation
+        _plots(config, test, pred, reference, run_dir)
+    return report
+
+
+def ground_truth_free_table(consistency: dict, camera_names: tuple[str, ...]) -> str:
+    """Markdown: the `jaxpose.validation` measures per lifted camera and overall."""
+    lines = [
+        "**Without ground truth (jaxpose.validation): single-view predictions against the other views**",
+        "",
+        "| Lifted view | disagreement with the other views (mm) | reprojection into the other views (px) | P-MPJPE vs triangulation (mm) |",
+        "|---|---|---|---|",
+    ]
+    for c, name in enumerate(camera_names):
+        lines.append("| " + " | ".join([name, *(f"{consistency[m]['per_camera'][c]:.1f}" for m in validation.METRICS)]) + " |")
+    lines.append("| all | " + " | ".join(f"{consistency[m]['overall']:.1f}" for m in validation.METRICS) + " |")
+    lines += [
+        "",
+        "Lower is better for all three. To compare runs without ground truth, use the reprojection: on Human3.6M it"
+        " ranks checkpoints and recipes as the true P-MPJPE does (docs/rig.md, section 5).",
+    ]
+    return "\n".join(lines)
+
+
+def agreeing_joints_table(rows: dict, excluded: tuple[str, ...], group_label: str) -> str:
+    """Markdown: P-MPJPE and MPJPE over the joints whose definitions agree (`detector_specific_joints` left out)."""
+    lines = [
+        f"**Without {', '.join(excluded)} (joints defined differently by the 2D source), averaged over {group_label}s**",
+        "",
+        "| Method | P-MPJPE (mm) | MPJPE (mm) |",
+        "|---|---|---|",
+    ]
+    for method, summary in rows.items():
+        average = summary["agreeing_joints"].get("group_average", summary["agreeing_joints"]["overall"])
+        lines.append(f"| {method} | {average['p_mpjpe']:.1f} | {average['mpjpe']:.1f} |")
+    return "\n".join(lines)
+
+
+def gradient_share_table(shares: dict[str, float], step: int) -> str:
+    """Markdown: each loss term's share of the gradient w.r.t. the lifter output at `step`."""
+    lines = [
+        f"**Share of each term in the gradient w.r.t. the lifter output (step {step})**",
+        "",
+        "| " + " | ".join(shares) + " |",
+        "|" + "---|" * len(shares),
+        "| " + " | ".join(f"{100 * v:.1f}%" for v in shares.values()) + " |",
+    ]
+    return "\n".join(lines)
+
+
+# The periodic evaluation's measures and their plot labels.
+EVALUATION_LABELS = {
+    "p_mpjpe": "P-MPJPE (mm)",
+    "mpjpe": "MPJPE (mm)",
+    "disagreement_mm": "disagreement between views (mm)",
+    "reprojection_px": "reprojection into other views (px)",
+    "triangulation_p_mpjpe_mm": "P-MPJPE vs triangulation (mm)",
+}
+
+
+def _plots(config, test: MultiViewDataset, pred, target, run_dir: pathlib.Path) -> None:
+    records = read_jsonl(run_dir / "metrics.jsonl")
+    history = [r for r in records if "loss" in r]
+    evaluations = [r for r in records if any(key.startswith("eval_") for key in r)]
+    if evaluations:
+        labels = {f"eval_{name}": label for name, label in EVALUATION_LABELS.items()}
+        curves = {
+            label: [(r["step"], r[key]) for r in evaluations if key in r] for key, label in labels.items() if key in evaluations[-1]
+        }
+        figure = viz.figure_loss_curves(curves, log_y=False)
+        figure.suptitle("periodic evaluation on a test subset (monitoring only; the report is the final checkpoint)")
+        viz.save_figure(figure, run_dir / "plots" / "periodic_evaluation.png")
+    if history:
+        keys = [k for k in ("loss", *TERMS, "supervised") if k in history[-1]]
+        curves = {k: [(r["step"], r[k]) for r in history if k in r] for k in keys}
+        viz.save_figure(viz.figure_loss_curves(curves), run_dir / "plots" / "loss_curves.png")
+        share_keys = [f"{GRADIENT_SHARE_PREFIX}{term}" for term in TERMS if f"{GRADIENT_SHARE_PREFIX}{term}" in history[-1]]
+        if share_keys:
+            shares = {k.removeprefix(GRADIENT_SHARE_PREFIX): [(r["step"], r[k]) for r in history if k in r] for k in share_keys}
+            figure = viz.figure_loss_curves(shares, log_y=False, overlay=True)
+            viz.save_figure(figure, run_dir / "plots" / "gradient_shares.png")
+    count = min(config.run.plot_samples, len(test))
+    if count:
+        picks = np.linspace(0, len(test) - 1, count).astype(int)
+        figure = viz.figure_gt_vs_prediction(target[picks, 0], pred[picks, 0], test.skeleton)
+        viz.save_figure(figure, run_dir / "plots" / "gt_vs_prediction.png")

@@ -1,0 +1,103 @@
+"""The run directory: the config a resume must continue (config.json) and the metric log (metrics.jsonl,
+TensorBoard).  The layout of the whole directory is in `experiments.runner`."""
+
+from __future__ import annotations
+
+import json
+import logging
+import pathlib
+import shutil
+
+import jax
+
+from experiments.config import ExperimentConfig, dumps, to_json_dict
+
+log = logging.getLogger("jaxpose")
+
+
+# Fields that must match for a run directory to be resumed (the rest may change between attempts).
+_RESUME_KEYS = ("data", "model", "loss", "optimizer", "pseudo_labels")
+_RESUME_TRAIN_KEYS = ("batch_size", "epochs", "seed")
+
+
+def _identity(config_json: dict) -> dict:
+    identity = {key: config_json.get(key) for key in _RESUME_KEYS}
+    identity["train"] = {key: config_json.get("train", {}).get(key) for key in _RESUME_TRAIN_KEYS}
+    return identity
+
+
+def check_resumable(config: ExperimentConfig) -> None:
+    """Fail early (before any data are loaded) if run_dir holds a run of a different config."""
+    config_path = config.run.run_dir / "config.json"
+    if config.run.overwrite or not config_path.exists():
+        return
+    if _identity(json.loads(config_path.read_text())) != _identity(to_json_dict(config)):
+        raise SystemExit(
+            f"{config.run.run_dir} holds a run with a different config ({config_path}); resume it with the same"
+            " settings, pick another --run.run-dir, or pass --run.overwrite to start over."
+        )
+
+
+def prepare_run_dir(config: ExperimentConfig) -> pathlib.Path:
+    """Create (or check, for a resume) the run directory and write config.json."""
+    check_resumable(config)
+    run_dir = config.run.run_dir
+    if config.run.overwrite and run_dir.exists() and jax.process_index() == 0:
+        shutil.rmtree(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "plots").mkdir(exist_ok=True)
+    if jax.process_index() == 0:
+        (run_dir / "config.json").write_text(dumps(config))
+    return run_dir
+
+
+def _append_jsonl(path: pathlib.Path, record: dict) -> None:
+    if jax.process_index() == 0:
+        with path.open("a") as f:
+            f.write(json.dumps(record) + "\n")
+
+
+def _truncate_log(path: pathlib.Path, step: int) -> None:
+    """Drop log lines past `step`: a resumed run replays those steps and logs them again."""
+    if jax.process_index() != 0 or not path.exists():
+        return
+    kept = [record for record in read_jsonl(path) if record["step"] <= step]
+    path.write_text("".join(json.dumps(record) + "\n" for record in kept))
+
+
+class RunLog:
+    """The run's metric lines: appended to metrics.jsonl and, where tensorboardX is installed, written
+    as TensorBoard scalars (`<group>/<name>`) to <run_dir>/tensorboard.  Process 0 writes."""
+
+    def __init__(self, run_dir: pathlib.Path, start_step: int, tensorboard: bool):
+        self.path = run_dir / "metrics.jsonl"
+        _truncate_log(self.path, start_step)
+        self.writer = None
+        if not tensorboard or jax.process_index() != 0:
+            return
+        try:
+            from tensorboardX import SummaryWriter
+        except ImportError:
+            log.warning("no TensorBoard events: tensorboardX is not installed (pip install 'jaxpose[monitor]')")
+            return
+        # purge_step: a resumed run replays the steps after its checkpoint; TensorBoard drops their
+        # first logging, as `_truncate_log` does for metrics.jsonl.
+        self.writer = SummaryWriter(str(run_dir / "tensorboard"), purge_step=start_step or None, flush_secs=5)
+
+    def write(self, group: str, record: dict) -> None:
+        _append_jsonl(self.path, record)
+        if self.writer is not None:
+            for name, value in record.items():
+                if name != "step":
+                    self.writer.add_scalar(f"{group}/{name}", value, record["step"])
+            self.writer.flush()
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+
+
+def read_jsonl(path: pathlib.Path) -> list[dict]:
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]

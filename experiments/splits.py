@@ -1,0 +1,43 @@
+"""What an entry point's data loader hands the runner: the train and test splits and how to report them."""
+
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+from collections.abc import Callable, Mapping
+
+import numpy as np
+
+from jaxpose.data.dataset import MultiViewDataset
+
+
+@dataclasses.dataclass(frozen=True)
+class Splits:
+    """What an entry point's data loader returns."""
+
+    train: MultiViewDataset
+    test: MultiViewDataset
+    group_label: str
+    """The label that groups test results (e.g. "action", "motion")."""
+    detector_specific_joints: tuple[str, ...] = ()
+    """Joints that the 2D source defines differently from the 3D ground truth (e.g. Stacked
+    Hourglass's MPII "Spine" and "Head" on Human3.6M).  The report adds every metric over the other
+    joints (Procrustes-aligned on those joints alone), where the definitions agree."""
+    camera_names: tuple[str, ...] = ()
+    """The views' names, for the per-camera tables (default: view 0, 1, ...)."""
+    notes: tuple[str, ...] = ()
+    """Paragraphs for the top of the report: what the loader did to the data (e.g. a rig project's
+    calibration, frame offsets and person choices)."""
+    artifacts: Mapping[str, Callable[[pathlib.Path], None]] = dataclasses.field(default_factory=dict)
+    """Files the loader made for the run directory: file name -> a function writing it to a path
+    (e.g. the rig `jaxpose.calibrate` recovered)."""
+
+    def view_names(self) -> tuple[str, ...]:
+        return self.camera_names or tuple(f"view {c}" for c in range(self.test.num_views))
+
+    def agreeing_joints(self) -> np.ndarray | None:
+        """Indices of the joints not in `detector_specific_joints`; None when every joint agrees."""
+        if not self.detector_specific_joints:
+            return None
+        names = self.test.skeleton.joint_names
+        return np.array([i for i, name in enumerate(names) if name not in self.detector_specific_joints], dtype=int)

@@ -1,0 +1,151 @@
+"""The training loop of a run: train (or resume) from the run directory's last checkpoint, log, evaluate a
+test subset now and then, checkpoint, and stop cleanly on Ctrl-C or SIGTERM."""
+
+from __future__ import annotations
+
+import logging
+import pathlib
+import signal
+import time
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import numpy as np
+from tqdm.auto import tqdm
+
+from experiments.config import ExperimentConfig
+from experiments.run_directory import RunLog
+from jaxpose import checkpoint, evaluation, parallel, pseudo_labelling, validation
+from jaxpose.data.dataset import MultiViewDataset, steps_per_epoch
+from jaxpose.train import TrainState, init_train_state, jit_train_step, make_eval_step, make_train_step
+
+log = logging.getLogger("jaxpose")
+
+
+class Interrupted(Exception):
+    """Raised inside the loop when SIGINT/SIGTERM arrived; the checkpoint is already saved."""
+
+
+class _SignalFlag:
+    """Turns SIGINT/SIGTERM into a flag the loop polls, so the checkpoint is written between steps."""
+
+    def __init__(self):
+        self.received: int | None = None
+        self._previous = {}
+
+    def __enter__(self):
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum, _frame):
+        if self.received is not None:  # a second Ctrl-C: stop at once
+            raise KeyboardInterrupt
+        self.received = signum
+        log.warning("signal %d received: saving a checkpoint before exit", signum)
+
+    def __exit__(self, *exc):
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+
+def periodic_evaluation(config: ExperimentConfig, test: MultiViewDataset, model) -> Callable[[Any], dict]:
+    """variables -> metrics on `config.train.eval_samples` evenly spaced test samples: the ground-truth-free
+    `jaxpose.validation` measures (eval_disagreement_mm, eval_reprojection_px,
+    eval_triangulation_p_mpjpe_mm) and, where the test split has 3D ground truth, eval_p_mpjpe / eval_mpjpe (mm)."""
+    rows = np.unique(np.linspace(0, len(test) - 1, min(config.train.eval_samples, len(test))).astype(int))
+    subset = pseudo_labelling.label(test.subset(rows), config.pseudo_labels)  # its views' triangulation, once
+    truth = None
+    if subset.target3d is not None:
+        joints = evaluation.ground_truth_joints(subset)
+        target, valid = evaluation.ground_truth_in_views(subset)
+        truth = (joints, target[..., joints, :], valid)
+    eval_step = make_eval_step(model, config.model)
+
+    def evaluate(variables) -> dict:
+        pred = evaluation.lift_every_view(eval_step, variables, subset, config.train.eval_batch_size, config.model.temporal_window)
+        record = {}
+        if truth is not None:
+            joints, target, valid = truth
+            overall = evaluation.evaluate_poses(pred[..., joints, :], target, None, valid)["overall"]
+            record = {"eval_p_mpjpe": overall["p_mpjpe"], "eval_mpjpe": overall["mpjpe"]}
+        consistency = validation.self_consistency(pred, subset, subset.pseudo3d, subset.pseudo3d_weight > 0)
+        return record | {f"eval_{name}": values["overall"] for name, values in consistency.items()}
+
+    return evaluate
+
+
+def train(
+    config: ExperimentConfig, train_set: MultiViewDataset, run_dir: pathlib.Path, test_set: MultiViewDataset | None = None
+) -> tuple[TrainState, Any]:
+    """Train (or resume) on `train_set`, which must carry pseudo-labels.  Returns (state, model).
+    With `train.eval_every`, a subset of `test_set` is evaluated every so many steps (monitoring only).
+
+    Data parallel over `config.parallel.data` devices of all processes (`jaxpose.parallel`); the
+    returned state is this process's copy, on one local device.
+    """
+    cfg = config.train
+    per_epoch = steps_per_epoch(len(train_set), cfg.batch_size)
+    total_steps = per_epoch * cfg.epochs
+    stop_step = min(total_steps, cfg.max_steps) if cfg.max_steps > 0 else total_steps
+    model = config.model.build(train_set.skeleton.num_joints)
+    optimizer = config.optimizer.build(total_steps)
+    mesh = parallel.data_mesh(config.parallel.data)
+    init_key, dropout_key = jax.random.split(jax.random.key(cfg.seed))
+    state, dropout_key = parallel.replicate((init_train_state(model, optimizer, init_key), dropout_key), mesh)
+    manager = checkpoint.checkpoint_manager(run_dir / "checkpoints", cfg.keep_checkpoints)
+    lifter = checkpoint.LifterRecord(train_set.skeleton, config.model)
+    restored = checkpoint.restore_latest(manager, state, discard_unreadable=True)
+    if restored is not None:
+        state = restored
+        log.info("resumed from step %d of %d", int(state.step), total_steps)
+    run_log = RunLog(run_dir, int(jax.device_get(state.step)), config.run.tensorboard)
+    learning_rate = config.optimizer.learning_rate_schedule(total_steps)
+    evaluate = periodic_evaluation(config, test_set, model) if cfg.eval_every > 0 and test_set is not None else None
+    step_fn = jit_train_step(
+        make_train_step(
+            model, config.model, optimizer, config.loss, total_steps, cfg.log_every, stop_step, cfg.augment,
+            train_set.skeleton.left_right_pairs,
+        ),
+        mesh,
+    )
+    start = int(state.step)
+    views = train_set.num_views
+    log.info(
+        "training: %d samples x %d views, batch %d over %d devices (%d processes), %d steps/epoch,"
+        " %d epochs (%d steps), from step %d",
+        len(train_set), views, cfg.batch_size, mesh.size, jax.process_count(), per_epoch, cfg.epochs, total_steps, start,
+    )
+    bar = tqdm(total=stop_step, initial=start, desc="train", unit="step", disable=not config.run.progress or jax.process_index() != 0)
+    last_time, last_step = time.perf_counter(), start
+    with _SignalFlag() as interrupt:
+        batches = parallel.process_batches(train_set, cfg.batch_size, cfg.seed, mesh, start, config.model.temporal_window)
+        for step, batch in batches:
+            if step >= stop_step:
+                break
+            state, metrics = step_fn(state, batch, dropout_key)
+            done = step + 1
+            bar.update(1)
+            if done % cfg.log_every == 0 or done == stop_step:
+                metrics = {k: float(v) for k, v in jax.device_get(metrics).items()}
+                now = time.perf_counter()
+                rate = (done - last_step) * cfg.batch_size / max(now - last_time, 1e-9)
+                last_time, last_step = now, done
+                record = {"step": done, "epoch": done / per_epoch, "samples_per_s": rate, **metrics}
+                run_log.write("train", record | {"learning_rate": float(learning_rate(step))})
+                bar.set_postfix(loss=f"{metrics['loss']:.4g}", samples_s=f"{rate:.0f}")
+            if evaluate is not None and (done % cfg.eval_every == 0 or done == stop_step):
+                run_log.write("eval", {"step": done, **evaluate(parallel.local_replica(state).variables)})
+            if done % cfg.checkpoint_every == 0 or done == stop_step or interrupt.received is not None:
+                checkpoint.save(manager, state, lifter)
+            if interrupt.received is not None:
+                manager.wait_until_finished()
+                bar.close()
+                run_log.close()
+                raise Interrupted(f"stopped by signal {interrupt.received} at step {done}; checkpoint saved in {run_dir}")
+    bar.close()
+    run_log.close()
+    checkpoint.save(manager, state, lifter)
+    manager.wait_until_finished()
+    return parallel.local_replica(state), model
