@@ -222,6 +222,22 @@ def test_refusals_name_the_file_and_field(project_copy, tmp_path):
     _raises(rf"{recording.name}: expected detections of at least 2 cameras", project_copy)
 
 
+def test_a_detections_npz_is_checked_as_calibration_checks_it(tmp_path):
+    """A recording's detections.npz goes through the one reader of the format: a NaN confidence is
+    refused in one line naming the file and the field."""
+    recording = tmp_path / "project" / "trial"
+    recording.mkdir(parents=True)
+    confidence = np.ones((30, 2, 17), np.float32)
+    confidence[4, 1, 3] = np.nan
+    np.savez(recording / "detections.npz", keypoints=np.zeros((30, 2, 17, 2), np.float32), confidence=confidence,
+             camera_names=np.array(["a", "b"]), skeleton=np.array("coco17"))  # fmt: skip
+    with pytest.raises(DataFormatError) as error:
+        load_rig_project(RigProjectConfig(root=tmp_path / "project"), progress=False)
+    message = str(error.value)
+    assert "\n" not in message
+    assert message.startswith(f"{recording / 'detections.npz'}, field 'confidence': expected finite values >= 0; found NaN")
+
+
 def test_a_body25_project_needs_its_layout_named(tmp_path):
     root = write_rig_project(tmp_path / "body25", dataclasses.replace(SMALL, layout="body25", recordings=1, frames_per_recording=60))
     _raises(r"75 values per person are OpenPose BODY_25 or BODY_25B .*--data.skeleton body25", root)

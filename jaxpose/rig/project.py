@@ -5,9 +5,9 @@ A project folder::
     PROJECT/
       <calibration>              optional: the rig of every recording (see below)
       <recording>/               one folder per recording (a trial, a session) of that rig
-        detections.npz           jaxpose's multi-view arrays (`jaxpose.calibration.inputs`: keypoints
-                                 [N, C, J, 2] px, confidence, camera_names, image_size, skeleton,
-                                 optional K/dist/distortion_model, optional frames [N]), or
+        detections.npz           jaxpose's multi-view arrays (`jaxpose.formats.detections_npz`: keypoints
+                                 [N, C, J, 2] px, camera_names, optional confidence, frames [N],
+                                 image_size, skeleton, K/dist/distortion_model), or
         <camera>/ or <camera>_json/   one folder per camera of OpenPose-style JSON frames, or
         <camera>.json            one COCO keypoint-results file per camera (image_id = frame number)
         <calibration>            optional: this recording's own rig, overriding the project's
@@ -52,6 +52,7 @@ from jaxpose.formats.rig_calibration import CalibrationUnit, RigCalibration, fin
 from jaxpose.data import ground_truth
 from jaxpose.data.dataset import MultiViewDataset, concatenate
 from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats import detections_npz
 from jaxpose.formats.files import read_npz_arrays
 from jaxpose.formats.keypoint_files import CameraDetections, read_camera_detections
 from jaxpose.rig.people import DEFAULT_THRESHOLD_PX, choose_person
@@ -163,7 +164,7 @@ class _Recording:
     folder: pathlib.Path
     cameras: dict[str, CameraDetections]
     layout: str
-    npz: dict | None = None
+    npz: detections_npz.MultiViewDetections | None = None
     calibration: RigCalibration | None = None
     offsets: dict[str, int] = dataclasses.field(default_factory=dict)
     sync: SyncEstimate | None = None
@@ -216,48 +217,30 @@ def _camera_sources(folder: pathlib.Path, probe: bool = False) -> dict[str, path
     return folders or files
 
 
-def _npz_cameras(path: pathlib.Path) -> tuple[dict[str, CameraDetections], dict]:
-    """A detections.npz as per-camera detections (one person per frame) and its other arrays."""
-    arrays = read_npz_arrays(path, "multi-view detections of one recording")
-    missing = [name for name in ("keypoints", "camera_names") if name not in arrays]
-    if missing:
-        raise DataFormatError(path, f"arrays {missing} (keypoints [N, C, J, 2], camera_names [C], ...)", f"only {sorted(arrays)}")
-    keypoints = np.asarray(arrays["keypoints"], np.float32)
-    if keypoints.ndim != 4 or keypoints.shape[-1] != 2:
-        raise DataFormatError(f"{path}, array 'keypoints'", "shape [N, C, J, 2] (pixels)", f"shape {keypoints.shape}")
-    N, C, J, _ = keypoints.shape
-    confidence = np.asarray(arrays.get("confidence", np.ones((N, C, J))), np.float32)
-    if confidence.shape != (N, C, J):
-        raise DataFormatError(f"{path}, array 'confidence'", f"shape [N, C, J] = {(N, C, J)}", f"shape {confidence.shape}")
-    names = [str(name) for name in np.atleast_1d(arrays["camera_names"])]
-    if len(names) != C or len(set(names)) != C:
-        raise DataFormatError(f"{path}, array 'camera_names'", f"{C} distinct names (axis 1 of keypoints)", f"{names}")
-    frames = np.asarray(arrays.get("frames", np.arange(N)), np.int64)
-    if frames.shape != (N,) or len(np.unique(frames)) != N:
-        raise DataFormatError(f"{path}, array 'frames'", f"{N} distinct frame numbers", f"shape {frames.shape}")
-    cameras = {
+def _npz_cameras(detections: detections_npz.MultiViewDetections) -> dict[str, CameraDetections]:
+    """A detections.npz as per-camera detections (one person per frame)."""
+    return {
         name: CameraDetections(
-            frames=frames,
-            keypoints=keypoints[:, c, None],
-            scores=confidence[:, c, None],
-            people=(confidence[:, c] > 0).any(-1).astype(np.int32),
-            source=f"{path} (camera {name})",
+            frames=detections.frames,
+            keypoints=detections.keypoints[:, c, None],
+            scores=detections.confidence[:, c, None],
+            people=(detections.confidence[:, c] > 0).any(-1).astype(np.int32),
+            source=f"{detections.source} (camera {name})",
         )
-        for c, name in enumerate(names)
+        for c, name in enumerate(detections.camera_names)
     }
-    return cameras, arrays
 
 
-def _layout(config: RigProjectConfig, recording: str, cameras: Mapping[str, CameraDetections], npz: dict | None) -> str:
+def _layout(
+    config: RigProjectConfig, recording: str, cameras: Mapping[str, CameraDetections], npz: detections_npz.MultiViewDetections | None
+) -> str:
     """The keypoint layout of one recording's detections (see `RigProjectConfig.skeleton`)."""
     if config.skeleton != "auto":
         if config.skeleton not in LAYOUTS:
             raise ValueError(f"--data.skeleton {config.skeleton!r}: expected auto or one of {list(LAYOUTS)}")
         layout = config.skeleton
-    elif npz is not None and "skeleton" in npz:
-        layout = str(npz["skeleton"])
-        if layout not in LAYOUTS:
-            raise DataFormatError(f"recording {recording}, array 'skeleton'", f"one of {list(LAYOUTS)}", repr(layout))
+    elif npz is not None and npz.skeleton is not None:
+        layout = npz.skeleton
     else:
         counts = {name: detections.values_per_person for name, detections in cameras.items() if detections.keypoints.shape[1]}
         if len(set(counts.values())) > 1:
@@ -279,7 +262,8 @@ def _read_recording(config: RigProjectConfig, folder: pathlib.Path, progress: bo
     sources = _camera_sources(folder)
     npz = None
     if DETECTIONS_NPZ in sources:
-        cameras, npz = _npz_cameras(sources[DETECTIONS_NPZ])
+        npz = detections_npz.read(sources[DETECTIONS_NPZ])
+        cameras = _npz_cameras(npz)
     else:
         cameras = {name: read_camera_detections(path, progress=progress) for name, path in sources.items()}
     if len(cameras) < 2:
@@ -485,11 +469,11 @@ def _recover_rig(config: RigProjectConfig, recordings: Sequence[_Recording], ali
     # Per camera, by name from every recording's detections.npz: image size and, where given, intrinsics.
     known: dict[str, dict[str, np.ndarray]] = {}
     for recording in recordings:
-        npz = recording.npz or {}
-        names = [str(name) for name in np.atleast_1d(npz.get("camera_names", []))]
-        for index, camera in enumerate(names):
-            fields = {key: np.asarray(npz[key])[index] for key in ("image_size", "K", "dist") if key in npz}
-            known.setdefault(camera, fields | {"model": str(npz.get("distortion_model", "opencv"))})
+        if recording.npz is None:
+            continue
+        given = {key: getattr(recording.npz, key) for key in ("image_size", "K", "dist") if getattr(recording.npz, key) is not None}
+        for index, camera in enumerate(recording.npz.camera_names):
+            known.setdefault(camera, {key: array[index] for key, array in given.items()} | {"model": recording.npz.distortion_model})
     sizes = []
     for camera in camera_order:
         if "image_size" in known.get(camera, {}):
