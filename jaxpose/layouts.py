@@ -281,21 +281,22 @@ def to_lifting_skeleton(layout: str, keypoints: np.ndarray, scores: np.ndarray |
     return _LIFTING[layout](keypoints, scores)
 
 
-def infer_layout(values_per_person: int, where: str) -> str:
+def infer_layout(values_per_person: int, where: str, flag: str = "--data.skeleton") -> str:
     """The detector layout of JSON keypoints with `values_per_person` numbers (x, y, score per joint),
-    where the count decides it; otherwise a ValueError naming `where` and the candidates."""
+    where the count decides it; otherwise a ValueError naming `where`, the candidates and the command's
+    `flag` that names the layout."""
     joints, remainder = divmod(values_per_person, 3)
     if remainder == 0 and joints in _LAYOUT_BY_COUNT:
         return _LAYOUT_BY_COUNT[joints]
     if remainder == 0 and joints == 25:
         raise ValueError(
             f"{where}: 75 values per person are OpenPose BODY_25 or BODY_25B (Pose2Sim's default), which the"
-            " count cannot tell apart; pass --data.skeleton body25 or --data.skeleton body25b"
+            f" count cannot tell apart; pass {flag} body25 or {flag} body25b"
         )
     known = ", ".join(f"{3 * count} ({name})" for count, name in sorted(_LAYOUT_BY_COUNT.items()))
     raise ValueError(
         f"{where}: cannot infer the keypoint layout from {values_per_person} values per person (known: {known},"
-        f" 75 (body25 / body25b)); pass --data.skeleton with one of {list(LAYOUTS)}"
+        f" 75 (body25 / body25b)); pass {flag} with one of {list(LAYOUTS)}"
     )
 
 

@@ -6,13 +6,14 @@
 Inputs (the kind is told by the path; read by `jaxpose.formats.detection_file`):
 - COCO keypoint results, a ``.json`` list of {"image_id", "category_id", "keypoints": [x, y, score] * 17,
   "score"} (what COCO-style detectors write; AlphaPose's file-name image ids and extra keys too); one pose
-  per entry, in file order; layout coco17 unless --format says otherwise.
+  per entry, in file order.
 - OpenPose output, a folder of per-frame ``.json`` files (``--write_json``; also Pose2Sim's
   ``cam01.0010.json`` and ``frame_00001.json``), in frame-number order (the last digits of the name):
   every person's ``pose_keypoints_2d`` is one pose, its image id the file name without
-  ``_keypoints.json`` (or ``.json``).  78 values per person are HALPE_26, 54 COCO-18, 51 COCO-17, and
-  75 BODY_25, or BODY_25B where the checkpoint was trained on it (the count cannot tell them apart;
-  --format body25b otherwise).  A single such file works too.
+  ``_keypoints.json`` (or ``.json``).  A single such file works too.
+  The layout of both is told by the values per person: 51 COCO-17, 54 COCO-18, 78 HALPE_26.  75 are
+  BODY_25 or BODY_25B, which the count cannot tell apart: a BODY_25 or BODY_25B lifter reads them in
+  its own layout, any other lifter needs --format body25 or --format body25b.
 - ``.npz`` with ``keypoints`` [N, J, 2] px and optionally ``confidence`` [N, J], ``image_id`` [N] and
   ``K`` [N, 3, 3] (one camera per pose); the keypoints are in the checkpoint's own joint layout unless
   --format names one to convert from.
@@ -68,11 +69,9 @@ from tqdm.auto import tqdm
 from jaxpose import inference, viz
 from jaxpose.checkpoint import CheckpointError
 from jaxpose.formats import detection_file, files, trc
-from jaxpose.layouts import LAYOUTS, layout_joint_names, layout_of, to_skeleton
+from jaxpose.layouts import LAYOUTS, infer_layout, layout_joint_names, layout_of, to_skeleton
 
 OUTPUT_SUFFIXES = (".json", ".npz", ".csv", ".trc")
-# OpenPose-style values per person -> (layout, joints of the file that layout reads: the first ones).
-OPENPOSE_LAYOUTS = {75: "body25", 78: "halpe26", 51: "coco17", 54: "coco18"}
 # The .trc axes from the camera frame's (x right, y down, z forward): X = -z, Y = -y, Z = -x, a rotation
 # (determinant +1) to OpenSim's X forward, Y up, Z right for a subject who faces the camera.
 TRC_AXES = np.array([[0, 0, -1], [0, -1, 0], [-1, 0, 0]], np.float32)
@@ -218,23 +217,17 @@ def save_animation(
 
 
 def input_layout(skeleton, detections: detection_file.DetectionFile) -> str | None:
-    """The layout the input is read in: the checkpoint's own detector layout (`<layout>_lifting`) where
-    the file's keypoint count fits it (so BODY_25B reads as such for a lifter trained on it), else the
-    file's (None for an .npz: the checkpoint's own joints)."""
+    """The layout the input is read in where --format does not name it: None for an .npz (the checkpoint's
+    own joints); for a detector's JSON, the checkpoint's own detector layout (`<layout>_lifting`) where the
+    keypoint count fits it (so BODY_25B reads as such for a lifter trained on it), else the one the count
+    tells (`jaxpose.layouts.infer_layout`, which refuses to tell BODY_25 from BODY_25B)."""
     if detections.kind == "npz":
         return None
     joints = detections.keypoints.shape[1]
     own = layout_of(skeleton)
     if own is not None and joints == len(layout_joint_names(own)):
         return own
-    if detections.kind == "coco":
-        return "coco17"
-    if 3 * joints not in OPENPOSE_LAYOUTS:
-        raise ValueError(
-            f"{detections.source}: {3 * joints} values per person ({joints} joints); predict reads BODY_25 or BODY_25B"
-            " (75 values), HALPE_26 (78), COCO-18 (54) and COCO-17 (51)"
-        )
-    return OPENPOSE_LAYOUTS[3 * joints]
+    return infer_layout(3 * joints, str(detections.source), flag="--format")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -254,8 +247,8 @@ class PredictArgs:
     forward, Y up, Z right for a subject facing the camera; empty fields where a pose could not be lifted)."""
     format: Literal[LAYOUTS] | None = None  # type: ignore[valid-type]
     """Joint layout of the input keypoints (default: the checkpoint's own detector layout where it was
-    trained on one and the file's keypoint count fits it; else coco17 for COCO .json, by the keypoint count
-    for OpenPose (75: body25), the checkpoint's own joints for .npz)."""
+    trained on one and the file's keypoint count fits it; else told by the keypoint count for COCO and
+    OpenPose .json, 75 values (BODY_25 or BODY_25B) refused; the checkpoint's own joints for .npz)."""
     intrinsics: Annotated[tuple[str, ...] | None, tyro.conf.arg(metavar="VALUE [VALUE ...]")] = None
     """Camera intrinsics in pixels: four values fx fy cx cy; a rig calibration file and a camera name (e.g.
     calibration.toml cam01: Anipose / Pose2Sim / FreeMoCap TOML, EasyMocap intri.yml, jaxpose camera file);

@@ -94,7 +94,7 @@ def test_cli_openpose_folder(trained_run, tmp_path):
         document = {"version": 1.3, "people": [{"pose_keypoints_2d": body25[p].ravel().tolist()} for p in people]}
         (folder / f"{stem}_keypoints.json").write_text(json.dumps(document))
     (folder / "notes.txt").write_text("not a frame")
-    _cli("--checkpoint", trained_run[0], "--input", folder, "--output", tmp_path / "poses.npz",
+    _cli("--checkpoint", trained_run[0], "--input", folder, "--output", tmp_path / "poses.npz", "--format", "body25",
          "--intrinsics", *K[0, [0, 1, 0, 1], [0, 1, 2, 2]])  # fmt: skip
     with np.load(tmp_path / "poses.npz") as out:
         assert out["image_id"].tolist() == ["clip_000000000000", "clip_000000000000", "clip_000000000002"]

@@ -236,6 +236,8 @@ def test_layout_inference_and_the_lifters_input():
         infer_layout(75, "cam01_json")
     with pytest.raises(ValueError, match="cam01_json: cannot infer the keypoint layout from 60 values"):
         infer_layout(60, "cam01_json")
+    with pytest.raises(ValueError, match=r"pass --format body25 or --format body25b$"):
+        infer_layout(75, "cam01_json", flag="--format")  # the flag of the command that asks
     keypoints, scores = arrays(COCO_POINTS, COCO_17.joint_names)
     for got, expected in zip(to_skeleton("coco17", lifting_skeleton("coco17"), keypoints, scores),
                              to_lifting_skeleton("coco17", keypoints, scores)):  # fmt: skip

@@ -79,7 +79,7 @@ def test_gif_of_an_openpose_folder_keeps_its_empty_frames(trained_run, tmp_path)
         document = {"version": 1.3, "people": [{"pose_keypoints_2d": body25[p].ravel().tolist()} for p in people]}
         (folder / f"{stem}_keypoints.json").write_text(json.dumps(document))
     # No --image-size: the camera is given, and the 2D panel frames the keypoints of the whole sequence.
-    _cli("--checkpoint", trained_run[0], "--input", folder, "--output", tmp_path / "poses.npz",
+    _cli("--checkpoint", trained_run[0], "--input", folder, "--output", tmp_path / "poses.npz", "--format", "body25",
          "--intrinsics", 1150, 1150, 500, 500, "--animation", tmp_path / "clip.gif")  # fmt: skip
     frames = _gif_frames(tmp_path / "clip.gif")
     assert len(frames) == 3 and _all_differ(frames)

@@ -1,0 +1,115 @@
+"""jaxpose.predict: the joint layout its input is read in (`predict.input_layout`, `--format`).
+
+75 values per person are OpenPose BODY_25 or BODY_25B (Pose2Sim's default), which the count cannot tell
+apart: a lifter of either reads them in its own layout, any other is refused unless --format says which.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import jax
+import numpy as np
+import optax
+import pytest
+
+from jaxpose import checkpoint, predict
+from jaxpose.config import ModelConfig
+from jaxpose.formats import detection_file
+from jaxpose.layouts import layout_joint_names, lifting_skeleton
+from jaxpose.train import init_train_state
+
+POSE2SIM_BODY25B = Path(__file__).resolve().parents[2] / "shared/data/formats/openpose-json/pose2sim_demo_balancing_body25b"
+needs_pose2sim = pytest.mark.skipif(not POSE2SIM_BODY25B.is_dir(), reason=f"{POSE2SIM_BODY25B} (a real sample) is absent")
+EMPTY_PARTS = ("face_keypoints_2d", "hand_left_keypoints_2d", "hand_right_keypoints_2d", "pose_keypoints_3d",
+               "face_keypoints_3d", "hand_left_keypoints_3d", "hand_right_keypoints_3d")  # fmt: skip
+IMAGE = ("1088", "1920")  # the Pose2Sim demo's portrait video
+
+
+@pytest.fixture(scope="module")
+def body25b_run(tmp_path_factory) -> Path:
+    """A BODY_25B lifter as a run directory: initialised, not trained (only its layout matters here)."""
+    run = tmp_path_factory.mktemp("body25b") / "run"
+    skeleton = lifting_skeleton("body25b")
+    config = ModelConfig(width=32, stages=1, blocks_per_stage=1)
+    state = init_train_state(config.build(skeleton.num_joints), optax.sgd(0.1), jax.random.key(0))
+    manager = checkpoint.checkpoint_manager(run / "checkpoints", asynchronous=False)
+    checkpoint.save(manager, state.replace(step=state.step + 1), checkpoint.LifterRecord(skeleton, config))
+    manager.close()
+    return run
+
+
+def pose2sim_folder(folder: Path, frames: int = 3) -> Path:
+    """BODY_25B frames as Pose2Sim's demo writes them: cam01_json/cam01.0000.json, compact JSON, version 1.3,
+    person_id [-1] and the empty face, hand and 3D arrays; two people in the first frame."""
+    folder.mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    names = layout_joint_names("body25b")
+    for frame in range(frames):
+        people = []
+        for _ in range(2 if frame == 0 else 1):
+            person = np.concatenate([rng.uniform([300, 300], [800, 1600], (25, 2)), rng.uniform(0.5, 0.9, (25, 1))], 1)
+            person[names.index("RSmallToe")] = 0.0  # undetected: 0, 0, 0
+            people.append({"person_id": [-1], "pose_keypoints_2d": np.round(person, 3).ravel().tolist()}
+                          | {part: [] for part in EMPTY_PARTS})  # fmt: skip
+        document = {"version": 1.3, "people": people}
+        (folder / f"cam01.{frame:04d}.json").write_text(json.dumps(document, separators=(",", ":")))
+    return folder
+
+
+def _predict(checkpoint_dir: Path, folder: Path, output: Path, *flags: str) -> np.ndarray:
+    args = ["--checkpoint", checkpoint_dir, "--input", folder, "--output", output, "--image-size", *IMAGE, *flags]
+    return predict.main([str(a) for a in args])
+
+
+def _refused(checkpoint_dir: Path, folder: Path, output: Path, *flags: str) -> str:
+    with pytest.raises(SystemExit) as refusal:
+        _predict(checkpoint_dir, folder, output, *flags)
+    message = str(refusal.value)
+    assert message.startswith("jaxpose.predict: error: ") and "\n" not in message
+    return message
+
+
+def _check_layouts(folder: Path, people: int, h36m_run: Path, body25b_run: Path, tmp_path: Path) -> np.ndarray:
+    """Refused by an H36M_17 lifter, unless --format body25 (read as BODY_25); --format body25b converts
+    where a conversion exists (the BODY_25B lifter) and says so where none does (the H36M_17 lifter)."""
+    message = _refused(h36m_run, folder, tmp_path / "refused.npz")
+    assert f"{folder}: 75 values per person are OpenPose BODY_25 or BODY_25B" in message
+    assert message.endswith("pass --format body25 or --format body25b")
+    assert not (tmp_path / "refused.npz").exists()
+    message = _refused(h36m_run, folder, tmp_path / "refused.npz", "--format", "body25b")
+    assert "a lifter of skeleton 'h36m17' cannot take keypoints in layout 'body25b'" in message
+    assert _predict(h36m_run, folder, tmp_path / "as_body25.npz", "--format", "body25").shape == (people, 17, 3)
+    own = _predict(body25b_run, folder, tmp_path / "own.npz")
+    assert own.shape == (people, 26, 3) and np.isfinite(own).all((1, 2)).any()
+    np.testing.assert_array_equal(_predict(body25b_run, folder, tmp_path / "named.npz", "--format", "body25b"), own)
+    with np.load(tmp_path / "own.npz") as out:
+        assert out["joint_names"].tolist() == list(lifting_skeleton("body25b").joint_names)
+    return own
+
+
+def test_body25b_folder_in_pose2sim_layout(trained_run, body25b_run, tmp_path):
+    folder = pose2sim_folder(tmp_path / "cam01_json")
+    assert np.isfinite(_check_layouts(folder, 4, trained_run[0], body25b_run, tmp_path)).all()
+
+
+@needs_pose2sim
+def test_the_real_pose2sim_body25b_folder(trained_run, body25b_run, tmp_path):
+    lifted = np.isfinite(_check_layouts(POSE2SIM_BODY25B / "cam01_json", 40, trained_run[0], body25b_run, tmp_path))
+    assert lifted.all((1, 2)).sum() == 22  # the second person's hips are not detected in 18 frames
+
+
+def test_the_layout_of_each_input_kind(body25b_run, tmp_path):
+    """An .npz is in the lifter's own joints; a detector's JSON is told by its count, or is the lifter's own
+    layout where the count fits it."""
+    h36m17, body25b = lifting_skeleton("h36m17"), lifting_skeleton("body25b")
+    np.savez(tmp_path / "poses.npz", keypoints=np.zeros((2, 17, 2), np.float32))
+    assert predict.input_layout(h36m17, detection_file.read_detections(tmp_path / "poses.npz")) is None
+    entries = [{"image_id": 1, "keypoints": [500.0, 500.0, 0.9] * joints} for joints in (17, 17)]
+    (tmp_path / "coco.json").write_text(json.dumps(entries))
+    assert predict.input_layout(h36m17, detection_file.read_detections(tmp_path / "coco.json")) == "coco17"
+    folder = pose2sim_folder(tmp_path / "cam01_json")
+    assert predict.input_layout(body25b, detection_file.read_detections(folder)) == "body25b"
+    with pytest.raises(ValueError, match="BODY_25 or BODY_25B.*--format body25b"):
+        predict.input_layout(h36m17, detection_file.read_detections(folder))
