@@ -103,13 +103,12 @@ def train(
     run_log = RunLog(run_dir, int(jax.device_get(state.step)), config.run.tensorboard)
     learning_rate = config.optimizer.learning_rate_schedule(total_steps)
     evaluate = periodic_evaluation(config, test_set, model) if cfg.eval_every > 0 and test_set is not None else None
-    step_fn = jit_train_step(
-        make_train_step(
-            model, config.model, optimizer, config.loss, total_steps, cfg.log_every, stop_step, cfg.augment,
-            train_set.skeleton.left_right_pairs,
-        ),
-        mesh,
-    )
+    train_step = make_train_step(
+        model, config.model, optimizer, config.loss, total_steps,
+        share_every=cfg.log_every, last_step=stop_step,
+        augmentation=cfg.augment, left_right_pairs=train_set.skeleton.left_right_pairs,
+    )  # fmt: skip
+    step_fn = jit_train_step(train_step, mesh)
     start = int(state.step)
     views = train_set.num_views
     log.info(

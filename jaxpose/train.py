@@ -117,6 +117,7 @@ def output_triangulation_start_step(loss: LossConfig, total_steps: int) -> int:
 def make_loss_fn(
     model: LifterNetwork, model_config: ModelConfig, loss: LossConfig, output_start_step: int,
     measures_shares: Callable[[jax.Array], jax.Array],
+    *,
     augmentation: InputAugmentation = InputAugmentation(),
     left_right_pairs: tuple[tuple[int, int], ...] = (),
 ) -> Callable[..., tuple[jax.Array, tuple[dict[str, jax.Array], Any]]]:
@@ -168,6 +169,7 @@ def make_train_step(
     optimizer: optax.GradientTransformation,
     loss: LossConfig,
     total_steps: int,
+    *,
     share_every: int = 1,
     last_step: int | None = None,
     augmentation: InputAugmentation = InputAugmentation(),
@@ -193,7 +195,7 @@ def make_train_step(
 
     loss_fn = make_loss_fn(
         model, model_config, loss, output_triangulation_start_step(loss, total_steps), measures_shares,
-        augmentation, left_right_pairs,
+        augmentation=augmentation, left_right_pairs=left_right_pairs,
     )  # fmt: skip
     grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
 
