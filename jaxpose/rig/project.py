@@ -53,8 +53,8 @@ from jaxpose.data import ground_truth
 from jaxpose.data.dataset import MultiViewDataset, concatenate
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats import detections_npz
-from jaxpose.formats.files import read_npz_arrays
 from jaxpose.formats.keypoint_files import CameraDetections, read_camera_detections
+from jaxpose.formats.rig_folder import DETECTIONS_NPZ, GROUND_TRUTH_NPZ, folder_camera, read_ground_truth
 from jaxpose.rig.people import DEFAULT_THRESHOLD_PX, choose_person
 from jaxpose.rig.sync import SyncEstimate, estimate_offsets
 from jaxpose.layouts import LAYOUTS, infer_layout, layout_joint_names, lifting_skeleton, to_lifting_skeleton
@@ -62,9 +62,6 @@ from jaxpose.skeleton import DETECTOR_LAYOUTS, Skeleton
 
 log = logging.getLogger(__name__)
 
-DETECTIONS_NPZ = "detections.npz"
-GROUND_TRUTH_NPZ = "ground_truth.npz"
-JSON_FOLDER_SUFFIX = "_json"
 MAX_PEOPLE = 4  # detections per camera and frame kept for the choice of person
 MIN_ALIGNMENT_POINTS = 50  # ground-truth joints needed to align it with a recovered rig
 
@@ -198,7 +195,7 @@ def _camera_sources(folder: pathlib.Path, probe: bool = False) -> dict[str, path
     if (folder / DETECTIONS_NPZ).is_file():
         return {DETECTIONS_NPZ: folder / DETECTIONS_NPZ}
     folders = {
-        entry.name.removesuffix(JSON_FOLDER_SUFFIX): entry
+        folder_camera(entry.name): entry
         for entry in sorted(folder.iterdir())
         if entry.is_dir() and not entry.name.startswith(".") and next(entry.glob("*.json"), None) is not None
     }
@@ -436,22 +433,11 @@ def _ground_truth(folder: pathlib.Path, skeleton: Skeleton, layout: str, instant
     path = folder / GROUND_TRUTH_NPZ
     if not path.is_file():
         return None, 0
-    arrays = read_npz_arrays(path, "ground truth of one recording (evaluation only)")
-    missing = [name for name in ("points3d", "frames", "joint_names") if name not in arrays]
-    if missing:
-        raise DataFormatError(path, f"arrays {missing} (points3d [N, J, 3] mm, frames [N], joint_names [J])", f"only {sorted(arrays)}")
-    points = np.asarray(arrays["points3d"], np.float64)
-    frames = np.asarray(arrays["frames"], np.int64)
-    names = [str(name) for name in np.atleast_1d(arrays["joint_names"])]
-    if points.ndim != 3 or points.shape[1:] != (len(names), 3) or frames.shape != (len(points),):
-        raise DataFormatError(
-            path, "points3d [N, J, 3], frames [N], joint_names [J] of matching sizes",
-            f"points3d {points.shape}, frames {frames.shape}, {len(names)} joint names",
-        )  # fmt: skip
+    truth = read_ground_truth(path)
     root_from = DETECTOR_LAYOUTS[layout].root_from if layout in DETECTOR_LAYOUTS else None
-    matched = ground_truth.on_skeleton(points, names, skeleton, root_from, f"{path}, array 'joint_names'")
+    matched = ground_truth.on_skeleton(truth.points, truth.joint_names, skeleton, root_from, f"{path}, array 'joint_names'")
     target = np.full((len(instants), skeleton.num_joints, 3), np.nan, np.float32)
-    _, rows, gt_rows = np.intersect1d(instants, frames, return_indices=True)
+    _, rows, gt_rows = np.intersect1d(instants, truth.frames, return_indices=True)
     target[rows] = matched[gt_rows]
     return target, len(rows)
 

@@ -57,6 +57,7 @@ import tyro
 
 from jaxpose.camera import Cameras, project_from_camera, undistort_points, world_to_camera
 from jaxpose.formats.rig_calibration import RigCalibration, write_anipose_toml
+from jaxpose.formats.rig_folder import CALIBRATION_TOML, GROUND_TRUTH_NPZ, json_folder, write_ground_truth
 from jaxpose.synthetic.body import JOINT_INDEX, NOMINAL_BONE_MM, axis_rotation, sample_bone_lengths
 from jaxpose.synthetic.config import Stream, SyntheticConfig, stream_rng
 from jaxpose.synthetic.detector import DETECTOR_SIGMA_PX, simulate_detector
@@ -70,8 +71,6 @@ __all__ = [
     "write_rig_project",
 ]  # fmt: skip
 
-CALIBRATION_TOML = "calibration.toml"
-GROUND_TRUTH_NPZ = "ground_truth.npz"
 EXAMPLE_TRUTH_JSON = "example_truth.json"
 # A view's detection of a person is written only with at least this many detected keypoints.
 MIN_KEYPOINTS = 5
@@ -595,7 +594,7 @@ def write_rig_project(root: str | Path, config: ExampleProjectConfig = ExamplePr
         passer_first = _rng(config, _Stream.ORDER, r).random((T, C)) < config.second_person_first_rate
         record = {"motion": config.motion(r)} | {key: {} for key in _FRAME_LISTS}
         for c, camera in enumerate(config.camera_names):
-            folder = root / name / f"{camera}_json"
+            folder = root / name / json_folder(camera)
             lists = _write_camera(folder, f"{name}_{camera}", rows[c], subject, passer, passer_first, c)
             for key, frames in lists.items():
                 record[key][camera] = frames
@@ -603,12 +602,7 @@ def write_rig_project(root: str | Path, config: ExampleProjectConfig = ExamplePr
         if config.layout == "coco17":
             hips = [COCO_17.joint_names.index("left_hip"), COCO_17.joint_names.index("right_hip")]
             truth_points = np.concatenate([truth_points, truth_points[:, hips].mean(1, keepdims=True)], axis=1)
-        np.savez(
-            root / name / GROUND_TRUTH_NPZ,
-            points3d=truth_points.astype(np.float32),
-            frames=np.arange(N, dtype=np.int64),
-            joint_names=np.array(_ground_truth_names(config.layout)),
-        )
+        write_ground_truth(root / name / GROUND_TRUTH_NPZ, truth_points, np.arange(N), _ground_truth_names(config.layout))
         recordings[name] = record
     desync = config.desync_camera >= 0 and config.desync_frames != 0
     truth = {
