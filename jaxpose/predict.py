@@ -21,18 +21,10 @@ The keypoints are converted to the checkpoint's joints by `jaxpose.layouts.to_sk
 trained on a rig project (`experiments.rig`) takes its detector's own layout, and the H36M_17 lifters of
 the benchmarks take COCO-17, BODY_25 and HALPE_26 (through its COCO-17 keypoints).
 
-Output, by suffix, one pose per input pose, in input order.  Poses are root-relative, in the camera frame
-(x right, y down, z forward), in mm unless said otherwise:
-- ``.json``: a list of {"image_id", "pose3d_mm": [[x, y, z] * J] or null, "joint_names"};
-- ``.npz``: ``pose3d_mm`` f32[N, J, 3] (NaN rows), ``valid`` [N], ``image_id`` [N], ``joint_names`` [J];
-- ``.csv``: a header row ``image_id,<joint>_x_mm,<joint>_y_mm,<joint>_z_mm,...``, then a row per pose with
-  empty cells for a pose that could not be lifted;
-- ``.trc`` (OpenSim markers, `jaxpose.formats.trc`): a data row per pose, Frame# from 1, Time = (Frame# - 1)
-  / --fps, a marker per joint (``/`` in a name becomes ``_``), Units m, empty fields for a pose that could
-  not be lifted.  Its axes are OpenSim's for a subject facing the camera (X forward, Y up, Z to the
-  subject's right): X = -z, Y = -y, Z = -x of the camera frame (a rotation of the camera axes), as line 1
-  of the file says after the file name.  A TRC holds one subject: an input with several people per
-  image gives a row per person, one after the other.
+Output, by suffix, one pose per input pose, in input order (`jaxpose.formats.pose_files`), root-relative:
+``.json``, ``.npz`` or ``.csv`` in mm in the camera frame (x right, y down, z forward), or ``.trc``
+(OpenSim markers in m, X = -z, Y = -y, Z = -x of the camera frame: OpenSim's X forward, Y up, Z right for
+a subject facing the camera); see --output.
 
 Keypoints that cannot be right are lifted as missing, and the command says how many joints of how many
 poses it treated so, per reason (`jaxpose.inference.implausible_joints`): NaN or infinite coordinates
@@ -53,12 +45,9 @@ the lifted 3D pose.
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import json
 import pathlib
 import sys
-import warnings
 from collections.abc import Sequence
 from typing import Annotated, Any, Literal
 
@@ -68,166 +57,11 @@ from tqdm.auto import tqdm
 
 from jaxpose import inference, viz
 from jaxpose.checkpoint import CheckpointError
-from jaxpose.formats import detection_file, files, trc
+from jaxpose.formats import detection_file, intrinsics, pose_files
 from jaxpose.layouts import LAYOUTS, infer_layout, layout_joint_names, layout_of, to_skeleton
 
-OUTPUT_SUFFIXES = (".json", ".npz", ".csv", ".trc")
-# The .trc axes from the camera frame's (x right, y down, z forward): X = -z, Y = -y, Z = -x, a rotation
-# (determinant +1) to OpenSim's X forward, Y up, Z right for a subject who faces the camera.
-TRC_AXES = np.array([[0, 0, -1], [0, -1, 0], [-1, 0, 0]], np.float32)
-TRC_NOTE = "(jaxpose: root-relative; X=-z Y=-y Z=-x of the camera's x right y down z forward)"
 # Poses per `Lifter3D.predict` call; inputs larger than this get a progress bar.
 LIFT_BLOCK = 16384
-
-
-def read_intrinsics(values: Sequence[str]) -> tuple[np.ndarray, np.ndarray | None, tuple[float, float] | None]:
-    """--intrinsics as (K [3, 3], OpenCV distortion [5] or None, image size or None).
-
-    Four numbers fx fy cx cy; a calibration file and a camera name (a rig's calibration as
-    `jaxpose.formats.rig_calibration` reads it: Anipose / Pose2Sim / FreeMoCap TOML, EasyMocap
-    intri.yml, a jaxpose camera file), e.g. `calibration.toml cam01`; or a JSON file holding one camera
-    in the fields of a jaxpose camera file entry: {"K": [[fx, s, cx], [0, fy, cy], [0, 0, 1]], "dist":
-    [k1, k2, p1, p2, k3] or null, "image_size": [width, height] or null}; other fields (R, t, name) are
-    ignored.
-    """
-    if len(values) == 4:
-        fx, fy, cx, cy = (float(v) for v in values)
-        return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], np.float32), None, None
-    if len(values) == 2:
-        return _calibration_intrinsics(pathlib.Path(values[0]), values[1])
-    if len(values) != 1:
-        raise ValueError(
-            f"--intrinsics takes 4 numbers (fx fy cx cy), a calibration file and a camera name, or one JSON camera"
-            f" file; got {len(values)} values"
-        )
-    path = pathlib.Path(values[0])
-    if not path.is_file():
-        raise FileNotFoundError(f"--intrinsics file {path} does not exist")
-    camera = files.read_json(path, "an --intrinsics camera")
-    if not isinstance(camera, dict) or "K" not in camera:
-        raise ValueError(f"{path}: expected a camera {{'K': 3x3, 'dist': [5] or null, 'image_size': [w, h]}}")
-    dist = camera.get("dist")
-    size = camera.get("image_size")
-    return (
-        np.asarray(camera["K"], np.float32),
-        None if dist is None else np.asarray(dist, np.float32),
-        None if size is None else tuple(size),
-    )
-
-
-def _calibration_intrinsics(path: pathlib.Path, camera: str) -> tuple[np.ndarray, np.ndarray | None, tuple[float, float] | None]:
-    """One camera of a rig calibration file as (K, OpenCV dist or None, image size or None)."""
-    from jaxpose.formats.rig_calibration import read_rig_calibration
-
-    rig = read_rig_calibration(path).select([camera], f"--intrinsics {path} {camera}")
-    cameras = rig.cameras
-    if cameras.dist is not None and cameras.distortion_model != "opencv":
-        raise ValueError(
-            f"--intrinsics {path} {camera}: its {cameras.distortion_model!r} lens model is not OpenCV's, which predict"
-            " undistorts with; undistort the keypoints first and pass the camera's fx fy cx cy"
-        )
-    size = None if rig.image_size is None else tuple(float(v) for v in rig.image_size[0])
-    return np.asarray(cameras.K[0], np.float32), None if cameras.dist is None else np.asarray(cameras.dist[0], np.float32), size
-
-
-def write_poses(
-    path: pathlib.Path, poses: np.ndarray, image_ids: list[Any], joint_names: Sequence[str], fps: float = 10.0
-) -> None:
-    """The output file, .json, .npz, .csv or .trc by suffix (see the module docstring); `fps` is the TRC's rate."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    valid = np.isfinite(poses).all((1, 2))
-    if path.suffix == ".npz":
-        np.savez(
-            path, pose3d_mm=poses, valid=valid, image_id=np.asarray(image_ids), joint_names=np.asarray(joint_names)
-        )
-        return
-    if path.suffix == ".trc":
-        if len(set(image_ids)) < len(image_ids):
-            warnings.warn(
-                f"{path}: several poses share an image id; the TRC gets a row per pose, one after the other",
-                stacklevel=2,
-            )
-        metres = np.where(valid[:, None, None], poses, np.nan) @ TRC_AXES.T / 1000.0
-        trc.write_trc(path, metres, joint_names, fps, units="m", path_note=TRC_NOTE)
-        return
-    # 0.01 mm is far below any pose error; float64 first so the text holds no float32 round-off digits.
-    rounded = np.round(poses.astype(np.float64), 2)
-    if path.suffix == ".csv":
-        header = ["image_id"] + [f"{joint}_{axis}_mm" for joint in joint_names for axis in "xyz"]
-        with open(path, "w", newline="") as file:
-            writer = csv.writer(file, lineterminator="\n")
-            writer.writerow(header)
-            for image_id, pose, ok in zip(image_ids, rounded, valid):
-                writer.writerow([image_id, *(pose.ravel().tolist() if ok else [""] * pose.size)])
-        return
-    records = [
-        {"image_id": image_id, "pose3d_mm": pose.tolist() if ok else None, "joint_names": list(joint_names)}
-        for image_id, pose, ok in zip(image_ids, rounded, valid)
-    ]
-    path.write_text(json.dumps(records))
-
-
-def save_plots(
-    directory: pathlib.Path, keypoints, confidence, poses, image_ids, skeleton, image_size, count: int
-) -> list[pathlib.Path]:
-    """`viz.figure_lifting` PNGs of the first `count` lifted poses, named by their input index."""
-    saved = []
-    for i in np.flatnonzero(np.isfinite(poses).all((1, 2)))[:count]:
-        title = f"image {image_ids[i]} (pose {i})"
-        figure = viz.figure_lifting(keypoints[i], poses[i], skeleton, image_size, title, confidence[i])
-        saved.append(viz.save_figure(figure, directory / f"lifting_{i:05d}.png"))
-    return saved
-
-
-def _sequence_order(image_id: Any) -> tuple[bool, Any]:
-    """Numbers first, numerically, then names as strings sort."""
-    return isinstance(image_id, str), image_id
-
-
-def animation_frames(
-    image_ids: list[Any], confidence: np.ndarray, lifted: np.ndarray, frame_ids: list[Any] | None
-) -> tuple[list[Any], list[int | None]]:
-    """The frames in sequence order and the pose each one shows (None: no pose in that frame).
-
-    A frame with several poses shows the one with the highest mean keypoint confidence, lifted ones
-    (bool[N] `lifted`) first.
-    """
-    rank = list(zip(np.asarray(lifted, bool), confidence.mean(1)))
-    shown: dict[Any, int] = {}
-    for index, image_id in enumerate(image_ids):
-        if image_id not in shown or rank[index] > rank[shown[image_id]]:
-            shown[image_id] = index
-    frames = frame_ids if frame_ids is not None else sorted(shown, key=_sequence_order)
-    return frames, [shown.get(frame) for frame in frames]
-
-
-def save_animation(
-    path: pathlib.Path, keypoints, confidence, poses, image_ids, frame_ids, skeleton, image_size, fps: float
-) -> pathlib.Path:
-    """`viz.save_pose_animation` of one pose per frame (`animation_frames`); a frame without one is blank."""
-    frames, shown = animation_frames(image_ids, confidence, np.isfinite(poses).all((1, 2)), frame_ids)
-    blank = len(poses)  # the index of a row appended for frames without a pose
-    rows = [blank if index is None else index for index in shown]
-    joints = keypoints.shape[1]
-    keypoints = np.concatenate([keypoints, np.full((1, joints, 2), np.nan, np.float32)])[rows]
-    confidence = np.concatenate([confidence, np.zeros((1, joints), np.float32)])[rows]
-    poses = np.concatenate([poses, np.full((1, joints, 3), np.nan, np.float32)])[rows]
-    titles = [f"image {frame}" + (" (no pose)" if index is None else "") for frame, index in zip(frames, shown)]
-    return viz.save_pose_animation(path, poses, skeleton, keypoints, confidence, image_size, titles, fps)
-
-
-def input_layout(skeleton, detections: detection_file.DetectionFile) -> str | None:
-    """The layout the input is read in where --format does not name it: None for an .npz (the checkpoint's
-    own joints); for a detector's JSON, the checkpoint's own detector layout (`<layout>_lifting`) where the
-    keypoint count fits it (so BODY_25B reads as such for a lifter trained on it), else the one the count
-    tells (`jaxpose.layouts.infer_layout`, which refuses to tell BODY_25 from BODY_25B)."""
-    if detections.kind == "npz":
-        return None
-    joints = detections.keypoints.shape[1]
-    own = layout_of(skeleton)
-    if own is not None and joints == len(layout_joint_names(own)):
-        return own
-    return infer_layout(3 * joints, str(detections.source), flag="--format")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -284,8 +118,56 @@ class PredictArgs:
 
 def run(args: PredictArgs) -> np.ndarray:
     """The whole command: read, convert, lift, write, plot, animate.  Returns the poses f32[N, J, 3]."""
-    if args.output.suffix not in OUTPUT_SUFFIXES:
-        raise ValueError(f"--output {args.output}: the suffix must be one of {OUTPUT_SUFFIXES}")
+    check_args(args)
+    detections = detection_file.read_detections(args.input)
+    lifter = inference.load(args.checkpoint, batch_size=args.batch_size)
+    camera = input_camera(args, detections)
+    layout = args.format or input_layout(lifter.skeleton, detections)
+    scores = detections.scores if detections.scores is not None else np.ones(detections.keypoints.shape[:2], np.float32)
+    names = input_joint_names(layout, lifter.joint_names, detections.keypoints.shape[1])
+    scores, message = drop_implausible(
+        detections.keypoints, scores, names, camera.image_size, args.min_confidence, args.outside_margin
+    )
+    print(message, file=sys.stderr)
+    if layout is None:
+        keypoints, confidence = detections.keypoints, scores
+    else:
+        keypoints, confidence = to_skeleton(layout, lifter.skeleton, detections.keypoints, scores)
+    count = len(keypoints)
+    not_followed = 0  # a temporal lifter's other people in a frame
+    if lifter.model_config.temporal_window > 1:
+        if args.reject_inconsistent is not None:
+            print("--reject-inconsistent: frame lifters only, not applied to this temporal lifter", file=sys.stderr)
+        poses, not_followed = lift_sequence(lifter, keypoints, confidence, camera, detections)
+    else:
+        poses, rejected = lift_frames(lifter, keypoints, confidence, camera, args.reject_inconsistent)
+        if args.reject_inconsistent is not None:
+            print(rejection_report(rejected, keypoints, lifter.joint_names, args.reject_inconsistent), file=sys.stderr)
+            confidence = np.where(rejected, 0.0, confidence).astype(np.float32)  # the plots show them as missing
+    pose_files.write_poses(args.output, poses, detections.image_ids, lifter.joint_names, args.fps)
+    lifted = int(np.isfinite(poses).all((1, 2)).sum())
+    rootless = count - lifted - not_followed
+    unliftable = f"; {rootless} without a detected root are null" if rootless else ""
+    unliftable += f"; {not_followed} other people, not followed, are null" if not_followed else ""
+    print(
+        f"lifted {lifted} of {count} poses with the {lifter.skeleton.name} lifter (step {lifter.step}) of"
+        f" {lifter.source} -> {args.output}{unliftable}",
+        file=sys.stderr,
+    )
+    result = LiftedInput(keypoints, confidence, poses, detections.image_ids, detections.frame_ids)
+    if args.plot is not None:
+        saved = save_plots(args.plot, result, lifter.skeleton, camera.image_size, args.plot_count)
+        print(f"saved {len(saved)} figures to {args.plot}", file=sys.stderr)
+    if args.animation is not None:
+        save_animation(args.animation, result, lifter.skeleton, camera.image_size, args.fps)
+        print(f"saved the animation {args.animation}", file=sys.stderr)
+    return poses
+
+
+def check_args(args: PredictArgs) -> None:
+    """The flags' own errors, before anything is read."""
+    if args.output.suffix not in pose_files.SUFFIXES:
+        raise ValueError(f"--output {args.output}: the suffix must be one of {pose_files.SUFFIXES}")
     if args.output.suffix == ".trc" and not args.fps > 0:
         raise ValueError(f"--fps must be positive for a .trc output, got {args.fps}")
     if args.animation is not None:
@@ -299,71 +181,63 @@ def run(args: PredictArgs) -> np.ndarray:
         raise ValueError(f"--outside-margin must be >= 0, got {args.outside_margin}")
     if args.reject_inconsistent is not None and not args.reject_inconsistent > 0:
         raise ValueError(f"--reject-inconsistent must be > 0, got {args.reject_inconsistent}")
-    detections = detection_file.read_detections(args.input)
-    lifter = inference.load(args.checkpoint, batch_size=args.batch_size)
-    K, dist, image_size = (None, None, None) if args.intrinsics is None else read_intrinsics(args.intrinsics)
+
+
+def input_camera(args: PredictArgs, detections: detection_file.DetectionFile) -> intrinsics.CameraIntrinsics:
+    """--intrinsics, or the input's camera per pose (not both), with --image-size where given."""
+    camera = intrinsics.CameraIntrinsics() if args.intrinsics is None else intrinsics.read_intrinsics(args.intrinsics)
     if detections.intrinsics is not None:
-        if K is not None:
+        if camera.K is not None:
             raise ValueError(f"{args.input} holds a camera per pose ('K'); do not pass --intrinsics as well")
-        K = detections.intrinsics
-    image_size = args.image_size or image_size
-    layout = args.format or input_layout(lifter.skeleton, detections)
-    scores = detections.scores if detections.scores is not None else np.ones(detections.keypoints.shape[:2], np.float32)
-    scores, message = drop_implausible(detections.keypoints, scores, image_size, args, layout, lifter)
-    print(message, file=sys.stderr)
-    if layout is None:
-        keypoints, confidence = detections.keypoints, scores
-    else:
-        keypoints, confidence = to_skeleton(layout, lifter.skeleton, detections.keypoints, scores)
+        camera = dataclasses.replace(camera, K=detections.intrinsics)
+    return dataclasses.replace(camera, image_size=args.image_size or camera.image_size)
+
+
+def input_layout(skeleton, detections: detection_file.DetectionFile) -> str | None:
+    """The layout the input is read in where --format does not name it: None for an .npz (the checkpoint's
+    own joints); for a detector's JSON, the checkpoint's own detector layout (`<layout>_lifting`) where the
+    keypoint count fits it (so BODY_25B reads as such for a lifter trained on it), else the one the count
+    tells (`jaxpose.layouts.infer_layout`, which refuses to tell BODY_25 from BODY_25B)."""
+    if detections.kind == "npz":
+        return None
+    joints = detections.keypoints.shape[1]
+    own = layout_of(skeleton)
+    if own is not None and joints == len(layout_joint_names(own)):
+        return own
+    return infer_layout(3 * joints, str(detections.source), flag="--format")
+
+
+def input_joint_names(layout: str | None, lifter_joints: Sequence[str], count: int) -> Sequence[str]:
+    """The names of the input's `count` joints, for the reports: the layout's (None: the lifter's own)."""
+    names = layout_joint_names(layout) if layout is not None else lifter_joints
+    return names if len(names) == count else tuple(f"joint {j}" for j in range(count))
+
+
+def lift_frames(
+    lifter, keypoints, confidence, camera: intrinsics.CameraIntrinsics, reject: float | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """A frame lifter's poses f32[N, J, 3], in blocks of `LIFT_BLOCK` (a progress bar for more), and the
+    joints bool[N, J] that `reject` (--reject-inconsistent; None: off) lifted as missing."""
     count = len(keypoints)
-    not_followed = 0  # a temporal lifter's other people in a frame
-    if lifter.model_config.temporal_window > 1:
-        if args.reject_inconsistent is not None:
-            print("--reject-inconsistent: frame lifters only, not applied to this temporal lifter", file=sys.stderr)
-        poses, not_followed = lift_sequence(lifter, keypoints, confidence, K, dist, image_size, detections)
-    else:
-        poses = np.empty((count, lifter.num_joints, 3), np.float32)
-        rejected = np.zeros(confidence.shape, bool)
-        with tqdm(total=count, desc="lifting", unit="pose", disable=count <= LIFT_BLOCK) as bar:
-            for start in range(0, count, LIFT_BLOCK):
-                rows = slice(start, min(start + LIFT_BLOCK, count))
-                per_pose_K = K if K is None or K.ndim == 2 else K[rows]
-                if args.reject_inconsistent is not None:
-                    rejected[rows] = lifter.inconsistent_joints(
-                        keypoints[rows], per_pose_K, confidence[rows], dist, image_size,
-                        threshold=args.reject_inconsistent,
-                    )  # fmt: skip
-                kept = np.where(rejected[rows], 0.0, confidence[rows]).astype(np.float32)
-                poses[rows] = lifter.predict(keypoints[rows], per_pose_K, kept, dist, image_size)
-                bar.update(rows.stop - rows.start)
-        if args.reject_inconsistent is not None:
-            print(rejection_report(rejected, keypoints, lifter.joint_names, args.reject_inconsistent), file=sys.stderr)
-            confidence = np.where(rejected, 0.0, confidence).astype(np.float32)  # the plots show them as missing
-    write_poses(args.output, poses, detections.image_ids, lifter.joint_names, args.fps)
-    lifted = int(np.isfinite(poses).all((1, 2)).sum())
-    rootless = count - lifted - not_followed
-    unliftable = f"; {rootless} without a detected root are null" if rootless else ""
-    unliftable += f"; {not_followed} other people, not followed, are null" if not_followed else ""
-    print(
-        f"lifted {lifted} of {count} poses with the {lifter.skeleton.name} lifter (step {lifter.step}) of"
-        f" {lifter.source} -> {args.output}{unliftable}",
-        file=sys.stderr,
-    )
-    if args.plot is not None:
-        saved = save_plots(
-            args.plot, keypoints, confidence, poses, detections.image_ids, lifter.skeleton, image_size, args.plot_count
-        )
-        print(f"saved {len(saved)} figures to {args.plot}", file=sys.stderr)
-    if args.animation is not None:
-        save_animation(
-            args.animation, keypoints, confidence, poses, detections.image_ids, detections.frame_ids,
-            lifter.skeleton, image_size, args.fps,
-        )  # fmt: skip
-        print(f"saved the animation {args.animation}", file=sys.stderr)
-    return poses
+    poses = np.empty((count, lifter.num_joints, 3), np.float32)
+    rejected = np.zeros(confidence.shape, bool)
+    with tqdm(total=count, desc="lifting", unit="pose", disable=count <= LIFT_BLOCK) as bar:
+        for start in range(0, count, LIFT_BLOCK):
+            rows = slice(start, min(start + LIFT_BLOCK, count))
+            K = camera.of_poses(rows)
+            if reject is not None:
+                rejected[rows] = lifter.inconsistent_joints(
+                    keypoints[rows], K, confidence[rows], camera.dist, camera.image_size, threshold=reject
+                )
+            kept = np.where(rejected[rows], 0.0, confidence[rows]).astype(np.float32)
+            poses[rows] = lifter.predict(keypoints[rows], K, kept, camera.dist, camera.image_size)
+            bar.update(rows.stop - rows.start)
+    return poses, rejected
 
 
-def lift_sequence(lifter, keypoints, confidence, K, dist, image_size, detections: detection_file.DetectionFile) -> tuple[np.ndarray, int]:
+def lift_sequence(
+    lifter, keypoints, confidence, camera: intrinsics.CameraIntrinsics, detections: detection_file.DetectionFile
+) -> tuple[np.ndarray, int]:
     """A temporal lifter's poses f32[N, J, 3] and how many of them were not followed: the input's frames
     in sequence order (`animation_frames`: OpenPose frames in frame-number order, image ids in numerical
     order), one person per frame (the highest mean score), each lifted with the window of frames around
@@ -375,8 +249,8 @@ def lift_sequence(lifter, keypoints, confidence, K, dist, image_size, detections
     rows = np.array([count if index is None else index for index in shown])
     blank_keypoints = np.concatenate([keypoints, np.zeros((1, *keypoints.shape[1:]), np.float32)])
     blank_confidence = np.concatenate([confidence, np.zeros((1, confidence.shape[1]), np.float32)])
-    per_frame_K = K if K is None or K.ndim == 2 else np.concatenate([K, K[:1]])[rows]
-    lifted = lifter.predict(blank_keypoints[rows], per_frame_K, blank_confidence[rows], dist, image_size)
+    K = camera.of_poses(np.minimum(rows, count - 1))  # a blank frame's camera is never used: it has no root
+    lifted = lifter.predict(blank_keypoints[rows], K, blank_confidence[rows], camera.dist, camera.image_size)
     poses = np.full((count, lifter.num_joints, 3), np.nan, np.float32)
     followed = rows < count
     poses[rows[followed]] = lifted[followed]
@@ -406,25 +280,23 @@ def rejection_report(rejected: np.ndarray, keypoints: np.ndarray, names: Sequenc
 
 
 def drop_implausible(
-    keypoints: np.ndarray, scores: np.ndarray, image_size, args: PredictArgs, layout: str | None, lifter
+    keypoints: np.ndarray,
+    scores: np.ndarray,
+    names: Sequence[str],
+    image_size: tuple[float, float] | None,
+    min_confidence: float,
+    outside_margin: float | None,
 ) -> tuple[np.ndarray, str]:
-    """The input's scores with the joints that cannot be right set to 0, and a report of them per reason."""
+    """The input's scores with the joints that cannot be right set to 0 (`inference.implausible_joints`
+    with --min-confidence and --outside-margin), and a report of them per reason naming the joints by `names`."""
     scores = np.asarray(scores, np.float32)
-    with np.errstate(invalid="ignore"):
-        negative = scores < 0
-    if negative.any():
-        pose, joint = np.argwhere(negative)[0]
-        raise ValueError(f"{args.input}: scores must be >= 0; pose {pose} joint {joint} has {scores[pose, joint]}")
-    dropped = inference.implausible_joints(keypoints, scores, image_size, args.outside_margin, args.min_confidence)
-    names = layout_joint_names(layout) if layout is not None else lifter.joint_names
-    if len(names) != keypoints.shape[1]:
-        names = tuple(f"joint {j}" for j in range(keypoints.shape[1]))
+    dropped = inference.implausible_joints(keypoints, scores, image_size, outside_margin, min_confidence)
     descriptions = {
         "non_finite": "NaN or infinite coordinates with a positive score, or a NaN or infinite score",
-        "low_confidence": f"score below --min-confidence {args.min_confidence:g}",
+        "low_confidence": f"score below --min-confidence {min_confidence:g}",
         "outside_image": (
-            f"more than --outside-margin {args.outside_margin:g} of the larger image side outside the image"
-            if image_size is not None and args.outside_margin is not None else "outside the image"
+            f"more than --outside-margin {outside_margin:g} of the larger image side outside the image"
+            if image_size is not None and outside_margin is not None else "outside the image"
         ),
     }  # fmt: skip
     parts = []
@@ -447,9 +319,75 @@ def drop_implausible(
         )
     else:
         message = f"no keypoint of the {count} poses was treated as missing"
-    if image_size is None and args.outside_margin is not None:
+    if image_size is None and outside_margin is not None:
         message += " (no image size, so keypoints outside the image were not looked for: pass --image-size W H)"
     return np.where(any_dropped, 0.0, scores).astype(np.float32), message
+
+
+@dataclasses.dataclass(frozen=True)
+class LiftedInput:
+    """The input as the lifter took it and the poses it gave, a row per input pose, for the figures."""
+
+    keypoints: np.ndarray
+    """f32[N, J, 2] pixels in the lifter's joints."""
+    confidence: np.ndarray
+    """f32[N, J]: 0 where a joint was lifted as missing."""
+    poses: np.ndarray
+    """f32[N, J, 3] mm; NaN rows were not lifted."""
+    image_ids: list[Any]
+    frame_ids: list[Any] | None
+    """As `detection_file.DetectionFile.frame_ids`."""
+
+
+def save_plots(
+    directory: pathlib.Path, lifted: LiftedInput, skeleton, image_size: tuple[float, float] | None, count: int
+) -> list[pathlib.Path]:
+    """`viz.figure_lifting` PNGs of the first `count` lifted poses, named by their input index."""
+    keypoints, confidence, poses = lifted.keypoints, lifted.confidence, lifted.poses
+    saved = []
+    for i in np.flatnonzero(np.isfinite(poses).all((1, 2)))[:count]:
+        title = f"image {lifted.image_ids[i]} (pose {i})"
+        figure = viz.figure_lifting(keypoints[i], poses[i], skeleton, image_size, title, confidence[i])
+        saved.append(viz.save_figure(figure, directory / f"lifting_{i:05d}.png"))
+    return saved
+
+
+def _sequence_order(image_id: Any) -> tuple[bool, Any]:
+    """Numbers first, numerically, then names as strings sort."""
+    return isinstance(image_id, str), image_id
+
+
+def animation_frames(
+    image_ids: list[Any], confidence: np.ndarray, lifted: np.ndarray, frame_ids: list[Any] | None
+) -> tuple[list[Any], list[int | None]]:
+    """The frames in sequence order and the pose each one shows (None: no pose in that frame).
+
+    A frame with several poses shows the one with the highest mean keypoint confidence, lifted ones
+    (bool[N] `lifted`) first.
+    """
+    rank = list(zip(np.asarray(lifted, bool), confidence.mean(1)))
+    shown: dict[Any, int] = {}
+    for index, image_id in enumerate(image_ids):
+        if image_id not in shown or rank[index] > rank[shown[image_id]]:
+            shown[image_id] = index
+    frames = frame_ids if frame_ids is not None else sorted(shown, key=_sequence_order)
+    return frames, [shown.get(frame) for frame in frames]
+
+
+def save_animation(
+    path: pathlib.Path, lifted: LiftedInput, skeleton, image_size: tuple[float, float] | None, fps: float
+) -> pathlib.Path:
+    """`viz.save_pose_animation` of one pose per frame (`animation_frames`); a frame without one is blank."""
+    keypoints, confidence, poses = lifted.keypoints, lifted.confidence, lifted.poses
+    frames, shown = animation_frames(lifted.image_ids, confidence, np.isfinite(poses).all((1, 2)), lifted.frame_ids)
+    blank = len(poses)  # the index of a row appended for frames without a pose
+    rows = [blank if index is None else index for index in shown]
+    joints = keypoints.shape[1]
+    keypoints = np.concatenate([keypoints, np.full((1, joints, 2), np.nan, np.float32)])[rows]
+    confidence = np.concatenate([confidence, np.zeros((1, joints), np.float32)])[rows]
+    poses = np.concatenate([poses, np.full((1, joints, 3), np.nan, np.float32)])[rows]
+    titles = [f"image {frame}" + (" (no pose)" if index is None else "") for frame, index in zip(frames, shown)]
+    return viz.save_pose_animation(path, poses, skeleton, keypoints, confidence, image_size, titles, fps)
 
 
 def main(argv: Sequence[str] | None = None) -> np.ndarray:

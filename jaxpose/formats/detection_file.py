@@ -49,6 +49,18 @@ class DetectionFile:
 
 
 def read_detections(path: Path) -> DetectionFile:
+    """The poses of `path`, by its kind (`_read_by_kind`); a negative score is refused."""
+    detections = _read_by_kind(path)
+    if detections.scores is not None:
+        with np.errstate(invalid="ignore"):  # NaN scores are the lifter's to report as missing
+            negative = detections.scores < 0
+        if negative.any():
+            pose, joint = np.argwhere(negative)[0]
+            raise ValueError(f"{path}: scores must be >= 0; pose {pose} joint {joint} has {detections.scores[pose, joint]}")
+    return detections
+
+
+def _read_by_kind(path: Path) -> DetectionFile:
     """Dispatch on the path: folder -> OpenPose, .npz, .json (COCO results list or one OpenPose frame)."""
     if not path.exists():
         raise FileNotFoundError(f"input {path} does not exist")
