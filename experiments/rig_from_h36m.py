@@ -33,7 +33,7 @@ from experiments.h36m import first_trials
 from jaxpose.formats.rig_calibration import opencv_rig_from_h36m, read_rig_calibration, write_anipose_toml
 from jaxpose.formats.camera_file import H36M_IMAGE_SIZES
 from jaxpose.datasets.h36m import CAMERA_NAMES, load_h36m
-from jaxpose.rig.project import DETECTIONS_NPZ, GROUND_TRUTH_NPZ
+from jaxpose.formats.rig_folder import DETECTIONS_NPZ, GROUND_TRUTH_NPZ
 
 
 @dataclasses.dataclass(frozen=True)

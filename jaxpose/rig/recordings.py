@@ -1,0 +1,190 @@
+"""A rig project's recordings as read: the recording folders found, each camera's detections read
+(OpenPose JSON frames, COCO results or a ``detections.npz``), the keypoint layout decided, the
+detections brought onto the lifting skeleton, and a recording's ground truth on its instants
+(the folder is described in `jaxpose.rig.project`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from jaxpose.data import ground_truth
+from jaxpose.formats import detections_npz
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats.keypoint_files import CameraDetections, read_camera_detections
+from jaxpose.formats.rig_calibration import RigCalibration, find_calibration
+from jaxpose.formats.rig_folder import DETECTIONS_NPZ, GROUND_TRUTH_NPZ, folder_camera, read_ground_truth
+from jaxpose.layouts import LAYOUTS, infer_layout, layout_joint_names, to_lifting_skeleton
+from jaxpose.rig.sync import SyncEstimate
+from jaxpose.skeleton import DETECTOR_LAYOUTS, Skeleton
+
+MAX_PEOPLE = 4  # detections per camera and frame kept for the choice of person
+
+Views = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
+"""Camera -> (frames int[F], keypoints f32[F, P, J, 2], confidence f32[F, P, J]): up to P people per frame."""
+
+
+@dataclasses.dataclass
+class Recording:
+    """One recording while it is being loaded."""
+
+    name: str
+    folder: pathlib.Path
+    cameras: dict[str, CameraDetections]
+    layout: str
+    npz: detections_npz.MultiViewDetections | None = None
+    calibration: RigCalibration | None = None
+    offsets: dict[str, int] = dataclasses.field(default_factory=dict)
+    sync: SyncEstimate | None = None
+
+
+def recording_folders(root: pathlib.Path, names: Sequence[str] = ()) -> list[pathlib.Path]:
+    """The project's recording folders (sub-folders holding detections), sorted by name."""
+    if not root.is_dir():
+        raise DataFormatError(root, "a rig project folder (one sub-folder per recording)", "no such folder")
+    folders = [
+        folder for folder in sorted(root.iterdir())
+        if folder.is_dir() and not folder.name.startswith(".") and _camera_sources(folder, probe=True)
+    ]  # fmt: skip
+    if names:
+        by_name = {folder.name: folder for folder in folders}
+        unknown = [name for name in names if name not in by_name]
+        if unknown:
+            raise DataFormatError(root, f"recordings {list(names)} (--data.recordings)", f"recordings {sorted(by_name)}; {unknown} missing")
+        folders = [by_name[name] for name in names]
+    if not folders:
+        raise DataFormatError(
+            root,
+            f"recording folders holding {DETECTIONS_NPZ}, camera folders of OpenPose JSON frames or COCO results per camera",
+            f"no such sub-folder (found {sorted(p.name for p in root.iterdir())[:20]})",
+        )
+    return folders
+
+
+def _camera_sources(folder: pathlib.Path, probe: bool = False) -> dict[str, pathlib.Path]:
+    """Camera name -> its detections (a JSON folder or a COCO results file); {DETECTIONS_NPZ: path} for the npz."""
+    if (folder / DETECTIONS_NPZ).is_file():
+        return {DETECTIONS_NPZ: folder / DETECTIONS_NPZ}
+    folders = {
+        folder_camera(entry.name): entry
+        for entry in sorted(folder.iterdir())
+        if entry.is_dir() and not entry.name.startswith(".") and next(entry.glob("*.json"), None) is not None
+    }
+    calibration = None if probe else find_calibration(folder)  # a recording's own camera file is no camera
+    files = {
+        entry.stem: entry for entry in sorted(folder.glob("*.json")) if not entry.name.startswith(".") and entry != calibration
+    }
+    if probe:
+        return folders or files
+    if folders and files:
+        raise DataFormatError(
+            folder,
+            "one kind of detections per recording: camera folders of OpenPose JSON frames, or COCO results files",
+            f"both folders {sorted(folders)} and JSON files {sorted(files)}",
+        )
+    return folders or files
+
+
+def _npz_cameras(detections: detections_npz.MultiViewDetections) -> dict[str, CameraDetections]:
+    """A detections.npz as per-camera detections (one person per frame)."""
+    return {
+        name: CameraDetections(
+            frames=detections.frames,
+            keypoints=detections.keypoints[:, c, None],
+            scores=detections.confidence[:, c, None],
+            people=(detections.confidence[:, c] > 0).any(-1).astype(np.int32),
+            source=f"{detections.source} (camera {name})",
+        )
+        for c, name in enumerate(detections.camera_names)
+    }
+
+
+def _layout(
+    skeleton: str, recording: str, cameras: Mapping[str, CameraDetections], npz: detections_npz.MultiViewDetections | None
+) -> str:
+    """The keypoint layout of one recording's detections (`skeleton`: see `RigProjectConfig.skeleton`)."""
+    if skeleton != "auto":
+        if skeleton not in LAYOUTS:
+            raise ValueError(f"--data.skeleton {skeleton!r}: expected auto or one of {list(LAYOUTS)}")
+        layout = skeleton
+    elif npz is not None and npz.skeleton is not None:
+        layout = npz.skeleton
+    else:
+        counts = {name: detections.values_per_person for name, detections in cameras.items() if detections.keypoints.shape[1]}
+        if len(set(counts.values())) > 1:
+            raise DataFormatError(f"recording {recording}", "the same keypoint count in every camera", f"values per person {counts}")
+        if not counts:
+            raise DataFormatError(f"recording {recording}", "detections in at least one camera", "nobody detected")
+        camera, count = next(iter(counts.items()))
+        layout = infer_layout(count, f"recording {recording}, camera {camera} ({cameras[camera].source})")
+    expected = len(layout_joint_names(layout))
+    for name, detections in cameras.items():
+        if detections.keypoints.shape[1] and detections.keypoints.shape[2] != expected:
+            raise DataFormatError(
+                detections.source, f"{expected} keypoints per person (layout {layout})", f"{detections.keypoints.shape[2]}"
+            )
+    return layout
+
+
+def read_recording(folder: pathlib.Path, skeleton: str, progress: bool) -> Recording:
+    """One recording's detections, per camera, and their layout (`skeleton`: see `RigProjectConfig.skeleton`)."""
+    sources = _camera_sources(folder)
+    npz = None
+    if DETECTIONS_NPZ in sources:
+        npz = detections_npz.read(sources[DETECTIONS_NPZ])
+        cameras = _npz_cameras(npz)
+    else:
+        cameras = {name: read_camera_detections(path, progress=progress) for name, path in sources.items()}
+    if len(cameras) < 2:
+        raise DataFormatError(
+            folder, "detections of at least 2 cameras (multi-view geometry needs two views)", f"cameras {sorted(cameras)}"
+        )
+    layout = _layout(skeleton, folder.name, cameras, npz)
+    return Recording(name=folder.name, folder=folder, cameras=cameras, layout=layout, npz=npz)
+
+
+def lifting_views(recording: Recording, min_confidence: float) -> Views:
+    """The recording's `Views` in the lifting skeleton, scores below `min_confidence` made 0, at most `MAX_PEOPLE` detections per frame (the most confident: a crowd only costs memory), and at
+    least one (a camera that never saw anybody keeps an empty slot)."""
+    views = {}
+    joints = len(layout_joint_names(recording.layout))
+    for name, detections in recording.cameras.items():
+        keypoints, scores = detections.keypoints, detections.scores
+        if keypoints.shape[1] == 0:
+            keypoints, scores = np.zeros((len(keypoints), 1, joints, 2), np.float32), np.zeros((len(keypoints), 1, joints), np.float32)
+        if keypoints.shape[1] > MAX_PEOPLE:
+            order = np.argsort(-np.nan_to_num(scores).sum(-1), axis=1, kind="stable")[:, :MAX_PEOPLE]
+            keypoints = np.take_along_axis(keypoints, order[..., None, None], axis=1)
+            scores = np.take_along_axis(scores, order[..., None], axis=1)
+        keypoints, confidence = to_lifting_skeleton(recording.layout, keypoints, scores)
+        confidence = np.where(confidence >= min_confidence, confidence, 0.0).astype(np.float32)
+        views[name] = (detections.frames, keypoints, confidence)
+    return views
+
+
+def one_person(keypoints: np.ndarray, confidence: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """[..., P, J, 2], [..., P, J] -> the only detection where there is exactly one, else confidence 0:
+    what frame offsets and a recovered rig are estimated from (no choice of person needed)."""
+    detected = (confidence > 0).any(-1)  # [..., P]
+    person = np.argmax(detected, axis=-1)[..., None]
+    chosen = np.take_along_axis(keypoints, person[..., None, None], axis=-3)[..., 0, :, :]
+    chosen_confidence = np.take_along_axis(confidence, person[..., None], axis=-2)[..., 0, :]
+    return chosen, np.where((detected.sum(-1) == 1)[..., None], chosen_confidence, 0.0).astype(np.float32)
+
+
+def ground_truth_on_instants(folder: pathlib.Path, skeleton: Skeleton, layout: str, instants: np.ndarray) -> tuple[np.ndarray | None, int]:
+    """The recording's ground truth on its instants: (f32[N, J, 3] world mm, NaN where unknown, or None; instants with it)."""
+    path = folder / GROUND_TRUTH_NPZ
+    if not path.is_file():
+        return None, 0
+    truth = read_ground_truth(path)
+    root_from = DETECTOR_LAYOUTS[layout].root_from if layout in DETECTOR_LAYOUTS else None
+    matched = ground_truth.on_skeleton(truth.points, truth.joint_names, skeleton, root_from, f"{path}, array 'joint_names'")
+    target = np.full((len(instants), skeleton.num_joints, 3), np.nan, np.float32)
+    _, rows, gt_rows = np.intersect1d(instants, truth.frames, return_indices=True)
+    target[rows] = matched[gt_rows]
+    return target, len(rows)

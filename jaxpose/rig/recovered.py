@@ -1,0 +1,132 @@
+"""The rig recovered from the recordings when a project has no calibration, and the ground truth
+brought into its world.
+
+`jaxpose.calibrate` recovers the rig from the person seen by every camera (the instants where each
+view sees exactly one person), with the image sizes and any intrinsics the recordings'
+detections.npz give.  A recovered rig has its own world frame, so a ground truth in the motion
+capture's world is moved into it for evaluation (`ground_truth_into_recovered_world`).
+"""
+
+from __future__ import annotations
+
+import pathlib
+from collections.abc import Mapping, Sequence
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpose.camera import projection_matrices
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats.rig_calibration import RigCalibration
+from jaxpose.formats.rig_folder import GROUND_TRUTH_NPZ
+from jaxpose.rig.recordings import Recording, one_person
+from jaxpose.skeleton import Skeleton
+
+MIN_ALIGNMENT_POINTS = 50  # ground-truth joints needed to align it with a recovered rig
+
+
+def recover_rig(
+    recordings: Sequence[Recording],
+    aligned: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
+    camera_order: Sequence[str],
+    skeleton: Skeleton,
+    *,
+    image_size: tuple[int, int] | None,
+    max_frames: int,
+    root: pathlib.Path,
+):
+    """`jaxpose.calibrate` on the instants of all recordings (`aligned` by recording name:
+    `jaxpose.rig.timeline.align`), each view's detection where it saw one person, on at most
+    `max_frames` instants; `image_size` (--data.image-size) serves the cameras no detections.npz gives
+    one.  Returns (the rig as a `RigCalibration`, the `jaxpose.calibration.Calibration`)."""
+    from jaxpose.calibration import CalibrationConfig, RigDetections, calibrate  # the calibrate extra
+
+    keypoints, confidence = [], []
+    for recording in recordings:
+        _, candidates, candidate_confidence = aligned[recording.name]
+        single_keypoints, single_confidence = one_person(candidates, candidate_confidence)
+        keypoints.append(single_keypoints)
+        confidence.append(single_confidence)
+    # Per camera, by name from every recording's detections.npz: image size and, where given, intrinsics.
+    known: dict[str, dict[str, np.ndarray]] = {}
+    for recording in recordings:
+        if recording.npz is None:
+            continue
+        given = {key: getattr(recording.npz, key) for key in ("image_size", "K", "dist") if getattr(recording.npz, key) is not None}
+        for index, camera in enumerate(recording.npz.camera_names):
+            known.setdefault(camera, {key: array[index] for key, array in given.items()} | {"model": recording.npz.distortion_model})
+    sizes = []
+    for camera in camera_order:
+        if "image_size" in known.get(camera, {}):
+            sizes.append(np.asarray(known[camera]["image_size"], np.int64))
+        elif image_size is not None:
+            sizes.append(np.asarray(image_size, np.int64))
+        else:
+            raise DataFormatError(
+                root,
+                "a calibration file (project or recording folder, or --data.calibration), or the image size to recover"
+                " the rig (--data.image-size W H, or 'image_size' in detections.npz)",
+                f"no calibration and no image size of camera {camera!r}",
+            )
+    intrinsics = [known.get(camera, {}) for camera in camera_order]
+    given_K = all("K" in fields for fields in intrinsics)
+    given_dist = given_K and all("dist" in fields for fields in intrinsics)
+    detections = RigDetections(
+        keypoints=np.concatenate(keypoints),
+        confidence=np.concatenate(confidence),
+        camera_names=tuple(camera_order),
+        image_size=np.stack(sizes),
+        skeleton=skeleton,
+        K=np.stack([fields["K"] for fields in intrinsics]).astype(np.float64) if given_K else None,
+        dist=np.stack([fields["dist"] for fields in intrinsics]).astype(np.float64) if given_dist else None,
+        distortion_model=intrinsics[0].get("model", "opencv"),
+        source=f"{root} (all recordings)",
+    )
+    calibration = calibrate(detections, CalibrationConfig(max_frames=max_frames))
+    rig = RigCalibration(
+        camera_names=tuple(camera_order),
+        cameras=calibration.cameras.replace(**{name: np.asarray(getattr(calibration.cameras, name), np.float64) for name in ("K", "R", "t")}),
+        image_size=detections.image_size,
+        source="recovered from the recordings by jaxpose.calibrate",
+        unit="mm",
+    )
+    return rig, calibration
+
+
+def _similarity(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """(s, R, t) minimising |s R source + t - target| over corresponding points [M, 3] (Umeyama)."""
+    mean_source, mean_target = source.mean(0), target.mean(0)
+    a, b = source - mean_source, target - mean_target
+    u, singular, vt = np.linalg.svd(b.T @ a / len(a))
+    sign = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+    R = u @ sign @ vt
+    s = float(np.trace(np.diag(singular) @ sign) / a.var(0).sum())
+    return s, R, mean_target - s * R @ mean_source
+
+
+def ground_truth_into_recovered_world(target: np.ndarray, keypoints, confidence, rig: RigCalibration) -> np.ndarray:
+    """Ground truth [N, J, 3] in the motion capture's world, turned into the recovered rig's world.
+
+    A recovered rig has its own world frame (`jaxpose.calibrate`), so the ground truth is moved there
+    by the similarity that maps it best onto the triangulated detections (least squares, then again
+    without the worst 10% of joints); only the rotation and translation are applied, so it keeps
+    its true size: MPJPE then includes the recovered rig's scale error, P-MPJPE does not.
+    """
+    from jaxpose.triangulation import triangulate
+
+    P = jnp.asarray(projection_matrices(rig.cameras.without_distortion()), jnp.float32)
+    points = np.asarray(triangulate(P, jnp.asarray(keypoints), jnp.asarray(confidence), method="normal"))
+    usable = np.isfinite(target).all(-1) & ((confidence > 0).sum(1) >= 2)
+    if usable.sum() < MIN_ALIGNMENT_POINTS:
+        raise DataFormatError(
+            f"{GROUND_TRUTH_NPZ}, array 'frames'",
+            f"at least {MIN_ALIGNMENT_POINTS} joints at frames seen by two or more cameras, to bring the ground truth into"
+            " the recovered rig's frame",
+            f"{int(usable.sum())}: do its frame numbers match the detections'?",
+        )
+    source, destination = target[usable].astype(np.float64), points[usable].astype(np.float64)
+    s, R, t = _similarity(source, destination)
+    residual = np.linalg.norm(s * source @ R.T + t - destination, axis=-1)
+    keep = residual <= np.quantile(residual, 0.9)
+    s, R, t = _similarity(source[keep], destination[keep])
+    return (target @ R.T + t / s).astype(np.float32)
