@@ -10,7 +10,7 @@ One recording per sequence (e.g. "Walking 1"), every frame at 50 fps:
 - `calibration.toml` at the project root (omitted with `--no-calibration`): cameras.h5 of the
   subject in the Anipose / Pose2Sim layout in metres.  Human3.6M's distortion has no exact OpenCV
   equivalent; the closest OpenCV coefficients are written and their largest pixel difference is
-  printed (`jaxpose.formats.rig_calibration.opencv_from_h36m_distortion`).
+  printed (`jaxpose.formats.h36m_cameras.opencv_from_h36m_distortion`).
 
 The development protocol of `experiments.h36m --preset dev` (the first trial of each action trains,
 the other tests, every 5th frame) is then `--data.validation-recordings <the other trials>
@@ -30,8 +30,9 @@ import numpy as np
 import tyro
 
 from experiments.h36m import first_trials
-from jaxpose.formats.rig_calibration import opencv_rig_from_h36m, read_rig_calibration, write_anipose_toml
-from jaxpose.formats.camera_file import H36M_IMAGE_SIZES
+from jaxpose.formats.anipose_toml import write_anipose_toml
+from jaxpose.formats.h36m_cameras import H36M_IMAGE_SIZES, opencv_rig_from_h36m
+from jaxpose.formats.rig_calibration import read_rig_calibration
 from jaxpose.datasets.h36m import CAMERA_NAMES, load_h36m
 from jaxpose.formats.rig_folder import DETECTIONS_NPZ, GROUND_TRUTH_NPZ
 

@@ -27,7 +27,8 @@ from jaxpose.calibration import (
     read_detections_npz,
 )  # fmt: skip
 from jaxpose.camera import Cameras, camera_centres
-from jaxpose.formats.camera_file import H36M_IMAGE_SIZES, read_calibration, save_cameras, select_views
+from jaxpose.formats.camera_file import read_calibration, save_cameras, select_views
+from jaxpose.formats.h36m_cameras import H36M_IMAGE_SIZES
 from jaxpose.datasets.h36m import CAMERA_NAMES, load_h36m
 
 

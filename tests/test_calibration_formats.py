@@ -1,4 +1,5 @@
-"""The calibration files users bring (jaxpose.formats.rig_calibration), and the fisheye lens model.
+"""The calibration files users bring (jaxpose.formats.rig_calibration and the readers and writer it
+dispatches to: anipose_toml, easymocap_yaml, camera_file, h36m_cameras), and the fisheye lens model.
 
 The real files are those of `../shared/data/formats` (their README lists each one's quirks); tests
 that need them skip where that folder is absent.  The fixtures written here mirror the real files'
@@ -22,17 +23,12 @@ from fixtures_real_data import ring_of_cameras
 from scipy.spatial.transform import Rotation
 
 from jaxpose.camera import Cameras, camera_centres, project, undistort_points
-from jaxpose.formats.rig_calibration import (
-    RigCalibration,
-    find_calibration,
-    opencv_from_h36m_distortion,
-    opencv_rig_from_h36m,
-    read_rig_calibration,
-    write_anipose_toml,
-)
-from jaxpose.formats.rig_calibration import _read_easymocap_intrinsics
+from jaxpose.formats.anipose_toml import write_anipose_toml
 from jaxpose.formats.camera_file import save_cameras
+from jaxpose.formats.easymocap_yaml import read_easymocap_intrinsics
 from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats.h36m_cameras import opencv_from_h36m_distortion, opencv_rig_from_h36m
+from jaxpose.formats.rig_calibration import RigCalibration, find_calibration, read_rig_calibration
 from jaxpose.rotations import rotation_from_rodrigues
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
@@ -312,7 +308,7 @@ def test_easymocap_rodrigues_as_a_row_vector_and_wrapped_lists():
 
 def test_easymocap_intrinsics_without_extrinsics_is_refused_clearly():
     folder = real(EASYMOCAP / "easymocap_examples_calibration")
-    names, intrinsics = _read_easymocap_intrinsics(folder / "intri.yml")  # the parser alone reads it
+    names, intrinsics = read_easymocap_intrinsics(folder / "intri.yml")  # the parser alone reads it
     assert names == [str(index) for index in range(1, 9)]
     K = np.array([[909.27224982003611, 0.0, 960.62674039097942], [0.0, 924.44288845626772, 542.93008226872905], [0, 0, 1]])
     np.testing.assert_allclose(intrinsics["1"][0], K, rtol=1e-15)  # wrapped over two lines in the file

@@ -11,16 +11,9 @@ import pytest
 from fixtures_real_data import h36m_cameras, h36m_project, humaneva_cameras, opencv_project, write_h36m_cameras_h5
 from jaxpose.camera import Cameras, project
 from help_text import assert_every_flag_documented
-from jaxpose.formats.camera_file import (
-    H36M_IMAGE_SIZES,
-    convert_h36m_cameras,
-    load_cameras,
-    load_image_sizes,
-    main,
-    read_h36m_cameras,
-    save_cameras,
-)
+from jaxpose.formats.camera_file import convert_h36m_cameras, load_cameras, load_image_sizes, main, save_cameras
 from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats.h36m_cameras import H36M_IMAGE_SIZES, read_h36m_cameras
 
 RNG = np.random.default_rng(7)
 POINTS = np.stack([RNG.uniform(-900, 900, 40), RNG.uniform(-900, 900, 40), RNG.uniform(0, 1800, 40)], axis=-1)

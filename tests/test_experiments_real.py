@@ -13,7 +13,8 @@ import pytest
 from experiments import ablation, cli, h36m, humaneva, mpi_inf_3dhp, paper_tables
 from experiments.config import mocap_calibration, other_training_calibration
 from help_text import assert_every_flag_documented, assert_help_documents_every_field
-from jaxpose.formats.camera_file import load_cameras, read_h36m_cameras, save_cameras
+from jaxpose.formats.camera_file import load_cameras, save_cameras
+from jaxpose.formats.h36m_cameras import read_h36m_cameras
 from jaxpose.datasets.h36m import CAMERA_NAMES
 from fixtures_real_data import HUMANEVA_CAMERA_NAMES, H36M_SUBJECTS, TINY_TRAINING, write_humaneva_files
 from fixtures_real_data import write_h36m_martinez_tree, write_h36m_videopose3d_files

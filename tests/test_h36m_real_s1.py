@@ -19,7 +19,7 @@ from experiments import h36m as h36m_experiment
 from jaxpose import pseudo_labelling
 from jaxpose.camera import project
 from jaxpose.config import PseudoLabelConfig
-from jaxpose.formats.camera_file import read_h36m_cameras
+from jaxpose.formats.h36m_cameras import read_h36m_cameras
 from jaxpose.datasets.h36m import CAMERA_NAMES, load_h36m
 
 S1_DIR = pathlib.Path(__file__).resolve().parents[2] / "shared" / "data" / "h36m_s1"

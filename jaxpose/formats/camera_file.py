@@ -47,33 +47,30 @@ import numpy as np
 import tyro
 
 from jaxpose.camera import Cameras
+from jaxpose.formats import h36m_cameras
+from jaxpose.formats.h36m_cameras import H36M_IMAGE_SIZES
+from jaxpose.formats.calibrated_rig import check_intrinsics, check_rotation
 from jaxpose.formats.errors import DataFormatError
-from jaxpose.formats.files import h5_dataset, open_h5, read_json
+from jaxpose.formats.files import read_json
 
 FORMAT_NAME = "jaxpose-cameras"
 FORMAT_VERSION = 1
 DISTORTION_MODELS = ("opencv", "h36m", "fisheye")
-
-# Video resolution (width, height) of the four Human3.6M cameras; cameras.h5 does not store it.
-H36M_IMAGE_SIZES = {
-    "54138969": (1000, 1002),
-    "55011271": (1000, 1000),
-    "58860488": (1000, 1000),
-    "60457274": (1000, 1002),
-}
+# is_camera_file reads no more of a JSON file than this.
+_HEAD_BYTES = 4096
 
 SubjectCameras = tuple[list[str], Cameras]
 ImageSize = tuple[int, int] | None
 
 
-def load_cameras(path: str | Path) -> dict[str, SubjectCameras]:
-    """Read and validate a camera file: subject -> (camera names, float32 numpy `Cameras` [C]).
+def load_cameras(path: str | Path, dtype: type = np.float32) -> dict[str, SubjectCameras]:
+    """Read and validate a camera file: subject -> (camera names, numpy `Cameras` [C] of `dtype`).
 
-    If any camera of the file has `dist`, the cameras whose `dist` is null get zeros (no
-    distortion) so that every subject's `Cameras` has the same structure.
+    float32 is what the data sets train with; np.float64 keeps the file's values exactly
+    (`read_rig_calibration`).  If any camera of the file has `dist`, the cameras whose `dist` is
+    null get zeros (no distortion) so that every subject's `Cameras` has the same structure.
     """
-    rigs, _ = _parse(read_json(Path(path), "a jaxpose camera file"), Path(path))
-    return {subject: (names, _as_float32(cameras)) for subject, (names, cameras) in rigs.items()}
+    return _parse(read_json(Path(path), "a jaxpose camera file"), Path(path), dtype)[0]
 
 
 def load_image_sizes(path: str | Path) -> dict[str, list[ImageSize]]:
@@ -122,103 +119,36 @@ def save_cameras(
     path.write_text(json.dumps(document, indent=1) + "\n")
 
 
-def read_h36m_cameras(path: str | Path) -> dict[str, SubjectCameras]:
-    """Human3.6M's `cameras.h5` as subject ('S1') -> (camera names, float32 numpy `Cameras` [4]).
-
-    The file stores, per `subject{S}/camera{i}`, a rotation R and the camera centre T with
-    `x_cam = R^T (X - T)` as h5py reads them (docs/conventions.md), so our world-to-camera rotation
-    is R^T and our translation -R^T T.  Distortion uses the "h36m" model, dist = (k1, k2, p[0],
-    p[1], k3).  Cameras are in the file's camera-number order.
-    """
-    return {subject: (names, _as_float32(cameras)) for subject, (names, cameras) in _read_h36m(Path(path)).items()}
-
-
 def read_calibration(path: str | Path) -> dict[str, SubjectCameras]:
-    """A calibration of either kind: a jaxpose camera file (.json) or Human3.6M's cameras.h5."""
+    """A calibration of either kind, float32: a jaxpose camera file (.json) or Human3.6M's cameras.h5."""
     path = Path(path)
-    return load_cameras(path) if path.suffix == ".json" else read_h36m_cameras(path)
+    return load_cameras(path) if path.suffix == ".json" else h36m_cameras.read_h36m_cameras(path)
 
 
 def convert_h36m_cameras(cameras_h5: str | Path, out_json: str | Path) -> None:
     """Convert Human3.6M's `cameras.h5` into a camera file (exact float64 values, known image sizes)."""
-    rigs = _read_h36m(Path(cameras_h5))
+    rigs = h36m_cameras.read_h36m_cameras(cameras_h5, np.float64)
     sizes = {subject: [H36M_IMAGE_SIZES.get(name) for name in names] for subject, (names, _) in rigs.items()}
     save_cameras(out_json, rigs, sizes)
 
 
-def _as_float32(cameras: Cameras) -> Cameras:
-    return cameras.replace(
-        K=cameras.K.astype(np.float32),
-        R=cameras.R.astype(np.float32),
-        t=cameras.t.astype(np.float32),
-        dist=None if cameras.dist is None else cameras.dist.astype(np.float32),
-    )
+def is_camera_file(path: Path) -> bool:
+    """Whether `path` is a jaxpose camera file, from its first bytes: other JSON files, such as a
+    detector's output, are not parsed."""
+    if path.suffix.lower() != ".json":
+        return False
+    try:
+        with path.open("rb") as file:
+            head = file.read(_HEAD_BYTES).decode("utf-8", errors="replace").lstrip("\ufeff \t\r\n")
+    except OSError:
+        return False
+    return head.startswith("{") and re.search(rf'"format"\s*:\s*"{re.escape(FORMAT_NAME)}"', head) is not None
 
 
-def _numbered(group, prefix: str) -> list[tuple[int, str]]:
-    """(number, key) of the members named `<prefix><number>`, by number."""
-    found = ((re.fullmatch(rf"{prefix}(\d+)", key), key) for key in group.keys())
-    return sorted((int(match.group(1)), key) for match, key in found if match)
-
-
-def _read_h36m(path: Path) -> dict[str, SubjectCameras]:
-    """`cameras.h5` in float64 (the converter keeps full precision)."""
-    what = "Human3.6M cameras.h5 with groups subject<S>/camera<i>"
-    sizes = {"R": 9, "T": 3, "f": 2, "c": 2, "k": 3, "p": 2}
-    rigs = {}
-    with open_h5(path, what) as file:
-        subjects = _numbered(file, "subject")
-        if not subjects:
-            raise DataFormatError(path, f"{what}", f"top-level members {sorted(file.keys())}")
-        for number, subject_key in subjects:
-            cameras = _numbered(file[subject_key], "camera")
-            if not cameras:
-                raise DataFormatError(f"{path}:/{subject_key}", "groups camera1..camera4", "no camera groups")
-            names, K, R, t, dist = [], [], [], [], []
-            for _, camera_key in cameras:
-                group = file[subject_key][camera_key]
-                values = {}
-                for field, size in sizes.items():
-                    value = np.asarray(h5_dataset(group, field, path, what), np.float64).reshape(-1)
-                    if value.size != size or not np.all(np.isfinite(value)):
-                        raise DataFormatError(
-                            f"{path}:/{subject_key}/{camera_key}/{field}",
-                            f"{size} finite numbers",
-                            f"shape {value.shape} with values {value[:9].tolist()}",
-                        )
-                    values[field] = value
-                names.append(_camera_name(h5_dataset(group, "Name", path, what), f"{path}:/{subject_key}/{camera_key}/Name"))
-                rotation = values["R"].reshape(3, 3)
-                (fx, fy), (cx, cy) = values["f"], values["c"]
-                K.append([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-                R.append(rotation.T)
-                t.append(-rotation.T @ values["T"])
-                k, p = values["k"], values["p"]
-                dist.append([k[0], k[1], p[0], p[1], k[2]])
-            rigs[f"S{number}"] = (
-                names,
-                Cameras(K=np.array(K), R=np.array(R), t=np.array(t), dist=np.array(dist), distortion_model="h36m"),
-            )
-    return rigs
-
-
-def _camera_name(codes, where: str) -> str:
-    """A camera name stored as character codes.  The real cameras.h5 stores them as float64 [8, 1]
-    (e.g. 53., 52., ... for "54138969"); any numeric dtype is accepted as long as every code is a
-    whole number that is a valid character."""
-    codes = np.asarray(codes).reshape(-1)
-    if codes.dtype.kind not in "biuf" or codes.size == 0:
-        raise DataFormatError(where, "a camera name as character codes (numbers)", f"dtype {codes.dtype}, shape {codes.shape}")
-    valid = np.isfinite(codes) & (codes == np.round(codes)) & (codes >= 32) & (codes < 0x110000)
-    if not np.all(valid):
-        raise DataFormatError(
-            where, "character codes: whole numbers of printable characters", f"{codes.dtype} values {codes[:8].tolist()}"
-        )
-    return "".join(map(chr, codes.astype(np.int64).tolist()))
-
-
-def _parse(document, path: Path) -> tuple[dict[str, SubjectCameras], dict[str, list[ImageSize]]]:
-    """Validate a camera-file document; float64 rigs and image sizes per subject."""
+def _parse(
+    document, path: Path, dtype: type = np.float64
+) -> tuple[dict[str, SubjectCameras], dict[str, list[ImageSize]]]:
+    """Validate a camera-file document; rigs of `dtype` and image sizes per subject."""
     if not isinstance(document, dict) or document.get("format") != FORMAT_NAME:
         found = document.get("format") if isinstance(document, dict) else type(document).__name__
         raise DataFormatError(path, f'a JSON object with "format": "{FORMAT_NAME}"', repr(found))
@@ -239,13 +169,13 @@ def _parse(document, path: Path) -> tuple[dict[str, SubjectCameras], dict[str, l
     for subject, camera_list in entries.items():
         dist = None
         if has_dist:
-            dist = np.array([np.zeros(5) if e["dist"] is None else e["dist"] for e in camera_list])
+            dist = np.array([np.zeros(5) if e["dist"] is None else e["dist"] for e in camera_list], dtype)
         rigs[subject] = (
             [e["name"] for e in camera_list],
             Cameras(
-                K=np.array([e["K"] for e in camera_list]),
-                R=np.array([e["R"] for e in camera_list]),
-                t=np.array([e["t"] for e in camera_list]),
+                K=np.array([e["K"] for e in camera_list], dtype),
+                R=np.array([e["R"] for e in camera_list], dtype),
+                t=np.array([e["t"] for e in camera_list], dtype),
                 dist=dist,
                 distortion_model=model,
             ),
@@ -270,15 +200,9 @@ def _parse_subject(path: Path, subject: str, cameras) -> list[dict]:
         names.add(name)
         where = f"{path}: subject {subject!r}, camera {index} ({name!r})"
         K = _matrix(camera, "K", (3, 3), where)
-        if K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or not np.array_equal(K[2], [0.0, 0.0, 1.0]):
-            raise DataFormatError(
-                f"{where}, field 'K'", "[[fx, skew, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0", str(K.tolist())
-            )
+        check_intrinsics(K, f"{where}, field 'K'")
         R = _matrix(camera, "R", (3, 3), where)
-        if np.abs(R @ R.T - np.eye(3)).max() > 1e-4 or np.linalg.det(R) <= 0:
-            raise DataFormatError(
-                f"{where}, field 'R'", "a rotation matrix (R R^T = I, det R = +1)", str(R.tolist())
-            )
+        check_rotation(R, f"{where}, field 'R'")
         dist = None if camera.get("dist") is None else _matrix(camera, "dist", (5,), where)
         size = camera.get("image_size")
         if size is not None and not (

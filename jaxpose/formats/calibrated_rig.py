@@ -1,0 +1,131 @@
+"""A calibrated rig as any calibration file gives it, and the checks every calibration reader applies.
+
+`RigCalibration` is what `jaxpose.formats.rig_calibration.read_rig_calibration` returns whatever the
+file (`anipose_toml`, `easymocap_yaml`, `camera_file`, `h36m_cameras`); the length units a file may
+be in, the rig-size check that catches a wrong unit, and the intrinsic-matrix and rotation-matrix
+checks live here so that each reader words its errors the same way.
+
+Conventions (docs/conventions.md): `x_cam = R @ x_world + t`, t in millimetres, distortion
+`dist = (k1, k2, p1, p2, k3)` of OpenCV's model, or (k1, k2, k3, k4, 0) of its fisheye model
+(`jaxpose.camera`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import Literal
+
+import numpy as np
+
+from jaxpose.camera import Cameras, camera_centres
+from jaxpose.formats.errors import DataFormatError
+
+__all__ = [
+    "MM_PER_UNIT",
+    "CalibrationUnit",
+    "RigCalibration",
+    "check_intrinsics",
+    "check_rig_size",
+    "check_rotation",
+    "rig_size",
+]
+
+CalibrationUnit = Literal["auto", "m", "cm", "mm"]
+MM_PER_UNIT = {"m": 1000.0, "cm": 10.0, "mm": 1.0}
+# A rig that films people: camera centres at least 10 cm and at most 200 m apart.
+RIG_SIZE_RANGE_MM = (100.0, 200_000.0)
+UNIT_FLAG = "--data.calibration-unit"
+# Written matrices carry few digits: a rotation is accepted when R R^T is this close to I.
+ROTATION_TOLERANCE = 1e-4
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class RigCalibration:
+    """One calibrated rig as read from a file.
+
+    `cameras` holds float64 numpy fields with leading axis [C] in the library's conventions
+    (`x_cam = R @ x_world + t`, t in millimetres; `dist` f64[C, 5] or None; `distortion_model`
+    "opencv", "fisheye" or, from Human3.6M files, "h36m").  `image_size` is int64 [C, 2]
+    (width, height) or None when the file has none; `source` names the file(s) read and `unit`
+    the unit the file was read in ("m", "cm" or "mm").
+    """
+
+    camera_names: tuple[str, ...]
+    cameras: Cameras
+    image_size: np.ndarray | None
+    source: str
+    unit: str
+
+    def select(self, names: Sequence[str], what: str) -> RigCalibration:
+        """The cameras `names`, in that order.
+
+        A name missing from the calibration raises `DataFormatError` naming `self.source`, listing
+        the calibration's camera names and `names`; `what` says where `names` come from (e.g.
+        'detection folders of recording walk1').
+        """
+        names = (names,) if isinstance(names, str) else tuple(str(name) for name in names)
+        if not names:
+            raise DataFormatError(self.source, f"at least one camera name from the {what}", "none")
+        missing = [name for name in names if name not in self.camera_names]
+        if missing:
+            raise DataFormatError(
+                self.source,
+                f"a camera for every name of the {what}: {list(names)}",
+                f"the calibration's cameras {list(self.camera_names)}, which lack {missing}",
+            )
+        repeated = sorted({name for name in names if names.count(name) > 1})
+        if repeated:
+            raise DataFormatError(
+                self.source, f"distinct camera names from the {what}", f"{repeated} more than once in {list(names)}"
+            )
+        index = np.array([self.camera_names.index(name) for name in names], dtype=np.int64)
+        return dataclasses.replace(
+            self,
+            camera_names=names,
+            cameras=self.cameras[index],
+            image_size=None if self.image_size is None else self.image_size[index],
+        )
+
+    def rig_size_mm(self) -> float:
+        """The largest distance between two camera centres, mm (0 for a single camera)."""
+        return rig_size(self.cameras.R, self.cameras.t)
+
+
+def rig_size(R: np.ndarray, t: np.ndarray) -> float:
+    """The largest distance between two camera centres (R [C, 3, 3], t [C, 3]), in the unit of t; 0 for one camera."""
+    centres = camera_centres(R, t)
+    if len(centres) < 2:
+        return 0.0
+    return float(np.linalg.norm(centres[:, None] - centres[None], axis=-1).max())
+
+
+def check_rig_size(source: str, R: np.ndarray, t_mm: np.ndarray, unit: str, resolved_how: str) -> None:
+    """Refuse a rig whose size, in mm, cannot be a rig that films people: the unit must be wrong.
+
+    `unit` is the unit the file was read in and `resolved_how` how it was chosen, both for the
+    message; a single camera is not checked.
+    """
+    if len(t_mm) < 2:
+        return
+    size = rig_size(R, t_mm)
+    low, high = RIG_SIZE_RANGE_MM
+    if not low <= size <= high:
+        raise DataFormatError(
+            source,
+            f"camera centres {low:g} mm to {high / 1000:g} m apart, a rig that films people",
+            f"a rig {size:.6g} mm across when the file is read in {unit!r} ({resolved_how}); if the file is "
+            f"in another unit, say which with {UNIT_FLAG} m|cm|mm",
+        )
+
+
+def check_intrinsics(K: np.ndarray, where: str) -> None:
+    """Refuse a 3x3 `K` that is not [[fx, skew, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0."""
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or not np.array_equal(K[2], [0.0, 0.0, 1.0]):
+        raise DataFormatError(where, "[[fx, skew, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0", str(K.tolist()))
+
+
+def check_rotation(matrix: np.ndarray, where: str) -> None:
+    """Refuse a 3x3 matrix that is not a rotation to `ROTATION_TOLERANCE` (R R^T = I, det R = +1)."""
+    if np.abs(matrix @ matrix.T - np.eye(3)).max() > ROTATION_TOLERANCE or np.linalg.det(matrix) <= 0:
+        raise DataFormatError(where, "a rotation matrix (R R^T = I, det R = +1)", str(matrix.tolist()))
