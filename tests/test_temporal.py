@@ -258,6 +258,7 @@ def test_cli_follows_one_person_through_an_openpose_folder(temporal_run, tmp_pat
         document = {"version": 1.3, "people": [{"pose_keypoints_2d": p.ravel().tolist()} for p in people]}
         (folder / f"clip_{frame:012d}_keypoints.json").write_text(json.dumps(document))
     args = ["--checkpoint", temporal_run, "--input", folder, "--output", tmp_path / "poses.npz", "--intrinsics", "1000", "1000", "500", "500"]
+    args += ["--format", "body25"]  # 75 values per person: BODY_25 or BODY_25B, which the count cannot tell apart
     poses = predict.main([str(a) for a in args])
     assert poses.shape == (6, 17, 3)  # five followed poses and the bystander, in file order
     assert np.isnan(poses[2]).all() and np.isfinite(np.delete(poses, 2, 0)).all()
