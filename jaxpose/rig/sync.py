@@ -33,7 +33,10 @@ import dataclasses
 import itertools
 import warnings
 
+import jax.numpy as jnp
 import numpy as np
+
+from jaxpose.triangulation import triangulate
 
 MIN_CORRESPONDENCES = 50
 CLIP_PX = 20.0
@@ -53,6 +56,17 @@ class SyncEstimate:
     reliable: bool
     """Whether every curve's best offset clearly beats those two or more frames away (by `RELIABLE_MARGIN`):
     a person who moves enough for the frames to be told apart."""
+
+
+@dataclasses.dataclass(frozen=True)
+class _Track:
+    """One camera's detections of the person: its own frame numbers int[F], keypoints f[F, J, 2]
+    (undistorted pixels), and bool[F, J] which of them are detected (`valid`) and move (`moving`)."""
+
+    frames: np.ndarray
+    keypoints: np.ndarray
+    valid: np.ndarray
+    moving: np.ndarray
 
 
 def fundamental_from_projections(P_a: np.ndarray, P_b: np.ndarray) -> np.ndarray:
@@ -102,25 +116,22 @@ def _image_speed(frames: np.ndarray, keypoints: np.ndarray, valid: np.ndarray, r
         return np.nan_to_num(np.nanmedian(estimates, axis=0), nan=0.0)
 
 
-def _correspondences(frames_a, keypoints_a, moving_a, frames_b, keypoints_b, valid_b, shift: int, limit: int, rng):
+def _correspondences(a: _Track, b: _Track, shift: int, limit: int, rng) -> tuple[np.ndarray, np.ndarray]:
     """Moving joints of camera a's frame f seen in camera b's frame f + shift: ([M, 2], [M, 2])."""
-    _, index_a, index_b = np.intersect1d(frames_a + shift, frames_b, assume_unique=True, return_indices=True)
-    both = moving_a[index_a] & valid_b[index_b]  # [n, J]
+    _, index_a, index_b = np.intersect1d(a.frames + shift, b.frames, assume_unique=True, return_indices=True)
+    both = a.moving[index_a] & b.valid[index_b]  # [n, J]
     frame, joint = np.nonzero(both)
     if len(frame) > limit:
         keep = np.sort(rng.choice(len(frame), limit, replace=False))
         frame, joint = frame[keep], joint[keep]
-    return keypoints_a[index_a[frame], joint].astype(np.float64), keypoints_b[index_b[frame], joint].astype(np.float64)
+    return a.keypoints[index_a[frame], joint].astype(np.float64), b.keypoints[index_b[frame], joint].astype(np.float64)
 
 
-def _moving_detections(frames, keypoints, valid) -> list[np.ndarray]:
-    """bool[F, J] per camera: the detections at least as fast in the image as the camera's median one."""
-    moving = []
-    for camera_frames, camera_keypoints, camera_valid in zip(frames, keypoints, valid):
-        speed = _image_speed(camera_frames, camera_keypoints, camera_valid)
-        threshold = np.median(speed[speed > 0]) if (speed > 0).any() else np.inf
-        moving.append(camera_valid & (speed >= threshold))
-    return moving
+def _track(frames: np.ndarray, keypoints: np.ndarray, valid: np.ndarray) -> _Track:
+    """A camera's track; its moving detections are those at least as fast in the image as its median one."""
+    speed = _image_speed(frames, keypoints, valid)
+    threshold = np.median(speed[speed > 0]) if (speed > 0).any() else np.inf
+    return _Track(frames=frames, keypoints=keypoints, valid=valid, moving=valid & (speed >= threshold))
 
 
 def _reliability(scores: np.ndarray) -> float:
@@ -152,25 +163,21 @@ def estimate_offsets(
     to fit a fundamental matrix per pair and offset.  At most `max_instants` instants (evenly spread)
     are scored.
     """
-    valid = [(c > min_confidence) & np.isfinite(k).all(-1) for c, k in zip(confidence, keypoints)]
-    moving = _moving_detections(frames, keypoints, valid)
+    tracks = [
+        _track(f, k, (c > min_confidence) & np.isfinite(k).all(-1)) for f, k, c in zip(frames, keypoints, confidence)
+    ]  # fmt: skip
     shifts = np.arange(-max_offset, max_offset + 1)
     if projections is not None and len(frames) >= 3:
-        return _offsets_by_triangulation(frames, keypoints, valid, moving, projections, shifts, max_instants)
+        return _offsets_by_triangulation(tracks, projections, shifts, max_instants)
     # Two cameras (nothing to triangulate the left-out one from) or no calibration: epipolar lines.
-    return _offsets_by_epipolar_fit(frames, keypoints, valid, moving, shifts, 20000, seed, projections)
+    return _offsets_by_epipolar_fit(tracks, shifts, 20000, seed, projections)
 
 
-def _offsets_by_triangulation(frames, keypoints, valid, moving, projections, shifts, max_instants) -> SyncEstimate:
-    import jax.numpy as jnp
-
-    from jaxpose.triangulation import triangulate
-
-    C, J = len(frames), keypoints[0].shape[1]
+def _offsets_by_triangulation(tracks: list[_Track], projections: np.ndarray, shifts: np.ndarray, max_instants: int) -> SyncEstimate:
+    C = len(tracks)
     offsets = np.zeros(C, np.int64)
     for _ in range(C + 1):
-        scores = {str(c): _camera_curve(c, frames, keypoints, valid, moving, projections, offsets, shifts, max_instants, triangulate, jnp)
-                  for c in range(C)}  # fmt: skip
+        scores = {str(c): _camera_curve(c, tracks, projections, offsets, shifts, max_instants) for c in range(C)}
         # Move only the camera that gains most, then look again: the others' curves were measured
         # against a triangulation that the out-of-sync camera still spoiled.
         gains = np.array([_gain(scores[str(c)], shifts, offsets[c]) for c in range(C)])
@@ -190,17 +197,19 @@ def _gain(curve: np.ndarray, shifts: np.ndarray, current: int) -> float:
     return float(at_current / np.min(curve) - 1.0) if np.isfinite(at_current) else float(np.inf)
 
 
-def _camera_curve(c, frames, keypoints, valid, moving, projections, offsets, shifts, max_instants, triangulate, jnp) -> np.ndarray:
+def _camera_curve(
+    c: int, tracks: list[_Track], projections: np.ndarray, offsets: np.ndarray, shifts: np.ndarray, max_instants: int
+) -> np.ndarray:
     """Camera c's mean clipped distance (px) to the other cameras' triangulation at each offset in `shifts`."""
-    C, J = len(frames), keypoints[0].shape[1]
+    C, J = len(tracks), tracks[0].keypoints.shape[1]
     others = [v for v in range(C) if v != c]
-    instants = np.unique(np.concatenate([frames[v] + offsets[v] for v in others]))
+    instants = np.unique(np.concatenate([tracks[v].frames + offsets[v] for v in others]))
     instants = instants[np.linspace(0, len(instants) - 1, min(max_instants, len(instants))).round().astype(int)]
     points = np.zeros((len(instants), len(others), J, 2))
     weights = np.zeros((len(instants), len(others), J))
     for slot, v in enumerate(others):
-        _, rows, own = np.intersect1d(instants, frames[v] + offsets[v], assume_unique=True, return_indices=True)
-        points[rows, slot], weights[rows, slot] = keypoints[v][own], valid[v][own]
+        _, rows, own = np.intersect1d(instants, tracks[v].frames + offsets[v], assume_unique=True, return_indices=True)
+        points[rows, slot], weights[rows, slot] = tracks[v].keypoints[own], tracks[v].valid[own]
     seen = weights.sum(1) >= 2  # [n, J] triangulable without camera c
     X = np.asarray(triangulate(jnp.asarray(projections[others], jnp.float32), jnp.asarray(points, jnp.float32),
                                jnp.asarray(weights * seen[:, None], jnp.float32), method="svd"))  # fmt: skip
@@ -210,24 +219,24 @@ def _camera_curve(c, frames, keypoints, valid, moving, projections, offsets, shi
     curve = np.full(len(shifts), np.inf)
     for i, shift in enumerate(shifts):
         # With offset `shift`, camera c's frame f shows instant f + shift.
-        _, rows, own = np.intersect1d(instants, frames[c] + shift, assume_unique=True, return_indices=True)
-        use = moving[c][own] & seen[rows] & (projected[rows, :, 2] > 0)
+        _, rows, own = np.intersect1d(instants, tracks[c].frames + shift, assume_unique=True, return_indices=True)
+        use = tracks[c].moving[own] & seen[rows] & (projected[rows, :, 2] > 0)
         if use.sum() >= MIN_CORRESPONDENCES:
-            distance = np.linalg.norm(pixels[rows] - keypoints[c][own], axis=-1)
+            distance = np.linalg.norm(pixels[rows] - tracks[c].keypoints[own], axis=-1)
             curve[i] = np.minimum(distance[use], CLIP_PX).mean()
     return curve
 
 
-def _offsets_by_epipolar_fit(frames, keypoints, valid, moving, shifts, max_correspondences, seed, projections=None) -> SyncEstimate:
-    C = len(frames)
+def _offsets_by_epipolar_fit(
+    tracks: list[_Track], shifts: np.ndarray, max_correspondences: int, seed: int, projections: np.ndarray | None
+) -> SyncEstimate:
+    C = len(tracks)
     rng = np.random.default_rng(seed)
     scores, pair_offsets, weights = {}, {}, {}
     for a, b in itertools.combinations(range(C), 2):
         curve = np.full(len(shifts), np.inf)
         for i, shift in enumerate(shifts):
-            points_a, points_b = _correspondences(
-                frames[a], keypoints[a], moving[a], frames[b], keypoints[b], valid[b], int(shift), max_correspondences, rng
-            )
+            points_a, points_b = _correspondences(tracks[a], tracks[b], int(shift), max_correspondences, rng)
             if len(points_a) < MIN_CORRESPONDENCES:
                 continue
             F = _fitted_fundamental(points_a, points_b, seed) if projections is None else fundamental_from_projections(projections[a], projections[b])
