@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxpose.formats import keypoint_files
+from jaxpose.formats import fast_json, keypoint_files
 
 ROOT = Path(__file__).resolve().parents[1]
 EMPTY_PARTS = ("face_keypoints_2d", "hand_left_keypoints_2d", "hand_right_keypoints_2d", "pose_keypoints_3d",
@@ -59,14 +59,14 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "benchmarks" / "keypoint_files.json")
     args = parser.parse_args()
     cores = os.cpu_count()
-    orjson_loads = keypoint_files._fast_loads
+    orjson_loads = fast_json.orjson_loads
 
     def sequential_stdlib(folder: Path):
-        keypoint_files._fast_loads = None  # the fork of a later pool would inherit it: restored below
+        fast_json.orjson_loads = None  # the fork of a later pool would inherit it: restored below
         try:
             return keypoint_files.read_openpose_folder(folder, progress=False, workers=1)
         finally:
-            keypoint_files._fast_loads = orjson_loads
+            fast_json.orjson_loads = orjson_loads
 
     with tempfile.TemporaryDirectory(prefix="keypoint_files_benchmark_") as scratch:
         folder = Path(scratch) / "cam01_json"

@@ -1,5 +1,5 @@
-"""Per-camera 2D detection files (`jaxpose.formats.keypoint_files`): the real samples as they are, the
-refusals, frame numbers, the process pool and the cache."""
+"""Per-camera 2D detection files (`jaxpose.formats.keypoint_files`, COCO files parsed by `coco_results`):
+the real samples as they are, the refusals, frame numbers, the process pool and the cache (`file_cache`)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from jaxpose.formats import coco_results, file_cache
 from jaxpose.formats import keypoint_files as kf
 from jaxpose.formats.errors import DataFormatError
 
@@ -146,7 +147,7 @@ def test_alphapose_results():
         values = np.reshape(entry["keypoints"], (17, 3))
         np.testing.assert_allclose(detections.keypoints[0, person], values[:, :2], rtol=1e-6)
         np.testing.assert_allclose(detections.scores[0, person], values[:, 2], rtol=1e-6)
-    image_ids, keypoints = kf.load_coco_entries(ALPHAPOSE)
+    image_ids, keypoints = coco_results.load_coco_entries(ALPHAPOSE)
     assert image_ids == ["out-002.jpg"] * 13 and keypoints.shape == (13, 17, 3)
 
 
@@ -372,7 +373,7 @@ def test_progress_bar(tmp_path, capsys):
 
 
 def _cache_file(folder: Path) -> Path:
-    return folder.parent / kf.CACHE_DIR / f"{folder.name}.npz"
+    return folder.parent / file_cache.CACHE_DIR / f"{folder.name}.npz"
 
 
 def _no_parsing(monkeypatch) -> None:
@@ -400,7 +401,7 @@ def test_cache_is_reused_and_rebuilt_when_files_change(tmp_path, monkeypatch, ca
     def changed(change) -> kf.CameraDetections:
         change()
         caplog.clear()
-        with caplog.at_level("INFO", logger=kf.__name__):
+        with caplog.at_level("INFO", logger=file_cache.__name__):
             result = kf.read_camera_detections(folder, progress=False)
         assert "changed since" in caplog.text and "reading it again" in caplog.text
         return result
@@ -423,7 +424,7 @@ def test_cache_of_a_coco_file(tmp_path, monkeypatch):
     people = random_people(np.random.default_rng(2), 2, joints=17)
     path.write_text(json.dumps([coco_entry(5, people[0]), coco_entry("x-6.png", people[1])]))
     first = kf.read_camera_detections(path)
-    assert (tmp_path / kf.CACHE_DIR / "cam01.json.npz").is_file()
+    assert (tmp_path / file_cache.CACHE_DIR / "cam01.json.npz").is_file()
     with monkeypatch.context() as patch:
         _no_parsing(patch)
         check_matches(kf.read_camera_detections(path), {5: [people[0]], 6: [people[1]]})
@@ -458,7 +459,7 @@ def test_cache_with_wrong_arrays_is_ignored(tmp_path):
 def test_unwritable_cache_is_a_warning(tmp_path):
     folder = tmp_path / "cam"
     written = write_folder(folder, [1])
-    (tmp_path / kf.CACHE_DIR).write_text("a file where the cache folder should be")
+    (tmp_path / file_cache.CACHE_DIR).write_text("a file where the cache folder should be")
     with pytest.warns(UserWarning, match="could not write the cache"):
         check_matches(kf.read_camera_detections(folder, progress=False), written)
 
@@ -474,7 +475,7 @@ def test_interrupted_cache_write_leaves_no_cache(tmp_path, monkeypatch):
     monkeypatch.setattr(np, "savez", interrupted)
     with pytest.warns(UserWarning, match="No space left on device"):
         check_matches(kf.read_camera_detections(folder, progress=False), written)
-    assert list((tmp_path / kf.CACHE_DIR).iterdir()) == []
+    assert list((tmp_path / file_cache.CACHE_DIR).iterdir()) == []
 
 
 def test_frames_without_people(tmp_path):

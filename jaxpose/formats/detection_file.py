@@ -10,7 +10,7 @@ The kind is told by the path:
 - ``.npz`` with ``keypoints`` [N, J, 2] px and optionally ``confidence`` [N, J], ``image_id`` [N] and
   ``K`` [N, 3, 3] (one camera per pose).
 
-The JSON files are parsed by `jaxpose.formats.keypoint_files`, the one parser of each format; this
+The JSON files are parsed by `jaxpose.formats.keypoint_files` and `coco_results`, one parser per format; this
 module only lays their poses out a row each.  Which joint layout the keypoints are in is the reader's
 caller's to decide (`jaxpose.layouts`): a detector's JSON says it by its keypoint count alone, an
 ``.npz`` not at all.
@@ -25,7 +25,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from jaxpose.formats import keypoint_files
+from jaxpose.formats import coco_results, keypoint_files
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,7 +84,7 @@ def _from_rows(
 
 def _read_coco(path: Path) -> DetectionFile:
     """COCO keypoint results: one pose per entry, in file order, the image ids as written."""
-    image_ids, rows = keypoint_files.load_coco_entries(path)
+    image_ids, rows = coco_results.load_coco_entries(path)
     return _from_rows("coco", rows, image_ids, path)
 
 

@@ -19,7 +19,7 @@ non-finite value, is stored as 0, 0 with score 0.  Malformed input raises `DataF
 file and the field, before anything is returned.
 
 Folders of many files are parsed by a process pool (`read_openpose_folder`), with orjson when it is
-importable (about 2x faster than the stdlib json on compact frames; never required).  The results of
+importable (`jaxpose.formats.fast_json`); COCO files by `jaxpose.formats.coco_results`.  The results of
 `read_camera_detections` are cached beside the input, in ``.jaxpose_cache/<name>.npz`` in the folder that
 holds the camera folder or results file, keyed by the input files' names, sizes and modification times;
 see benchmarks/README.md for the speeds.
@@ -29,36 +29,23 @@ from __future__ import annotations
 
 import concurrent.futures
 import dataclasses
-import hashlib
-import json
-import logging
 import multiprocessing
 import os
 import re
-import tempfile
 import warnings
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from tqdm.auto import tqdm
 
+from jaxpose.formats import coco_results, fast_json, file_cache
 from jaxpose.formats.errors import DataFormatError
 
-try:  # optional fast path: same results, about twice as fast on compact frames
-    import orjson
-
-    _fast_loads = orjson.loads
-except ImportError:  # pragma: no cover - depends on the environment
-    _fast_loads = None
-
-logger = logging.getLogger(__name__)
-
 OPENPOSE_SUFFIX = "_keypoints.json"
-CACHE_DIR = ".jaxpose_cache"
 CACHE_VERSION = 1
-"""Part of every cache key: bump it when the cached arrays change meaning."""
+"""Part of every cache key (`jaxpose.formats.file_cache`): bump it when the cached arrays change meaning."""
 CHUNK_FILES = 256
 """Files per pool task."""
 POOL_MIN_FILES = 2000
@@ -155,16 +142,6 @@ def _numbered(folder: Path, entries: list[os.DirEntry]) -> list[tuple[int, os.Di
 # Parsing (pure functions of file contents; the pool runs `_parse_chunk`)
 
 
-def _loads(data: bytes) -> Any:
-    """Parse JSON with orjson when available; the stdlib decides (and words the error) when orjson refuses."""
-    if _fast_loads is not None:
-        try:
-            return _fast_loads(data)
-        except ValueError:  # orjson refuses NaN / Infinity, which the stdlib accepts
-            pass
-    return json.loads(data)
-
-
 def _person_values(person: Any, index: int) -> list:
     """One person's ``pose_keypoints_2d`` list; raises _FieldError with the reason."""
     field = f"people[{index}].pose_keypoints_2d"
@@ -195,7 +172,7 @@ def _parse_chunk(paths: Sequence[str]) -> tuple:
         except OSError as error:
             return "error", path, "a readable OpenPose JSON frame", f"{type(error).__name__}: {error.strerror}"
         try:
-            frame = _loads(data)
+            frame = fast_json.loads(data)
         except ValueError as error:  # json.JSONDecodeError and UnicodeDecodeError are ValueErrors
             return "error", path, _FRAME_EXPECTED, f"invalid JSON: {error}"
         if not isinstance(frame, dict) or not isinstance(frame.get("people"), list):
@@ -223,7 +200,7 @@ def _first_non_numeric(paths: Sequence[str]) -> tuple:
     """The error of the first file whose keypoints are not all numbers (the slow path of a bad chunk)."""
     for path in paths:
         with open(path, "rb") as file:
-            frame = _loads(file.read())
+            frame = fast_json.loads(file.read())
         for index, person in enumerate(frame["people"]):
             bad = [v for v in person["pose_keypoints_2d"] if v is not None and not isinstance(v, int | float)]
             if bad:
@@ -339,53 +316,6 @@ def read_openpose_frames(
 # COCO keypoint results
 
 
-def load_coco_entries(path: str | Path) -> tuple[list[Any], np.ndarray]:
-    """The entries of a COCO keypoint-results file in file order: (image ids as written, f32[N, J, 3]).
-
-    Each entry must be an object with ``image_id`` (int or string) and ``keypoints`` ([x, y, score] * J,
-    the same J for all); other keys (``score`` above 1, AlphaPose's ``box`` and ``idx``) are ignored.
-    """
-    path = Path(path)
-    expected = 'a COCO keypoint-results list [{"image_id": ..., "keypoints": [x, y, score, ...]}, ...]'
-    try:
-        entries = _loads(path.read_bytes())
-    except OSError as error:
-        raise DataFormatError(path, expected, f"{type(error).__name__}: {error.strerror}") from None
-    except ValueError as error:
-        raise DataFormatError(path, expected, f"invalid JSON: {error}") from None
-    if not isinstance(entries, list):
-        found = f"a JSON {type(entries).__name__}" + (f" (keys: {sorted(entries)[:8]})" if isinstance(entries, dict) else "")
-        raise DataFormatError(path, expected, found)
-    image_ids, flat, length = [], [], None
-    for index, entry in enumerate(entries):
-        if not isinstance(entry, dict) or "image_id" not in entry or "keypoints" not in entry:
-            found = f"entry {index} is " + (
-                f"an object without 'image_id' or 'keypoints' (keys: {sorted(entry)})"
-                if isinstance(entry, dict) else f"a {type(entry).__name__}")  # fmt: skip
-            raise DataFormatError(path, expected, found)
-        image_id, values = entry["image_id"], entry["keypoints"]
-        if isinstance(image_id, bool) or not isinstance(image_id, int | str):
-            raise DataFormatError(path, "image_id an integer or a file-name string", f"entry {index}: {image_id!r}")
-        if not isinstance(values, list) or not values or len(values) % 3:
-            found = f"{len(values)} values" if isinstance(values, list) else f"a {type(values).__name__}"
-            raise DataFormatError(path, "keypoints a list of [x, y, score] * J values", f"entry {index}: {found}")
-        if length is None:
-            length = len(values)
-        elif len(values) != length:
-            raise DataFormatError(
-                path, f"keypoints of the same length in every entry ({length} in entry 0)",
-                f"{len(values)} values in entry {index} (image_id {image_id!r})",
-            )  # fmt: skip
-        image_ids.append(image_id)
-        flat.append(values)
-    try:
-        keypoints = np.array(flat, np.float32).reshape(len(flat), (length or 0) // 3, 3)
-    except (TypeError, ValueError):
-        index = next(i for i, v in enumerate(flat) if not all(x is None or isinstance(x, int | float) for x in v))
-        raise DataFormatError(path, "numbers in keypoints", f"entry {index}: {flat[index][:6]}...") from None
-    return image_ids, keypoints
-
-
 def image_frame_number(image_id: int | str) -> int:
     """The frame number of a COCO image_id: the int itself, or the last digit run of a file-name string
     with its extension removed (``"out-002.jpg"`` -> 2)."""
@@ -400,7 +330,7 @@ def image_frame_number(image_id: int | str) -> int:
 
 def read_coco_results(path: str | Path) -> CameraDetections:
     """Read a COCO keypoint-results file as `CameraDetections`: entries grouped by frame, in file order."""
-    image_ids, keypoints = load_coco_entries(path)
+    image_ids, keypoints = coco_results.load_coco_entries(path)
     numbers: dict[Any, int] = {}
     named: dict[int, Any] = {}
     for image_id in dict.fromkeys(image_ids):
@@ -422,7 +352,7 @@ def read_coco_results(path: str | Path) -> CameraDetections:
 
 
 # ---------------------------------------------------------------------------------------------
-# Dispatch and cache
+# Dispatch and cache (`jaxpose.formats.file_cache`)
 
 
 def read_camera_detections(path: str | Path, progress: bool = True, cache: bool = True) -> CameraDetections:
@@ -453,13 +383,14 @@ def read_camera_detections(path: str | Path, progress: bool = True, cache: bool 
         raise DataFormatError(path, "a folder of OpenPose JSON frames or a COCO keypoint-results .json file", found)
     if not cache:
         return parse()
-    key = _cache_key(stats)
-    cache_file = path.parent / CACHE_DIR / f"{path.name}.npz"
-    cached = _load_cache(cache_file, key, str(path))
+    key = file_cache.cache_key(f"jaxpose keypoint cache v{CACHE_VERSION}", stats)
+    cache_file = file_cache.cache_file(path)
+    cached = file_cache.load(cache_file, key, str(path), lambda arrays: _from_arrays(arrays, str(path)))
     if cached is not None:
         return cached
     detections = parse()
-    _save_cache(cache_file, key, detections)
+    arrays = {field: getattr(detections, field) for field in ("frames", "keypoints", "scores", "people")}
+    file_cache.save(cache_file, key, detections.source, arrays)
     return detections
 
 
@@ -470,53 +401,14 @@ def is_openpose_frame_file(path: str | Path) -> bool:
     return start.startswith(b"{")
 
 
-def _cache_key(stats: Iterable[tuple[str, os.stat_result]]) -> str:
-    digest = hashlib.sha256(f"jaxpose keypoint cache v{CACHE_VERSION}\n".encode())
-    for name, stat in sorted(stats, key=lambda item: item[0]):
-        digest.update(f"{name}\t{stat.st_size}\t{stat.st_mtime_ns}\n".encode())
-    return digest.hexdigest()
-
-
-def _load_cache(cache_file: Path, key: str, source: str) -> CameraDetections | None:
-    if not cache_file.exists():
-        return None
-    try:
-        with np.load(cache_file, allow_pickle=False) as data:
-            if str(data["key"]) != key or int(data["version"]) != CACHE_VERSION:
-                logger.info("%s changed since %s was written: reading it again", source, cache_file)
-                return None
-            detections = CameraDetections(
-                np.asarray(data["frames"], np.int64), np.asarray(data["keypoints"], np.float32),
-                np.asarray(data["scores"], np.float32), np.asarray(data["people"], np.int32), source,
-            )  # fmt: skip
-        frames, people = len(detections.frames), detections.keypoints.shape[1]
-        if (detections.scores.shape != detections.keypoints.shape[:3] or detections.keypoints.shape[-1] != 2
-                or detections.people.shape != (frames,) or (detections.people > people).any()):  # fmt: skip
-            raise ValueError(f"inconsistent shapes {detections.keypoints.shape}, {detections.scores.shape}")
-    except Exception as error:  # noqa: BLE001 - any unreadable cache is only a missed shortcut
-        warnings.warn(f"ignoring the unreadable cache {cache_file} ({type(error).__name__}: {error})", stacklevel=3)
-        return None
-    logger.info("read %s from the cache %s", source, cache_file)
+def _from_arrays(arrays, source: str) -> CameraDetections:
+    """The detections of a cache's arrays; a ValueError where their shapes disagree."""
+    detections = CameraDetections(
+        np.asarray(arrays["frames"], np.int64), np.asarray(arrays["keypoints"], np.float32),
+        np.asarray(arrays["scores"], np.float32), np.asarray(arrays["people"], np.int32), source,
+    )  # fmt: skip
+    frames, people = len(detections.frames), detections.keypoints.shape[1]
+    if (detections.scores.shape != detections.keypoints.shape[:3] or detections.keypoints.shape[-1] != 2
+            or detections.people.shape != (frames,) or (detections.people > people).any()):  # fmt: skip
+        raise ValueError(f"inconsistent shapes {detections.keypoints.shape}, {detections.scores.shape}")
     return detections
-
-
-def _save_cache(cache_file: Path, key: str, detections: CameraDetections) -> None:
-    temporary = None
-    try:
-        cache_file.parent.mkdir(exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=cache_file.parent, prefix=cache_file.name, suffix=".tmp",
-                                         delete=False) as file:  # fmt: skip
-            temporary = file.name
-            np.savez(
-                file, key=np.str_(key), version=np.int64(CACHE_VERSION), frames=detections.frames,
-                keypoints=detections.keypoints, scores=detections.scores, people=detections.people,
-            )  # fmt: skip
-        os.replace(temporary, cache_file)
-        logger.info("cached %s as %s", detections.source, cache_file)
-    except OSError as error:
-        warnings.warn(f"could not write the cache {cache_file} ({error}); reading without it", stacklevel=3)
-        if temporary is not None:
-            try:
-                os.unlink(temporary)
-            except OSError:
-                pass

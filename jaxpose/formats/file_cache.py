@@ -1,0 +1,75 @@
+"""Parsed input files kept beside them as arrays, in ``.jaxpose_cache/<name>.npz``, reused while unchanged.
+
+The key digests what was cached (a label that carries its version) and the input files' names, sizes and
+modification times: a file added, removed or modified, or a cache of another kind or version, is a miss.
+A cache that cannot be read or written is only a missed shortcut: a warning, never an error.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import tempfile
+import warnings
+from collections.abc import Callable, Iterable, Mapping
+from pathlib import Path
+from typing import TypeVar
+
+import numpy as np
+
+logger = logging.getLogger(__name__)
+
+CACHE_DIR = ".jaxpose_cache"
+
+_Parsed = TypeVar("_Parsed")
+
+
+def cache_file(path: Path) -> Path:
+    """Where the cache of the input file or folder `path` lives: beside it, in `CACHE_DIR`."""
+    return path.parent / CACHE_DIR / f"{path.name}.npz"
+
+
+def cache_key(label: str, stats: Iterable[tuple[str, os.stat_result]]) -> str:
+    """The key of a cache of `label` for input files of these (name, stat) pairs, in any order."""
+    digest = hashlib.sha256(f"{label}\n".encode())
+    for name, stat in sorted(stats, key=lambda item: item[0]):
+        digest.update(f"{name}\t{stat.st_size}\t{stat.st_mtime_ns}\n".encode())
+    return digest.hexdigest()
+
+
+def load(path: Path, key: str, source: str, build: Callable[[Mapping[str, np.ndarray]], _Parsed]) -> _Parsed | None:
+    """`build(arrays)` of the cache `path` of `source` where its key is `key`; None where there is none, it
+    is stale, or it cannot be read (or `build` refuses its arrays, with any exception), with a warning."""
+    if not path.exists():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if str(data["key"]) != key:
+                logger.info("%s changed since %s was written: reading it again", source, path)
+                return None
+            parsed = build(data)
+    except Exception as error:  # noqa: BLE001 - any unreadable cache is only a missed shortcut
+        warnings.warn(f"ignoring the unreadable cache {path} ({type(error).__name__}: {error})", stacklevel=3)
+        return None
+    logger.info("read %s from the cache %s", source, path)
+    return parsed
+
+
+def save(path: Path, key: str, source: str, arrays: Mapping[str, np.ndarray]) -> None:
+    """Write `arrays` of `source` as the cache `path` with its `key`, whole or not at all (a warning)."""
+    temporary = None
+    try:
+        path.parent.mkdir(exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=path.name, suffix=".tmp", delete=False) as file:
+            temporary = file.name
+            np.savez(file, key=np.str_(key), **arrays)
+        os.replace(temporary, path)
+        logger.info("cached %s as %s", source, path)
+    except OSError as error:
+        warnings.warn(f"could not write the cache {path} ({error}); reading without it", stacklevel=3)
+        if temporary is not None:
+            try:
+                os.unlink(temporary)
+            except OSError:
+                pass
