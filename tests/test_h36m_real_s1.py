@@ -17,7 +17,7 @@ import pytest
 
 from experiments import h36m as h36m_experiment
 from jaxpose import pseudo_labelling
-from jaxpose.camera import project
+from jaxpose.camera import camera_centres, project
 from jaxpose.config import PseudoLabelConfig
 from jaxpose.formats.h36m_cameras import read_h36m_cameras
 from jaxpose.datasets.h36m import CAMERA_NAMES, load_h36m
@@ -44,7 +44,7 @@ def test_real_cameras_h5_loads_with_float64_names():
         np.testing.assert_allclose(rotations @ rotations.transpose(0, 2, 1), np.broadcast_to(np.eye(3), (4, 3, 3)), atol=1e-5)
         np.testing.assert_allclose(np.linalg.det(rotations), 1.0, atol=1e-5)
         # Camera centres -R^T t stand 4-6 m from the capture volume's centre, ~1.5 m high.
-        centres = -np.einsum("cji,cj->ci", rotations, np.asarray(cameras.t, np.float64))
+        centres = camera_centres(cameras.R, cameras.t)
         distance = np.linalg.norm(centres[:, :2], axis=-1)
         assert np.all((distance > 3000) & (distance < 7000)), centres
         focal = np.asarray(cameras.K)[:, [0, 1], [0, 1]]
