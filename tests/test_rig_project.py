@@ -14,7 +14,8 @@ from experiments import rig as rig_job
 from jaxpose import predict, validation
 from jaxpose import camera
 from jaxpose.camera import Cameras, projection_matrices
-from jaxpose.formats.rig_calibration import read_rig_calibration, write_anipose_toml
+from jaxpose.formats.anipose_toml import write_anipose_toml
+from jaxpose.formats.rig_calibration import read_rig_calibration
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.rig.people import choose_person
 from jaxpose.rig.project import RigProjectConfig, load_rig_project

@@ -16,8 +16,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpose.camera import undistort_points
+from jaxpose.formats.calibrated_rig import CalibrationUnit, RigCalibration
 from jaxpose.formats.errors import DataFormatError
-from jaxpose.formats.rig_calibration import CalibrationUnit, RigCalibration, find_calibration, read_rig_calibration
+from jaxpose.formats.rig_calibration import find_calibration, read_rig_calibration
 from jaxpose.rig.recordings import Recording
 
 log = logging.getLogger(__name__)

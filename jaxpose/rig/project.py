@@ -51,8 +51,8 @@ import numpy as np
 from jaxpose.camera import projection_matrices
 from jaxpose.data import ground_truth
 from jaxpose.data.dataset import MultiViewDataset, concatenate
+from jaxpose.formats.calibrated_rig import CalibrationUnit
 from jaxpose.formats.errors import DataFormatError
-from jaxpose.formats.rig_calibration import CalibrationUnit
 from jaxpose.layouts import lifting_skeleton
 from jaxpose.rig.calibrations import attach_calibrations, in_view_order, undistorted
 from jaxpose.rig.people import DEFAULT_THRESHOLD_PX, choose_person

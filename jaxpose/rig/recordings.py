@@ -14,9 +14,10 @@ import numpy as np
 
 from jaxpose.data import ground_truth
 from jaxpose.formats import detections_npz
+from jaxpose.formats.calibrated_rig import RigCalibration
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.keypoint_files import CameraDetections, read_camera_detections
-from jaxpose.formats.rig_calibration import RigCalibration, find_calibration
+from jaxpose.formats.rig_calibration import find_calibration
 from jaxpose.formats.rig_folder import DETECTIONS_NPZ, GROUND_TRUTH_NPZ, folder_camera, read_ground_truth
 from jaxpose.layouts import LAYOUTS, infer_layout, layout_joint_names, to_lifting_skeleton
 from jaxpose.rig.sync import SyncEstimate

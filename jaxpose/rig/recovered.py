@@ -16,8 +16,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpose.camera import projection_matrices
+from jaxpose.formats.calibrated_rig import RigCalibration
 from jaxpose.formats.errors import DataFormatError
-from jaxpose.formats.rig_calibration import RigCalibration
 from jaxpose.formats.rig_folder import GROUND_TRUTH_NPZ
 from jaxpose.rig.recordings import Recording, one_person
 from jaxpose.skeleton import Skeleton

@@ -56,7 +56,8 @@ import numpy as np
 import tyro
 
 from jaxpose.camera import Cameras, project_from_camera, undistort_points, world_to_camera
-from jaxpose.formats.rig_calibration import RigCalibration, write_anipose_toml
+from jaxpose.formats.anipose_toml import write_anipose_toml
+from jaxpose.formats.calibrated_rig import RigCalibration
 from jaxpose.formats.rig_folder import CALIBRATION_TOML, GROUND_TRUTH_NPZ, json_folder, write_ground_truth
 from jaxpose.synthetic.body import JOINT_INDEX, NOMINAL_BONE_MM, axis_rotation, sample_bone_lengths
 from jaxpose.synthetic.config import Stream, SyntheticConfig, stream_rng
