@@ -8,31 +8,31 @@ import numpy as np
 import pytest
 
 from experiments import synthetic
-from experiments.config import ExperimentConfig, RunConfig, TrainConfig
+from experiments.config import TrainConfig
 from experiments.run_directory import prepare_run_dir
 from experiments.training import train
 from jaxpose import pseudo_labelling
 from jaxpose.config import ModelConfig
-from jaxpose.synthetic import SyntheticConfig
 
+# The tiny preset on 2 training subjects (400 samples) and 1 test subject.
 TINY_ARGS = [
-    "--model.width", "64",
+    "--preset", "tiny",
     "--train.epochs", "2",
     "--train.batch-size", "64",
     "--train.log-every", "5",
-    "--data.generator.samples-per-subject", "200",
     "--data.generator.num-train-subjects", "2",
     "--data.generator.num-test-subjects", "1",
-    "--run.no-progress",
 ]
 
 
 def _tiny_config(run_dir, max_steps=0, window=1):
-    return ExperimentConfig(
-        data=synthetic.SyntheticData(SyntheticConfig(num_train_subjects=2, num_test_subjects=1, samples_per_subject=200)),
-        model=ModelConfig(width=64, temporal_window=window),
+    tiny = synthetic.TINY
+    return dataclasses.replace(
+        tiny,
+        data=synthetic.SyntheticData(dataclasses.replace(tiny.data.generator, num_train_subjects=2, num_test_subjects=1)),
+        model=dataclasses.replace(tiny.model, temporal_window=window),
         train=TrainConfig(batch_size=32, epochs=2, max_steps=max_steps, log_every=4, checkpoint_every=3),
-        run=RunConfig(run_dir=run_dir, progress=False),
+        run=dataclasses.replace(tiny.run, run_dir=run_dir),
     )
 
 
@@ -64,7 +64,7 @@ def test_resumed_training_matches_uninterrupted_training(tmp_path, window):
 
 def test_main_job_writes_the_run_directory(tmp_path):
     run_dir = tmp_path / "run"
-    report = synthetic.main([*TINY_ARGS, "--run.run-dir", str(run_dir)])
+    report = synthetic.main([*TINY_ARGS, "--run.run-dir", str(run_dir), "--run.plot-samples", "4"])
     plots = ("plots/loss_curves.png", "plots/gradient_shares.png", "plots/gt_vs_prediction.png")
     for name in ("config.json", "metrics.jsonl", "report.json", "report.md", *plots):
         assert (run_dir / name).exists(), name

@@ -27,11 +27,10 @@ import orbax.checkpoint as ocp
 import pytest
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
-# 1,500 training samples, batch 64: 23 steps per epoch, 46 steps, a checkpoint every 4 steps.
+# The tiny preset on 1,500 training samples, batch 64: 23 steps per epoch, 46 steps, a checkpoint every 4 steps.
 TINY = [
-    "--model.width", "64", "--train.epochs", "2", "--train.batch-size", "64", "--train.checkpoint-every", "4",
-    "--train.log-every", "1", "--data.generator.samples-per-subject", "300", "--run.no-progress",
-    "--run.plot-samples", "0",
+    "--preset", "tiny", "--train.epochs", "2", "--train.batch-size", "64", "--train.checkpoint-every", "4",
+    "--train.log-every", "1", "--data.generator.samples-per-subject", "300",
     # The robust input path (issue 26): median normalisation and the detector-failure augmentation,
     # whose draws come from the step's key, so a resumed run must draw what an uninterrupted one does.
     "--model.input-normalization", "intrinsics_median", "--train.augment.drop", "0.1",

@@ -165,11 +165,7 @@ def test_the_temporal_network_can_be_the_frame_network_on_the_centre_frame():
 def temporal_run(tmp_path_factory):
     """A tiny synthetic run with a window of 3 frames: (run directory, its test split)."""
     run_dir = tmp_path_factory.mktemp("run") / "temporal"
-    synthetic_job.main([
-        "--run.run-dir", str(run_dir), "--model.width", "64", "--model.temporal-window", "3", "--train.epochs", "1",
-        "--train.max-steps", "20", "--data.generator.samples-per-subject", "200", "--run.no-progress",
-        "--run.plot-samples", "0",
-    ])  # fmt: skip
+    synthetic_job.main(["--preset", "tiny", "--run.run-dir", str(run_dir), "--model.temporal-window", "3"])
     report = json.loads((run_dir / "report.json").read_text())
     assert report["config"]["model"]["temporal_window"] == 3
     return run_dir
