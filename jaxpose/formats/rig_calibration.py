@@ -29,10 +29,6 @@ from jaxpose.formats import anipose_toml, camera_file, easymocap_yaml, h36m_came
 from jaxpose.formats.calibrated_rig import CalibrationUnit, RigCalibration
 from jaxpose.formats.errors import DataFormatError
 
-# Transitional: jaxpose/synthetic/project.py and tests/test_rig_project.py still import the writer from
-# here; they switch to jaxpose.formats.anipose_toml, and this line goes.
-from jaxpose.formats.anipose_toml import write_anipose_toml  # noqa: F401
-
 __all__ = ["CalibrationUnit", "RigCalibration", "find_calibration", "read_rig_calibration"]
 
 ACCEPTED = (
