@@ -1,4 +1,5 @@
-"""jaxpose.predict: the joint layout its input is read in (`predict.input_layout`, `--format`).
+"""jaxpose.predict's input: the joint layout it is read in (`predict.input_layout`, `--format`), and the
+readers of the detection file and the camera (`jaxpose.formats.detection_file`, `jaxpose.formats.intrinsics`).
 
 75 values per person are OpenPose BODY_25 or BODY_25B (Pose2Sim's default), which the count cannot tell
 apart: a lifter of either reads them in its own layout, any other is refused unless --format says which.
@@ -16,7 +17,7 @@ import pytest
 
 from jaxpose import checkpoint, predict
 from jaxpose.config import ModelConfig
-from jaxpose.formats import detection_file
+from jaxpose.formats import detection_file, intrinsics
 from jaxpose.layouts import layout_joint_names, lifting_skeleton
 from jaxpose.train import init_train_state
 
@@ -113,3 +114,58 @@ def test_the_layout_of_each_input_kind(body25b_run, tmp_path):
     assert predict.input_layout(body25b, detection_file.read_detections(folder)) == "body25b"
     with pytest.raises(ValueError, match="BODY_25 or BODY_25B.*--format body25b"):
         predict.input_layout(h36m17, detection_file.read_detections(folder))
+
+
+# ---------------------------------------------------------------------------------------------
+# The readers of predict's input: the detection file's refusals, --intrinsics in each of its forms
+
+QUALISYS = POSE2SIM_BODY25B.parents[1] / "pose2sim-calib-toml" / "pose2sim_demo_Calib_qualisys.toml"
+
+
+def test_a_negative_score_is_refused_by_every_kind(tmp_path):
+    np.savez(tmp_path / "poses.npz", keypoints=np.zeros((2, 17, 2), np.float32), confidence=np.full((2, 17), -0.5, np.float32))
+    entries = [{"image_id": 1, "keypoints": [500.0, 500.0, 0.9] * 16 + [500.0, 500.0, -0.1]}]
+    (tmp_path / "coco.json").write_text(json.dumps(entries))
+    for name, where in (("poses.npz", "pose 0 joint 0 has -0.5"), ("coco.json", "pose 0 joint 16 has -0.1")):
+        with pytest.raises(ValueError, match=rf"{name}: scores must be >= 0; {where}"):
+            detection_file.read_detections(tmp_path / name)
+
+
+def test_intrinsics_in_each_form(tmp_path):
+    camera = intrinsics.read_intrinsics(["1000", "1100", "500", "400"])
+    np.testing.assert_array_equal(camera.K, [[1000, 0, 500], [0, 1100, 400], [0, 0, 1]])
+    assert camera.dist is None and camera.image_size is None
+    entry = {"K": camera.K.tolist(), "dist": [-0.2, 0.05, 0.0, 0.0, 0.0], "image_size": [1000, 800], "name": "cam01"}
+    (tmp_path / "camera.json").write_text(json.dumps(entry))
+    from_file = intrinsics.read_intrinsics([str(tmp_path / "camera.json")])
+    np.testing.assert_array_equal(from_file.K, camera.K)
+    assert from_file.dist.tolist() == pytest.approx(entry["dist"]) and from_file.image_size == (1000, 800)
+    (tmp_path / "bad.json").write_text(json.dumps({"dist": None}))
+    with pytest.raises(ValueError, match=r"bad.json: expected a camera \{'K'"):
+        intrinsics.read_intrinsics([str(tmp_path / "bad.json")])
+    with pytest.raises(FileNotFoundError, match="--intrinsics file .*absent.json does not exist"):
+        intrinsics.read_intrinsics([str(tmp_path / "absent.json")])
+    with pytest.raises(ValueError, match="--intrinsics takes 4 numbers .* got 3 values"):
+        intrinsics.read_intrinsics(["1", "2", "3"])
+
+
+def test_a_camera_per_pose_and_intrinsics_are_refused_together(trained_run, tmp_path):
+    K = np.broadcast_to(intrinsics.read_intrinsics(["1000", "1000", "500", "500"]).K, (2, 3, 3))
+    np.savez(tmp_path / "poses.npz", keypoints=np.full((2, 17, 2), 500.0, np.float32), K=K)
+    message = _refused(trained_run[0], tmp_path / "poses.npz", tmp_path / "out.npz", "--intrinsics", "1000", "1000", "500", "500")
+    assert message.endswith("poses.npz holds a camera per pose ('K'); do not pass --intrinsics as well")
+
+
+def test_a_camera_per_pose_or_one_for_all():
+    K = np.stack([np.eye(3, dtype=np.float32) * (i + 1) for i in range(4)])
+    assert intrinsics.CameraIntrinsics().of_poses(slice(0, 2)) is None
+    np.testing.assert_array_equal(intrinsics.CameraIntrinsics(K[0]).of_poses(slice(1, 3)), K[0])
+    np.testing.assert_array_equal(intrinsics.CameraIntrinsics(K).of_poses(np.array([3, 1])), K[[3, 1]])
+
+
+@pytest.mark.skipif(not QUALISYS.is_file(), reason=f"{QUALISYS} (a real sample) is absent")
+def test_intrinsics_of_one_camera_of_a_pose2sim_calibration():
+    camera = intrinsics.read_intrinsics([str(QUALISYS), "cam_01"])
+    np.testing.assert_allclose(camera.K, [[1681.244873046875, 0, 532.97369384375], [0, 1681.075439453125, 948.137390140625], [0, 0, 1]])
+    np.testing.assert_allclose(camera.dist, [-0.000721609375, 0.002187234375, 9.5e-06, 1.078125e-05, 0.0], rtol=1e-6)
+    assert camera.image_size == (1088.0, 1920.0)
