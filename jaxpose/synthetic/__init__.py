@@ -16,8 +16,12 @@ Everything is numpy and vectorized over time; randomness comes from generators k
 
 The modules, in the order the data is made: `config` (what to simulate, random streams), `body`,
 `motion`, `rig`, `detector`, `dataset` (`generate`); `project` writes an example rig project (a
-calibration file, OpenPose JSON frames, ground truth) from them.  Their public names are re-exported here.
+calibration file, OpenPose JSON frames, ground truth) from them, with `capture` (what the example
+simulates: its config, rig, passer-by and detector) and `keypoints` (a detector's keypoints on the
+body).  Their public names are re-exported here.
 """
+
+import importlib
 
 from jaxpose.synthetic.body import (
     ANGLE_NAMES,
@@ -41,15 +45,16 @@ __all__ = [
     "write_rig_project",
 ]  # fmt: skip
 
-# `project`'s names are imported on first use (PEP 562), so that `python -m jaxpose.synthetic.project`
-# does not find its module already imported by this package, and the simulator alone does not import
-# the calibration readers.
-_PROJECT_NAMES = ("ExampleProjectConfig", "keypoints3d", "rig_calibration", "write_rig_project")
+# The example project's names are imported on first use (PEP 562), so that `python -m
+# jaxpose.synthetic.project` does not find its module already imported by this package, and the
+# simulator alone does not import the calibration formats.
+_EXAMPLE_NAMES = {
+    "ExampleProjectConfig": "capture", "rig_calibration": "capture", "keypoints3d": "keypoints",
+    "write_rig_project": "project",
+}  # fmt: skip
 
 
 def __getattr__(name: str):
-    if name in _PROJECT_NAMES:
-        from jaxpose.synthetic import project
-
-        return getattr(project, name)
+    if name in _EXAMPLE_NAMES:
+        return getattr(importlib.import_module(f"jaxpose.synthetic.{_EXAMPLE_NAMES[name]}"), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
