@@ -33,6 +33,7 @@ import numpy as np
 
 from jaxpose.camera import Cameras, project_from_camera, undistort_points, world_to_camera
 from jaxpose.formats.calibrated_rig import RigCalibration
+from jaxpose.rotations import nearest_rotation
 from jaxpose.skeleton import H36M_17
 from jaxpose.synthetic.body import axis_rotation, sample_bone_lengths
 from jaxpose.synthetic.config import Stream, SyntheticConfig, stream_rng
@@ -180,8 +181,7 @@ def rig_calibration(config: ExampleProjectConfig = ExampleProjectConfig()) -> Ri
     """
     synthetic = config.synthetic_config()
     room = make_rig(stream_rng(synthetic, Stream.ROOM), synthetic)
-    u, _, vt = np.linalg.svd(np.asarray(room.R, np.float64))
-    R = u @ vt
+    R = nearest_rotation(room.R)
     C = config.cameras
     dist = None
     if config.distortion:
