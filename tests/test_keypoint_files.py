@@ -1,11 +1,9 @@
 """Per-camera 2D detection files (`jaxpose.formats.keypoint_files`, COCO files parsed by `coco_results`):
-the real samples as they are, the refusals, frame numbers, the process pool and the cache (`file_cache`)."""
+the real samples as they are, the refusals, frame numbers and the process pool (the cache: test_file_cache)."""
 
 from __future__ import annotations
 
 import json
-import os
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -13,9 +11,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jaxpose.formats import coco_results, file_cache
+from jaxpose.formats import coco_results
 from jaxpose.formats import keypoint_files as kf
 from jaxpose.formats.errors import DataFormatError
+from keypoint_writers import check_matches, coco_entry, openpose_document, random_people, write_folder, write_frame
 
 FORMATS = Path(__file__).resolve().parents[2] / "shared" / "data" / "formats"
 needs_formats = pytest.mark.skipif(not FORMATS.is_dir(), reason=f"{FORMATS} (the real format samples) is absent")
@@ -24,56 +23,6 @@ HALPE26 = FORMATS / "openpose-json" / "pose2sim_rtmpose_halpe26_2cam"
 SPIN = FORMATS / "openpose-json" / "spin_im1010_single_image"
 ALPHAPOSE = FORMATS / "coco-keypoint-results" / "alphapose_hockey_alphapose-results.json"
 COCOAPI = FORMATS / "coco-keypoint-results" / "cocoapi_person_keypoints_val2014_fakekeypoints100_results.json"
-EMPTY_PARTS = ("face_keypoints_2d", "hand_left_keypoints_2d", "hand_right_keypoints_2d", "pose_keypoints_3d",
-               "face_keypoints_3d", "hand_left_keypoints_3d", "hand_right_keypoints_3d")  # fmt: skip
-
-
-# ---------------------------------------------------------------------------------------------
-# Fixture writers, in the real files' layout
-
-
-def openpose_document(people: list[np.ndarray], version: float = 1.3) -> dict:
-    """An OpenPose frame as OpenPose / Pose2Sim write it: person_id [-1], then the empty other parts."""
-    persons = [{"person_id": [-1], "pose_keypoints_2d": np.asarray(p, float).ravel().tolist()} for p in people]
-    return {"version": version, "people": [person | {part: [] for part in EMPTY_PARTS} for person in persons]}
-
-
-def write_frame(path: Path, people: list[np.ndarray], pretty: bool = False) -> Path:
-    """Compact (OpenPose's C++ writer, Pose2Sim's demo) or indent=4 (Pose2Sim's RTMPose writer)."""
-    document = openpose_document(people)
-    path.write_text(json.dumps(document, indent=4) if pretty else json.dumps(document, separators=(",", ":")))
-    return path
-
-
-def random_people(rng: np.random.Generator, count: int, joints: int = 25) -> list[np.ndarray]:
-    people = []
-    for _ in range(count):
-        person = np.concatenate([rng.uniform(0, 1900, (joints, 2)), rng.uniform(0.05, 1.0, (joints, 1))], 1)
-        person[rng.random(joints) < 0.2] = 0.0  # undetected joints are written as 0, 0, 0
-        people.append(np.round(person, 3))
-    return people
-
-
-def write_folder(folder: Path, people_per_frame: list[int], seed: int = 0, name: str = "clip_{:012d}_keypoints.json",
-                 first: int = 0, joints: int = 25) -> dict[int, list[np.ndarray]]:  # fmt: skip
-    folder.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng(seed)
-    written = {}
-    for index, count in enumerate(people_per_frame):
-        written[first + index] = random_people(rng, count, joints)
-        write_frame(folder / name.format(first + index), written[first + index], pretty=index % 2 == 1)
-    return written
-
-
-def check_matches(detections: kf.CameraDetections, written: dict[int, list[np.ndarray]]) -> None:
-    assert detections.frames.tolist() == sorted(written)
-    assert detections.people.tolist() == [len(written[f]) for f in sorted(written)]
-    for k, frame in enumerate(sorted(written)):
-        for p, person in enumerate(written[frame]):
-            np.testing.assert_allclose(detections.keypoints[k, p], person[:, :2], rtol=1e-6)
-            np.testing.assert_allclose(detections.scores[k, p], person[:, 2], rtol=1e-6)
-        assert not detections.keypoints[k, len(written[frame]):].any()
-        assert not detections.scores[k, len(written[frame]):].any()
 
 
 def check_types(detections: kf.CameraDetections) -> None:
@@ -290,11 +239,6 @@ def test_missing_and_empty_inputs(tmp_path):
         kf.read_camera_detections(tmp_path / "poses.csv")
 
 
-def coco_entry(image_id, values, **extra) -> dict:
-    keypoints = values if isinstance(values, list) else np.asarray(values, float).ravel().tolist()
-    return {"image_id": image_id, "category_id": 1, "keypoints": keypoints, "score": 0.9} | extra
-
-
 @pytest.mark.parametrize(
     "document, message",
     [
@@ -366,116 +310,6 @@ def test_progress_bar(tmp_path, capsys):
     write_folder(tmp_path / "cam", [1, 1, 1])
     kf.read_openpose_folder(tmp_path / "cam", progress=True)  # tqdm shows nothing for a read under 0.5 s
     assert "Traceback" not in capsys.readouterr().err
-
-
-# ---------------------------------------------------------------------------------------------
-# The cache
-
-
-def _cache_file(folder: Path) -> Path:
-    return folder.parent / file_cache.CACHE_DIR / f"{folder.name}.npz"
-
-
-def _no_parsing(monkeypatch) -> None:
-    def refuse(*args, **kwargs):
-        raise AssertionError("parsed again although the cache is valid")
-
-    monkeypatch.setattr(kf, "_parse_chunk", refuse)
-    monkeypatch.setattr(kf, "read_coco_results", refuse)
-    monkeypatch.setattr(kf, "read_openpose_folder", refuse)
-
-
-def test_cache_is_reused_and_rebuilt_when_files_change(tmp_path, monkeypatch, caplog):
-    folder = tmp_path / "cam01_json"
-    written = write_folder(folder, [1, 2, 0, 1])
-    first = kf.read_camera_detections(folder, progress=False)
-    check_matches(first, written)
-    assert _cache_file(folder).is_file()
-    assert [p.name for p in _cache_file(folder).parent.iterdir()] == ["cam01_json.npz"]  # no temp file left
-    with monkeypatch.context() as patch:
-        _no_parsing(patch)
-        again = kf.read_camera_detections(folder, progress=False)
-    check_matches(again, written)
-    assert again.source == str(folder)
-
-    def changed(change) -> kf.CameraDetections:
-        change()
-        caplog.clear()
-        with caplog.at_level("INFO", logger=file_cache.__name__):
-            result = kf.read_camera_detections(folder, progress=False)
-        assert "changed since" in caplog.text and "reading it again" in caplog.text
-        return result
-
-    rng = np.random.default_rng(11)
-    written[1] = random_people(rng, 3)  # modified
-    check_matches(changed(lambda: write_frame(folder / "clip_000000000001_keypoints.json", written[1])), written)
-    written[4] = random_people(rng, 1)  # added
-    check_matches(changed(lambda: write_frame(folder / "clip_000000000004_keypoints.json", written[4])), written)
-    del written[0]  # removed
-    check_matches(changed(lambda: (folder / "clip_000000000000_keypoints.json").unlink()), written)
-    # Same size, only the modification time differs.
-    path = folder / "clip_000000000002_keypoints.json"
-    stat = path.stat()
-    check_matches(changed(lambda: os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1000))), written)
-
-
-def test_cache_of_a_coco_file(tmp_path, monkeypatch):
-    path = tmp_path / "cam01.json"
-    people = random_people(np.random.default_rng(2), 2, joints=17)
-    path.write_text(json.dumps([coco_entry(5, people[0]), coco_entry("x-6.png", people[1])]))
-    first = kf.read_camera_detections(path)
-    assert (tmp_path / file_cache.CACHE_DIR / "cam01.json.npz").is_file()
-    with monkeypatch.context() as patch:
-        _no_parsing(patch)
-        check_matches(kf.read_camera_detections(path), {5: [people[0]], 6: [people[1]]})
-    np.testing.assert_array_equal(first.keypoints, kf.read_camera_detections(path, cache=False).keypoints)
-
-
-@pytest.mark.parametrize("damage", [b"not a zip at all", b"PK\x03\x04truncated"])
-def test_corrupt_cache_is_ignored_with_a_warning(tmp_path, damage):
-    folder = tmp_path / "cam"
-    written = write_folder(folder, [1, 1])
-    kf.read_camera_detections(folder, progress=False)
-    _cache_file(folder).write_bytes(damage)
-    with pytest.warns(UserWarning, match=r"ignoring the unreadable cache .*cam\.npz"):
-        check_matches(kf.read_camera_detections(folder, progress=False), written)
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # rewritten: read quietly now
-        check_matches(kf.read_camera_detections(folder, progress=False), written)
-
-
-def test_cache_with_wrong_arrays_is_ignored(tmp_path):
-    folder = tmp_path / "cam"
-    written = write_folder(folder, [2, 1])
-    kf.read_camera_detections(folder, progress=False)
-    with np.load(_cache_file(folder)) as data:
-        arrays = dict(data)
-    arrays["scores"] = arrays["scores"][:, :1]
-    np.savez(_cache_file(folder), **arrays)
-    with pytest.warns(UserWarning, match="inconsistent shapes"):
-        check_matches(kf.read_camera_detections(folder, progress=False), written)
-
-
-def test_unwritable_cache_is_a_warning(tmp_path):
-    folder = tmp_path / "cam"
-    written = write_folder(folder, [1])
-    (tmp_path / file_cache.CACHE_DIR).write_text("a file where the cache folder should be")
-    with pytest.warns(UserWarning, match="could not write the cache"):
-        check_matches(kf.read_camera_detections(folder, progress=False), written)
-
-
-def test_interrupted_cache_write_leaves_no_cache(tmp_path, monkeypatch):
-    folder = tmp_path / "cam"
-    written = write_folder(folder, [1, 1])
-
-    def interrupted(file, **arrays):
-        file.write(b"PK\x03\x04 half an archive")
-        raise OSError(28, "No space left on device")
-
-    monkeypatch.setattr(np, "savez", interrupted)
-    with pytest.warns(UserWarning, match="No space left on device"):
-        check_matches(kf.read_camera_detections(folder, progress=False), written)
-    assert list((tmp_path / file_cache.CACHE_DIR).iterdir()) == []
 
 
 def test_frames_without_people(tmp_path):

@@ -20,11 +20,10 @@ from jaxpose.config import ModelConfig
 from jaxpose.formats import detection_file, intrinsics
 from jaxpose.layouts import layout_joint_names, lifting_skeleton
 from jaxpose.train import init_train_state
+from keypoint_writers import write_frame
 
 POSE2SIM_BODY25B = Path(__file__).resolve().parents[2] / "shared/data/formats/openpose-json/pose2sim_demo_balancing_body25b"
 needs_pose2sim = pytest.mark.skipif(not POSE2SIM_BODY25B.is_dir(), reason=f"{POSE2SIM_BODY25B} (a real sample) is absent")
-EMPTY_PARTS = ("face_keypoints_2d", "hand_left_keypoints_2d", "hand_right_keypoints_2d", "pose_keypoints_3d",
-               "face_keypoints_3d", "hand_left_keypoints_3d", "hand_right_keypoints_3d")  # fmt: skip
 IMAGE = ("1088", "1920")  # the Pose2Sim demo's portrait video
 
 
@@ -42,8 +41,8 @@ def body25b_run(tmp_path_factory) -> Path:
 
 
 def pose2sim_folder(folder: Path, frames: int = 3) -> Path:
-    """BODY_25B frames as Pose2Sim's demo writes them: cam01_json/cam01.0000.json, compact JSON, version 1.3,
-    person_id [-1] and the empty face, hand and 3D arrays; two people in the first frame."""
+    """BODY_25B frames as Pose2Sim's demo writes them (`keypoint_writers.write_frame`: cam01_json/cam01.0000.json,
+    compact JSON, version 1.3, person_id [-1] and the empty face, hand and 3D arrays); two people in the first frame."""
     folder.mkdir(parents=True)
     rng = np.random.default_rng(0)
     names = layout_joint_names("body25b")
@@ -52,10 +51,8 @@ def pose2sim_folder(folder: Path, frames: int = 3) -> Path:
         for _ in range(2 if frame == 0 else 1):
             person = np.concatenate([rng.uniform([300, 300], [800, 1600], (25, 2)), rng.uniform(0.5, 0.9, (25, 1))], 1)
             person[names.index("RSmallToe")] = 0.0  # undetected: 0, 0, 0
-            people.append({"person_id": [-1], "pose_keypoints_2d": np.round(person, 3).ravel().tolist()}
-                          | {part: [] for part in EMPTY_PARTS})  # fmt: skip
-        document = {"version": 1.3, "people": people}
-        (folder / f"cam01.{frame:04d}.json").write_text(json.dumps(document, separators=(",", ":")))
+            people.append(np.round(person, 3))
+        write_frame(folder / f"cam01.{frame:04d}.json", people)
     return folder
 
 

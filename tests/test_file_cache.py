@@ -1,0 +1,123 @@
+"""The cache of parsed keypoint files (`jaxpose.formats.file_cache`, as `keypoint_files.read_camera_detections`
+uses it): reused while the input is unchanged, rebuilt when it changes, and a cache that cannot be read or
+written only a warning."""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jaxpose.formats import file_cache
+from jaxpose.formats import keypoint_files as kf
+from keypoint_writers import check_matches, coco_entry, random_people, write_folder, write_frame
+
+
+def _cache_file(folder: Path) -> Path:
+    return folder.parent / file_cache.CACHE_DIR / f"{folder.name}.npz"
+
+
+def _no_parsing(monkeypatch) -> None:
+    def refuse(*args, **kwargs):
+        raise AssertionError("parsed again although the cache is valid")
+
+    monkeypatch.setattr(kf, "_parse_chunk", refuse)
+    monkeypatch.setattr(kf, "read_coco_results", refuse)
+    monkeypatch.setattr(kf, "read_openpose_folder", refuse)
+
+
+def test_cache_is_reused_and_rebuilt_when_files_change(tmp_path, monkeypatch, caplog):
+    folder = tmp_path / "cam01_json"
+    written = write_folder(folder, [1, 2, 0, 1])
+    first = kf.read_camera_detections(folder, progress=False)
+    check_matches(first, written)
+    assert _cache_file(folder).is_file()
+    assert [p.name for p in _cache_file(folder).parent.iterdir()] == ["cam01_json.npz"]  # no temp file left
+    with monkeypatch.context() as patch:
+        _no_parsing(patch)
+        again = kf.read_camera_detections(folder, progress=False)
+    check_matches(again, written)
+    assert again.source == str(folder)
+
+    def changed(change) -> kf.CameraDetections:
+        change()
+        caplog.clear()
+        with caplog.at_level("INFO", logger=file_cache.__name__):
+            result = kf.read_camera_detections(folder, progress=False)
+        assert "changed since" in caplog.text and "reading it again" in caplog.text
+        return result
+
+    rng = np.random.default_rng(11)
+    written[1] = random_people(rng, 3)  # modified
+    check_matches(changed(lambda: write_frame(folder / "clip_000000000001_keypoints.json", written[1])), written)
+    written[4] = random_people(rng, 1)  # added
+    check_matches(changed(lambda: write_frame(folder / "clip_000000000004_keypoints.json", written[4])), written)
+    del written[0]  # removed
+    check_matches(changed(lambda: (folder / "clip_000000000000_keypoints.json").unlink()), written)
+    # Same size, only the modification time differs.
+    path = folder / "clip_000000000002_keypoints.json"
+    stat = path.stat()
+    check_matches(changed(lambda: os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1000))), written)
+
+
+def test_cache_of_a_coco_file(tmp_path, monkeypatch):
+    path = tmp_path / "cam01.json"
+    people = random_people(np.random.default_rng(2), 2, joints=17)
+    path.write_text(json.dumps([coco_entry(5, people[0]), coco_entry("x-6.png", people[1])]))
+    first = kf.read_camera_detections(path)
+    assert (tmp_path / file_cache.CACHE_DIR / "cam01.json.npz").is_file()
+    with monkeypatch.context() as patch:
+        _no_parsing(patch)
+        check_matches(kf.read_camera_detections(path), {5: [people[0]], 6: [people[1]]})
+    np.testing.assert_array_equal(first.keypoints, kf.read_camera_detections(path, cache=False).keypoints)
+
+
+@pytest.mark.parametrize("damage", [b"not a zip at all", b"PK\x03\x04truncated"])
+def test_corrupt_cache_is_ignored_with_a_warning(tmp_path, damage):
+    folder = tmp_path / "cam"
+    written = write_folder(folder, [1, 1])
+    kf.read_camera_detections(folder, progress=False)
+    _cache_file(folder).write_bytes(damage)
+    with pytest.warns(UserWarning, match=r"ignoring the unreadable cache .*cam\.npz"):
+        check_matches(kf.read_camera_detections(folder, progress=False), written)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # rewritten: read quietly now
+        check_matches(kf.read_camera_detections(folder, progress=False), written)
+
+
+def test_cache_with_wrong_arrays_is_ignored(tmp_path):
+    folder = tmp_path / "cam"
+    written = write_folder(folder, [2, 1])
+    kf.read_camera_detections(folder, progress=False)
+    with np.load(_cache_file(folder)) as data:
+        arrays = dict(data)
+    arrays["scores"] = arrays["scores"][:, :1]
+    np.savez(_cache_file(folder), **arrays)
+    with pytest.warns(UserWarning, match="inconsistent shapes"):
+        check_matches(kf.read_camera_detections(folder, progress=False), written)
+
+
+def test_unwritable_cache_is_a_warning(tmp_path):
+    folder = tmp_path / "cam"
+    written = write_folder(folder, [1])
+    (tmp_path / file_cache.CACHE_DIR).write_text("a file where the cache folder should be")
+    with pytest.warns(UserWarning, match="could not write the cache"):
+        check_matches(kf.read_camera_detections(folder, progress=False), written)
+
+
+def test_interrupted_cache_write_leaves_no_cache(tmp_path, monkeypatch):
+    folder = tmp_path / "cam"
+    written = write_folder(folder, [1, 1])
+
+    def interrupted(file, **arrays):
+        file.write(b"PK\x03\x04 half an archive")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(np, "savez", interrupted)
+    with pytest.warns(UserWarning, match="No space left on device"):
+        check_matches(kf.read_camera_detections(folder, progress=False), written)
+    assert list((tmp_path / file_cache.CACHE_DIR).iterdir()) == []
