@@ -3,10 +3,16 @@ TensorBoard).  The layout of the whole directory is in `experiments.runner`."""
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import logging
+import os
 import pathlib
 import shutil
+import socket
+import time
+from collections.abc import Iterator
 
 import jax
 
@@ -14,6 +20,8 @@ from experiments.config import ExperimentConfig, dumps, to_json_dict
 
 log = logging.getLogger("jaxpose")
 
+
+LOCK_FILE = "run.lock"
 
 # Fields that must match for a run directory to be resumed (the rest may change between attempts).
 _RESUME_KEYS = ("data", "model", "loss", "optimizer", "pseudo_labels")
@@ -38,12 +46,52 @@ def check_resumable(config: ExperimentConfig) -> None:
         )
 
 
+@contextlib.contextmanager
+def exclusive(run_dir: pathlib.Path) -> Iterator[None]:
+    """Hold the run directory for one run: a second run started on it stops at once, naming the first.
+
+    The lock is an OS lock on `run_dir/run.lock` (released by the kernel if the process dies, so a
+    killed run never leaves the directory locked); the file names the holder for the message.  A
+    directory made only to hold the lock is removed again if the run ends before writing anything
+    (a data file that fails to load leaves no run directory behind).
+    """
+    if jax.process_index() != 0:  # one lock per run: process 0 writes the directory
+        yield
+        return
+    created = not run_dir.exists()
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        descriptor = os.open(run_dir / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as error:
+        raise SystemExit(f"--run.run-dir {run_dir}: cannot be written ({error.strerror})") from None
+    try:
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(descriptor, 512, 0).decode(errors="replace").strip() or "another process"
+            raise SystemExit(
+                f"--run.run-dir {run_dir} is in use by another run ({holder}); wait for it to end, or choose another --run.run-dir"
+            ) from None
+        os.ftruncate(descriptor, 0)
+        os.pwrite(descriptor, f"process {os.getpid()} on {socket.gethostname()}, started {time.strftime('%Y-%m-%d %H:%M:%S')}".encode(), 0)
+        try:
+            yield
+        finally:
+            os.unlink(run_dir / LOCK_FILE)
+            if created and not any(run_dir.iterdir()):
+                run_dir.rmdir()
+    finally:
+        os.close(descriptor)
+
+
 def prepare_run_dir(config: ExperimentConfig) -> pathlib.Path:
     """Create (or check, for a resume) the run directory and write config.json."""
     check_resumable(config)
     run_dir = config.run.run_dir
     if config.run.overwrite and run_dir.exists() and jax.process_index() == 0:
-        shutil.rmtree(run_dir)
+        for entry in run_dir.iterdir():  # everything but the lock this run holds
+            if entry.name != LOCK_FILE:
+                shutil.rmtree(entry) if entry.is_dir() and not entry.is_symlink() else entry.unlink()
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "plots").mkdir(exist_ok=True)
     if jax.process_index() == 0:

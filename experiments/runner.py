@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import sys
 import time
 from collections.abc import Callable
 from typing import Any
@@ -28,12 +27,13 @@ import numpy as np
 
 from experiments.config import ExperimentConfig
 from experiments.report import evaluate_and_report
-from experiments.run_directory import check_resumable, prepare_run_dir
+from experiments.run_directory import check_resumable, exclusive, prepare_run_dir
 from experiments.splits import Splits
 from experiments.training import Interrupted, train
 from jaxpose import parallel, pseudo_labelling
 from jaxpose.data.batch import validate_batch
 from jaxpose.data.dataset import MultiViewDataset
+from jaxpose.logs import show_logs
 
 log = logging.getLogger("jaxpose")
 
@@ -48,11 +48,20 @@ def run(
     `replace_labels` maps the labelled training set to the one trained on: a diagnostic hook for
     studies of what the labels cost (`experiments.label_bias`), never part of a method.
     """
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s", stream=sys.stderr)
+    show_logs()
     # Before anything touches a device: a multi-host run connects its processes first.
     parallel.initialize(config.parallel.coordinator_address, config.parallel.num_processes, config.parallel.process_id)
-    begin = time.perf_counter()
     check_resumable(config)
+    with exclusive(config.run.run_dir):
+        return _run_holding_the_directory(config, load_data, replace_labels)
+
+
+def _run_holding_the_directory(
+    config: ExperimentConfig,
+    load_data: Callable[[Any], Splits],
+    replace_labels: Callable[[MultiViewDataset], MultiViewDataset] | None,
+) -> dict:
+    begin = time.perf_counter()
     # Data first: a missing or malformed file then leaves no run directory behind (and an
     # --run.overwrite start does not delete the previous run before the data are known to load).
     splits = load_data(config.data)

@@ -167,6 +167,7 @@ def test_killed_and_corrupted_runs_end_bit_identical_to_an_uninterrupted_one(tmp
     _finish(process, job)
     log = job.log()
     assert f"checkpoint step {corrupted}" in log and "unreadable" in log and "falling back" in log, log[-3000:]
+    assert f"resumed from step {previous} of {TOTAL_STEPS}" in log, log[-3000:]  # jaxpose's INFO lines are shown
     assert not job.in_progress(), "the interrupted save's directory was not cleaned up"
     assert corrupted <= previous + 4 and previous in _metrics_by_step(job)
 
