@@ -9,7 +9,6 @@ import pytest
 
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.trc import HEADER_KEYS, marker_name, read_trc, write_trc
-from jaxpose.skeleton import H36M_17
 
 TRC = Path(__file__).resolve().parents[2] / "shared" / "data" / "formats" / "trc"
 needs_formats = pytest.mark.skipif(not TRC.is_dir(), reason=f"{TRC} (the real TRC samples) is absent")
