@@ -21,6 +21,7 @@ from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_folder import GROUND_TRUTH_NPZ
 from jaxpose.rig.recordings import Recording, one_person
 from jaxpose.skeleton import Skeleton
+from jaxpose.triangulation import triangulate
 
 MIN_ALIGNMENT_POINTS = 50  # ground-truth joints needed to align it with a recovered rig
 
@@ -112,8 +113,6 @@ def ground_truth_into_recovered_world(target: np.ndarray, keypoints, confidence,
     without the worst 10% of joints); only the rotation and translation are applied, so it keeps
     its true size: MPJPE then includes the recovered rig's scale error, P-MPJPE does not.
     """
-    from jaxpose.triangulation import triangulate
-
     P = jnp.asarray(projection_matrices(rig.cameras.without_distortion()), jnp.float32)
     points = np.asarray(triangulate(P, jnp.asarray(keypoints), jnp.asarray(confidence), method="normal"))
     usable = np.isfinite(target).all(-1) & ((confidence > 0).sum(1) >= 2)
