@@ -52,13 +52,13 @@ def exclusive(run_dir: pathlib.Path) -> Iterator[None]:
 
     The lock is an OS lock on `run_dir/run.lock` (released by the kernel if the process dies, so a
     killed run never leaves the directory locked); the file names the holder for the message.  A
-    directory made only to hold the lock is removed again if the run ends before writing anything
+    directory (and parents) made only to hold the lock is removed again if the run ends before writing anything
     (a data file that fails to load leaves no run directory behind).
     """
     if jax.process_index() != 0:  # one lock per run: process 0 writes the directory
         yield
         return
-    created = not run_dir.exists()
+    made = [folder for folder in (run_dir, *run_dir.parents) if not folder.exists()]  # deepest first
     try:
         run_dir.mkdir(parents=True, exist_ok=True)
         descriptor = os.open(run_dir / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
@@ -78,8 +78,10 @@ def exclusive(run_dir: pathlib.Path) -> Iterator[None]:
             yield
         finally:
             os.unlink(run_dir / LOCK_FILE)
-            if created and not any(run_dir.iterdir()):
-                run_dir.rmdir()
+            for folder in made:
+                if any(folder.iterdir()):
+                    break
+                folder.rmdir()
     finally:
         os.close(descriptor)
 

@@ -33,7 +33,7 @@ def test_a_second_run_on_a_held_directory_stops_at_once_naming_the_first(tmp_pat
 
 
 def test_a_directory_made_only_for_the_lock_is_removed_and_an_existing_one_kept(tmp_path):
-    with exclusive(tmp_path / "new"):
+    with exclusive(tmp_path / "new" / "run"):
         pass
     assert not (tmp_path / "new").exists()
     (tmp_path / "old").mkdir()
