@@ -1,4 +1,4 @@
-"""Processes launched by tests/test_parallel.py, and the helpers both sides share.
+"""Processes launched by tests/training/test_parallel.py, and the helpers both sides share.
 
     python tests/parallel_worker.py sharded OUT.npz
         5 train steps of the reference problem on a mesh over all devices (the test forces 8 CPU

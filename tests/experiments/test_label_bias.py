@@ -128,6 +128,7 @@ def test_relabelled_training_sets():
 
 
 @pytest.mark.slow  # ~40 s: seven trainings; the study's parts are tested above, the whole with `pytest -m slow`
+@pytest.mark.trains
 def test_label_bias_study_end_to_end(tmp_path):
     # Like SH's "Spine", the 2D file's Spine is another mocap joint (here the thorax): a definition bias.
     sh_joints = tuple(13 if mocap == 12 else mocap for mocap in H36M_SH_FILE_MOCAP)

@@ -16,6 +16,7 @@ with exclusive(pathlib.Path(sys.argv[1])):
 """
 
 
+@pytest.mark.processes
 def test_a_second_run_on_a_held_directory_stops_at_once_naming_the_first(tmp_path):
     run_dir = tmp_path / "run"
     holder = subprocess.Popen([sys.executable, "-c", HOLD, str(run_dir)], stdout=subprocess.PIPE, text=True)

@@ -14,6 +14,8 @@ from experiments.training import train
 from jaxpose import pseudo_labelling
 from jaxpose.config import ModelConfig
 
+pytestmark = [pytest.mark.trains]
+
 # The tiny preset on 2 training subjects (400 samples) and 1 test subject.
 TINY_ARGS = [
     "--preset", "tiny",
@@ -44,7 +46,7 @@ def _train(config):
 
 
 # A temporal lifter fed windows of 9 frames: the frame lifter's resume is checked bit for bit, killed at
-# any point, by tests/test_fault_tolerance.py, and the step is the same with windows in the batch.
+# any point, by tests/experiments/test_fault_tolerance.py, and the step is the same with windows in the batch.
 @pytest.mark.parametrize("window", [9])
 def test_resumed_training_matches_uninterrupted_training(tmp_path, window):
     full = _train(_tiny_config(tmp_path / "full", window=window))

@@ -21,8 +21,9 @@ from jaxpose.formats import detection_file, intrinsics
 from jaxpose.layouts import layout_joint_names, lifting_skeleton
 from jaxpose.train import init_train_state
 from keypoint_writers import write_frame
+import paths
 
-POSE2SIM_BODY25B = Path(__file__).resolve().parents[2] / "shared/data/formats/openpose-json/pose2sim_demo_balancing_body25b"
+POSE2SIM_BODY25B = paths.FORMATS / "openpose-json/pose2sim_demo_balancing_body25b"
 needs_pose2sim = pytest.mark.skipif(not POSE2SIM_BODY25B.is_dir(), reason=f"{POSE2SIM_BODY25B} (a real sample) is absent")
 IMAGE = ("1088", "1920")  # the Pose2Sim demo's portrait video
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import pathlib
 
 import numpy as np
 import pytest
@@ -29,8 +28,9 @@ from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.synthetic import SyntheticConfig, generate
 from jaxpose.skeleton import SKELETONS, H36M_17
 from help_text import assert_every_flag_documented
+import paths
 
-S1_DIR = pathlib.Path(__file__).resolve().parents[2] / "shared" / "data" / "h36m_s1"
+S1_DIR = paths.H36M_S1
 NAMES = ("c0", "c1", "c2", "c3")
 FAST = CalibrationConfig(max_frames=300)
 

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import pathlib
 
 import nbformat
 import pytest
 from nbclient import NotebookClient
+import paths
 
-NOTEBOOK = pathlib.Path(__file__).resolve().parents[1] / "notebooks" / "quickstart.ipynb"
+NOTEBOOK = paths.REPO / "notebooks" / "quickstart.ipynb"
 
 
 @pytest.mark.slow  # ~30 s: a kernel and a training; the same job runs in test_end_to_end, the notebook with `pytest -m slow`

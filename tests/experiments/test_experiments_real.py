@@ -91,6 +91,7 @@ def test_h36m_videopose3d_layout_self_supervised(cpn_run):
     assert TABLE_II_HEADER in text and "MPJPE (mm, root-relative, no alignment" in text
 
 
+@pytest.mark.trains
 def test_humaneva_table_iii_layout(tmp_path):
     files = write_humaneva_files(tmp_path / "humaneva", subjects=("S1", "S2"))
     run_dir = tmp_path / "run"
@@ -107,6 +108,7 @@ def test_humaneva_table_iii_layout(tmp_path):
     float(ours[7])
 
 
+@pytest.mark.trains
 def test_mpi_inf_3dhp_evaluation_of_an_h36m17_run(cpn_run, tmp_path):
     run_dir, _ = cpn_run
     K = {name: camera_intrinsics(name) for name in ("TS1", "TS5")}
@@ -125,6 +127,7 @@ def test_mpi_inf_3dhp_evaluation_of_an_h36m17_run(cpn_run, tmp_path):
     assert "| Paper: ours (self-supervised) | 2935 | 65.9 | 32.5 | - | - |" in text
 
 
+@pytest.mark.trains
 def test_mpi_inf_3dhp_rejects_a_16_joint_model(sh_run, tmp_path):
     run_dir, _ = sh_run
     with pytest.raises(SystemExit) as stop:
@@ -132,6 +135,7 @@ def test_mpi_inf_3dhp_rejects_a_16_joint_model(sh_run, tmp_path):
     assert "16 joints" in str(stop.value.code) and "--data.detections sh" in str(stop.value.code)
 
 
+@pytest.mark.trains
 def test_mpi_inf_3dhp_missing_data(cpn_run, tmp_path):
     with pytest.raises(SystemExit) as stop:
         mpi_inf_3dhp.main(["--run-dir", str(cpn_run[0]), "--data-dir", str(tmp_path / "none"), "--no-progress"])

@@ -61,6 +61,7 @@ def test_atomic_output_renames_into_place(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["poses.npz"]
 
 
+@pytest.mark.processes
 def test_jaxpose_info_lines_reach_the_terminal_once_whatever_configured_the_root_logger():
     script = (
         "import logging; logging.basicConfig(level=logging.WARNING, format='ROOT %(message)s');"

@@ -4,7 +4,6 @@ the real samples as they are, the refusals, frame numbers and the process pool (
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,8 +14,9 @@ from jaxpose.formats import coco_results
 from jaxpose.formats import keypoint_files as kf
 from jaxpose.formats.errors import DataFormatError
 from keypoint_writers import check_matches, coco_entry, openpose_document, random_people, write_folder, write_frame
+import paths
 
-FORMATS = Path(__file__).resolve().parents[2] / "shared" / "data" / "formats"
+FORMATS = paths.FORMATS
 needs_formats = pytest.mark.skipif(not FORMATS.is_dir(), reason=f"{FORMATS} (the real format samples) is absent")
 BODY25B = FORMATS / "openpose-json" / "pose2sim_demo_balancing_body25b"
 HALPE26 = FORMATS / "openpose-json" / "pose2sim_rtmpose_halpe26_2cam"

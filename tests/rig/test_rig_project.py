@@ -14,7 +14,6 @@ from experiments import rig as rig_job
 from jaxpose import predict, validation
 from jaxpose import camera
 from jaxpose.camera import Cameras, projection_matrices
-from jaxpose.formats.anipose_toml import write_anipose_toml
 from jaxpose.formats.rig_calibration import read_rig_calibration
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.rig.people import choose_person
@@ -22,6 +21,7 @@ from jaxpose.rig.project import RigProjectConfig, load_rig_project
 from jaxpose.rig.sync import estimate_offsets
 from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
 from jaxpose.formats.trc import read_trc
+import paths
 
 SMALL = ExampleProjectConfig(recordings=2, frames_per_recording=240)
 
@@ -60,6 +60,7 @@ def _pixels(cameras: Cameras, points: np.ndarray) -> np.ndarray:
     return np.asarray(camera.project(cameras[None], jnp.asarray(points, jnp.float32)[:, None]))
 
 
+@pytest.mark.trains
 def test_example_project_trains_resumes_and_lifts(project, tmp_path):
     run_dir = tmp_path / "run"
     flags = [
@@ -253,6 +254,7 @@ def test_a_project_without_calibration_or_image_size_is_refused(tmp_path):
 
 
 @pytest.mark.slow  # ~28 s of calibration; measured on Human3.6M in docs/rig.md, calibration itself in test_calibration.py
+@pytest.mark.trains
 def test_a_project_without_calibration_recovers_the_rig(tmp_path):
     """No calibration file: the rig is recovered from the recordings (jaxpose.calibrate), and the
     ground truth is brought into its world frame for evaluation."""
@@ -288,7 +290,7 @@ def test_ground_truth_for_some_recordings_serves_evaluation_only(project_copy):
     assert valid[with_truth].any() and not valid[~with_truth].any()
 
 
-SHARED_FORMATS = __import__("pathlib").Path(__file__).resolve().parents[2] / "shared" / "data" / "formats"
+SHARED_FORMATS = paths.FORMATS
 
 
 @pytest.mark.skipif(not SHARED_FORMATS.is_dir(), reason="needs ../shared/data/formats (real sample files)")

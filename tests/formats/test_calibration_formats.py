@@ -30,8 +30,9 @@ from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.h36m_cameras import opencv_from_h36m_distortion, opencv_rig_from_h36m
 from jaxpose.formats.rig_calibration import RigCalibration, find_calibration, read_rig_calibration
 from jaxpose.rotations import rotation_from_rodrigues
+import paths
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
+SHARED = paths.SHARED_DATA.parent
 FORMATS = SHARED / "data" / "formats"
 ANIPOSE = FORMATS / "anipose-calibration-toml"
 POSE2SIM = FORMATS / "pose2sim-calib-toml"

@@ -9,7 +9,6 @@ detections (most joints 6-13 px; SH's "Spine" and "Head" are MPII joints: ~43 an
 
 from __future__ import annotations
 
-import pathlib
 import warnings
 
 import numpy as np
@@ -21,8 +20,9 @@ from jaxpose.camera import camera_centres, project
 from jaxpose.config import PseudoLabelConfig
 from jaxpose.formats.h36m_cameras import read_h36m_cameras
 from jaxpose.datasets.h36m import CAMERA_NAMES, load_h36m
+import paths
 
-S1_DIR = pathlib.Path(__file__).resolve().parents[2] / "shared" / "data" / "h36m_s1"
+S1_DIR = paths.H36M_S1
 pytestmark = pytest.mark.skipif(
     not (S1_DIR / "cameras.h5").is_file(), reason=f"the real Human3.6M S1 development set is not at {S1_DIR}"
 )

@@ -312,6 +312,7 @@ def test_labelling_passes_every_config_field_to_the_solver(scene):
     np.testing.assert_array_equal(default.detection_weight[:, 1, 5], 1.0)  # ... kept at the default 25 px
 
 
+@pytest.mark.trains
 def test_the_comparison_command_writes_its_table(tmp_path):
     from experiments import pseudo_labels
 
@@ -321,6 +322,7 @@ def test_the_comparison_command_writes_its_table(tmp_path):
     assert "| harsh-noconf | `ransac` |" in table and "Lifter" not in table
 
 
+@pytest.mark.trains
 def test_the_comparison_command_names_a_training_it_cannot_run(tmp_path):
     from experiments import pseudo_labels
 

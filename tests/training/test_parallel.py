@@ -29,8 +29,9 @@ from parallel_worker import (
 from jaxpose import checkpoint, parallel
 from jaxpose.data.dataset import steps_per_epoch
 from jaxpose.train import init_train_state
+import paths
 
-WORKER = pathlib.Path(__file__).with_name("parallel_worker.py")
+WORKER = paths.TESTS / "parallel_worker.py"
 REPO = WORKER.parent.parent
 
 
@@ -63,6 +64,7 @@ def _relative_error(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.linalg.norm(a - b) / max(np.linalg.norm(b), 1e-30))
 
 
+@pytest.mark.processes
 def test_eight_devices_train_as_one(tmp_path):
     out, log = tmp_path / "sharded.npz", tmp_path / "sharded.log"
     worker = _start_worker(["sharded", str(out)], devices=8, log=log)
@@ -89,6 +91,7 @@ def test_eight_devices_train_as_one(tmp_path):
     assert "does not split evenly over 8 devices" in str(eight["uneven_batch_error"])
 
 
+@pytest.mark.processes
 def test_two_processes_train_resume_and_agree(tmp_path):
     count, port, run_dir = 2, _free_port(), tmp_path / "run"
     outs = [tmp_path / f"process{i}.npz" for i in range(count)]

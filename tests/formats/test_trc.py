@@ -9,8 +9,9 @@ import pytest
 
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.trc import HEADER_KEYS, marker_name, read_trc, write_trc
+import paths
 
-TRC = Path(__file__).resolve().parents[2] / "shared" / "data" / "formats" / "trc"
+TRC = paths.FORMATS / "trc"
 needs_formats = pytest.mark.skipif(not TRC.is_dir(), reason=f"{TRC} (the real TRC samples) is absent")
 
 

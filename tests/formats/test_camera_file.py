@@ -88,6 +88,7 @@ def test_cli_convert_and_check(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("subcommand, arguments", [("convert", ["CAMERAS_H5", "OUT_JSON"]), ("check", ["CAMERAS_JSON"])])
+@pytest.mark.processes
 def test_cli_help_runs_as_a_module_and_documents_every_argument(subcommand, arguments):
     command = [sys.executable, "-m", "jaxpose.formats.camera_file", subcommand, "--help"]
     result = subprocess.run(command, capture_output=True, text=True, check=True)

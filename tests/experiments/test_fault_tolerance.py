@@ -25,8 +25,11 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 import pytest
+import paths
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
+pytestmark = [pytest.mark.trains, pytest.mark.processes]
+
+REPO = paths.REPO
 # The tiny preset on 1,500 training samples, batch 64: 23 steps per epoch, 46 steps, a checkpoint every 4 steps.
 TINY = [
     "--preset", "tiny", "--train.epochs", "2", "--train.batch-size", "64", "--train.checkpoint-every", "4",

@@ -20,12 +20,13 @@ from jaxpose.synthetic import ExampleProjectConfig, keypoints3d, rig_calibration
 from jaxpose.synthetic.project import main
 from jaxpose.layouts import OPENPOSE_25_JOINT_NAMES
 from jaxpose.skeleton import COCO_17
+import paths
 
 # Small projects: a fast walk (so that a 3-frame shift shows) and a slower motion, a second person
 # in a quarter of the frames.
 COCO = ExampleProjectConfig(recordings=2, frames_per_recording=80, motions=("walking", "reaching"), second_person_rate=0.25)
 BODY25 = dataclasses.replace(COCO, layout="body25", recordings=1, frames_per_recording=60, seed=3)
-REAL_OPENPOSE = Path(__file__).resolve().parents[2] / "shared/data/formats/openpose-json"
+REAL_OPENPOSE = paths.FORMATS / "openpose-json"
 PERSON_KEYS = [
     "person_id", "pose_keypoints_2d", "face_keypoints_2d", "hand_left_keypoints_2d", "hand_right_keypoints_2d",
     "pose_keypoints_3d", "face_keypoints_3d", "hand_left_keypoints_3d", "hand_right_keypoints_3d",
