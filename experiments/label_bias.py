@@ -36,7 +36,8 @@ import numpy as np
 
 from experiments import ablation, cli, h36m
 from experiments.config import ExperimentConfig
-from experiments.runner import Splits, run
+from experiments.runner import run
+from experiments.splits import Splits
 from jaxpose import evaluation, inference, pseudo_labelling
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.losses import TERMS

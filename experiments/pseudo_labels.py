@@ -27,7 +27,8 @@ import numpy as np
 import tyro
 
 from experiments.config import RunConfig, TrainConfig
-from experiments.runner import Splits, run
+from experiments.runner import run
+from experiments.splits import Splits
 from experiments.synthetic import DEFAULT, SyntheticData, load_splits
 from jaxpose import pseudo_labelling
 from jaxpose.config import ModelConfig, PseudoLabelConfig

@@ -13,6 +13,7 @@ from experiments.config import ExperimentConfig, to_json_dict
 from experiments.run_directory import read_jsonl
 from experiments.splits import Splits
 from jaxpose import evaluation, pseudo_labelling, validation, viz
+from jaxpose.data import ground_truth
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.losses import TERMS
 from jaxpose.train import GRADIENT_SHARE_PREFIX, TrainState, make_eval_step
@@ -40,7 +41,7 @@ def evaluate_and_report(
     excluded = splits.detector_specific_joints
     rows, joint_names = {}, test.skeleton.joint_names
     if test.target3d is not None:
-        joints = evaluation.ground_truth_joints(test)
+        joints = ground_truth.ground_truth_joints(test)
         joint_names = tuple(joint_names[j] for j in joints)
         target, valid = evaluation.ground_truth_in_views(test)
         mean_pose = np.broadcast_to(evaluation.mean_pose_prediction(splits.train), pred.shape)

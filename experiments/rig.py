@@ -27,7 +27,7 @@ import pathlib
 
 from experiments import cli, h36m
 from experiments.config import ExperimentConfig, RunConfig
-from experiments.runner import Splits
+from experiments.splits import Splits
 from jaxpose.formats.camera_file import save_cameras
 from jaxpose.rig.project import RigProject, RigProjectConfig, load_rig_project
 

@@ -17,6 +17,7 @@ from tqdm.auto import tqdm
 from experiments.config import ExperimentConfig
 from experiments.run_directory import RunLog
 from jaxpose import checkpoint, evaluation, parallel, pseudo_labelling, validation
+from jaxpose.data import ground_truth
 from jaxpose.data.dataset import MultiViewDataset, steps_per_epoch
 from jaxpose.train import TrainState, init_train_state, jit_train_step, make_eval_step, make_train_step
 
@@ -58,7 +59,7 @@ def periodic_evaluation(config: ExperimentConfig, test: MultiViewDataset, model)
     subset = pseudo_labelling.label(test.subset(rows), config.pseudo_labels)  # its views' triangulation, once
     truth = None
     if subset.target3d is not None:
-        joints = evaluation.ground_truth_joints(subset)
+        joints = ground_truth.ground_truth_joints(subset)
         target, valid = evaluation.ground_truth_in_views(subset)
         truth = (joints, target[..., joints, :], valid)
     eval_step = make_eval_step(model, config.model)

@@ -4,7 +4,7 @@
     python -m jaxpose.calibrate --input data/h36m --subject S1 --output s1_cameras.json \\
         --reference data/h36m/cameras.h5                       # a Human3.6M subject, checked against its calibration
 
-Input: an ``.npz`` of synchronized multi-view detections (arrays: see `jaxpose.calibration.inputs`),
+Input: an ``.npz`` of synchronized multi-view detections (arrays: see `jaxpose.formats.detections_npz`),
 or a Human3.6M data folder (the h36m.zip tree), of which `--subject` is read with `--detections`.
 Output: the camera file (K, R, t in mm, dist as given; world frame and scale in its "comment"), a
 report (`<output>.md`, also printed) with each camera's re-projection error and, with

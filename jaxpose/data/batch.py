@@ -10,7 +10,7 @@ import jax
 import numpy as np
 from flax import struct
 
-from jaxpose.camera import Cameras
+from jaxpose.camera import Cameras, camera_centres
 
 
 @struct.dataclass
@@ -105,7 +105,7 @@ def validate_cameras(cameras: Cameras, batch_shape: tuple[int, ...], name: str =
             f"{name}.R: not a rotation (orthonormal, det +1) at index {_first_index(not_rotation)} (shape {R.shape})"
         )
     if len(batch_shape) >= 1 and batch_shape[-1] >= 2:
-        centers = -np.einsum("...ji,...j->...i", R, t)
+        centers = camera_centres(R, t)
         gaps = np.linalg.norm(centers[..., :, None, :] - centers[..., None, :, :], axis=-1)
         gaps = gaps + np.eye(batch_shape[-1]) * 1e9
         coincident = gaps.min(-1) < 1.0

@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpose.camera import Cameras, project_from_camera, undistort_points, world_to_camera
+from jaxpose.camera import Cameras, camera_centres, project_from_camera, undistort_points, world_to_camera
 from jaxpose.formats.calibrated_rig import RigCalibration
 from jaxpose.rotations import nearest_rotation
 from jaxpose.skeleton import H36M_17
@@ -258,7 +258,7 @@ def passer_by_poses(
     step = np.gradient(root[:, :2], axis=0)
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(root[:, :2], axis=0), axis=1))])
     camera = int(rng.integers(config.cameras))
-    centre = -np.asarray(rig.R[camera]).T @ np.asarray(rig.t[camera])
+    centre = camera_centres(rig.R[camera], rig.t[camera])
     outward = centre[:2] / np.linalg.norm(centre[:2], axis=-1, keepdims=True)
     across = np.array([-outward[1], outward[0]]) * rng.choice([-1.0, 1.0])
     distance = np.linalg.norm(centre[:2]) + rng.uniform(800.0, 2000.0)  # behind that camera

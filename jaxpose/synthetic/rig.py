@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpose.camera import Cameras, project_from_camera, world_to_camera
+from jaxpose.camera import Cameras, camera_centres, project_from_camera, world_to_camera
 from jaxpose.synthetic.body import axis_rotation
 from jaxpose.synthetic.config import SyntheticConfig
 
@@ -59,7 +59,7 @@ def jitter_rig(rng: np.random.Generator, rig: Cameras) -> Cameras:
     refocused ~0.5%, as repeated calibrations of one studio differ."""
     R, t, K = (np.asarray(field, np.float64) for field in (rig.R, rig.t, rig.K))
     C = len(K)
-    centers = -np.einsum("cji,cj->ci", R, t) + rng.normal(0.0, 20.0, (C, 3))
+    centers = camera_centres(R, t) + rng.normal(0.0, 20.0, (C, 3))
     tilt = axis_rotation(0, rng.normal(0.0, 0.5, C)) @ axis_rotation(1, rng.normal(0.0, 0.5, C))
     R = tilt @ axis_rotation(2, rng.normal(0.0, 0.5, C)) @ R
     K = K.copy()
