@@ -14,7 +14,7 @@ import sys
 
 LOGGERS = ("jaxpose", "experiments")
 FORMAT = "%(asctime)s %(levelname)s %(message)s"
-_HANDLER_NAME = "jaxpose-terminal"
+HANDLER_NAME = "jaxpose-terminal"
 
 
 class _TerminalHandler(logging.StreamHandler):
@@ -35,8 +35,8 @@ def show_logs(level: int = logging.INFO) -> None:
         logger = logging.getLogger(name)
         logger.setLevel(level)
         logger.propagate = False
-        if not any(handler.get_name() == _HANDLER_NAME for handler in logger.handlers):
+        if not any(handler.get_name() == HANDLER_NAME for handler in logger.handlers):
             handler = _TerminalHandler()
-            handler.set_name(_HANDLER_NAME)
+            handler.set_name(HANDLER_NAME)
             handler.setFormatter(logging.Formatter(FORMAT, datefmt="%H:%M:%S"))
             logger.addHandler(handler)

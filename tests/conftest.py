@@ -1,8 +1,10 @@
+import logging
+
 import hypothesis
 import pytest
 
 from experiments import synthetic as synthetic_job
-from jaxpose import inference
+from jaxpose import inference, logs
 
 # Property tests jit per example shape; keep them deterministic and within the CI budget.
 hypothesis.settings.register_profile("jaxpose", max_examples=25, deadline=None, derandomize=True)
@@ -20,3 +22,14 @@ def trained_run(tmp_path_factory):
 @pytest.fixture(scope="session")
 def lifter(trained_run):
     return inference.load(trained_run[0])
+
+
+@pytest.fixture(autouse=True)
+def _loggers_as_pytest_sees_them():
+    """A command run in-process gives jaxpose's loggers their own terminal handler and stops them
+    propagating (jaxpose.logs.show_logs); undo that after each test so the next one's caplog sees them."""
+    yield
+    for name in logs.LOGGERS:
+        logger = logging.getLogger(name)
+        logger.propagate = True
+        logger.handlers = [handler for handler in logger.handlers if handler.get_name() != logs.HANDLER_NAME]
