@@ -18,6 +18,7 @@ import shutil
 import h5py
 import jax.numpy as jnp
 import numpy as np
+import paths
 import pytest
 import scipy.io
 from fixtures_real_data import (
@@ -33,10 +34,12 @@ from hypothesis import strategies as st
 from jaxpose import pseudo_labelling
 from jaxpose.data import BatchValidationError, validate_batch
 from jaxpose.data.dataset import MultiViewDataset
-from jaxpose.formats.errors import DataFormatError
 from jaxpose.datasets.h36m import load_h36m
 from jaxpose.datasets.humaneva import load_humaneva
 from jaxpose.datasets.mpi_inf_3dhp import load_mpi_inf_3dhp_test
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats.rig_calibration import read_rig_calibration
+from jaxpose.rig.project import RigProjectConfig, load_rig_project
 
 # Few examples keep the suite fast; HARDEN_EXAMPLES=500 explores more (it passed so when written).
 SMALL = settings(
@@ -307,3 +310,21 @@ def test_bad_batch_fields_are_named(good, field, kind, position):
 def test_degenerate_batches(good, change, message):
     with pytest.raises(BatchValidationError, match=message):
         validate_batch(change(good))
+
+
+# ----------------------------------------------------------------------------------------------
+# Camera names across the tools (issue 34 items 17, 18; the rules: tests/formats/test_camera_names.py)
+
+
+@pytest.mark.skipif(not paths.FORMATS.is_dir(), reason="needs ../shared/data/formats (real sample files)")
+def test_pose2sim_scene_calibration_names_its_folders_cameras(tmp_path):
+    """Pose2Sim's Calib_scene.toml names its cameras after the intrinsics image folders (int_cam01_img):
+    they are the cameras of the folders cam01_json ... cam04_json, each with its own intrinsics."""
+    root = tmp_path / "demo"
+    shutil.copytree(paths.FORMATS / "openpose-json" / "pose2sim_demo_balancing_body25b", root / "balancing")
+    scene = paths.FORMATS / "pose2sim-calib-toml" / "pose2sim_demo_Calib_scene.toml"
+    shutil.copy(scene, root / "Calib_scene.toml")
+    data = load_rig_project(RigProjectConfig(root=root, skeleton="body25b", validation_fraction=0.5), progress=False)
+    assert data.camera_names == ("cam01", "cam02", "cam03", "cam04")
+    rig = read_rig_calibration(scene)
+    np.testing.assert_allclose(data.train.cameras_for(np.arange(1)).K[0], rig.cameras.K, rtol=1e-6)

@@ -19,6 +19,7 @@ from typing import Literal
 import numpy as np
 
 from jaxpose.camera import Cameras, camera_centres
+from jaxpose.formats.camera_names import CameraMismatch, match_cameras
 from jaxpose.formats.errors import DataFormatError
 
 __all__ = [
@@ -58,28 +59,27 @@ class RigCalibration:
     unit: str
 
     def select(self, names: Sequence[str], what: str) -> RigCalibration:
-        """The cameras `names`, in that order.
+        """The cameras `names`, in that order, named so.
 
-        A name missing from the calibration raises `DataFormatError` naming `self.source`, listing
-        the calibration's camera names and `names`; `what` says where `names` come from (e.g.
-        'detection folders of recording walk1').
+        A name is matched to the calibration's cameras as `jaxpose.formats.camera_names.match_cameras`
+        says (``cam_01`` is ``int_cam01_img``; never by order); one without a camera, or with several,
+        raises `DataFormatError` naming `self.source`, listing the calibration's camera names and
+        `names`; `what` says where `names` come from (e.g. 'detection folders of recording walk1').
         """
         names = (names,) if isinstance(names, str) else tuple(str(name) for name in names)
         if not names:
             raise DataFormatError(self.source, f"at least one camera name from the {what}", "none")
-        missing = [name for name in names if name not in self.camera_names]
-        if missing:
-            raise DataFormatError(
-                self.source,
-                f"a camera for every name of the {what}: {list(names)}",
-                f"the calibration's cameras {list(self.camera_names)}, which lack {missing}",
-            )
         repeated = sorted({name for name in names if names.count(name) > 1})
         if repeated:
             raise DataFormatError(
                 self.source, f"distinct camera names from the {what}", f"{repeated} more than once in {list(names)}"
             )
-        index = np.array([self.camera_names.index(name) for name in names], dtype=np.int64)
+        try:
+            matched = match_cameras(self.camera_names, names, self.source)
+        except CameraMismatch as error:
+            expected = f"a camera for every name of the {what}: {list(names)}"
+            raise DataFormatError(self.source, expected, f"the calibration's {error}") from None
+        index = np.array([self.camera_names.index(matched[name]) for name in names], dtype=np.int64)
         return dataclasses.replace(
             self,
             camera_names=names,

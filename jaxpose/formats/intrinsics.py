@@ -2,9 +2,11 @@
 
 Four numbers fx fy cx cy; a calibration file and a camera name (a rig's calibration as
 `jaxpose.formats.rig_calibration` reads it: Anipose / Pose2Sim / FreeMoCap TOML, EasyMocap intri.yml, a
-jaxpose camera file), e.g. ``calibration.toml cam01``; or a JSON file holding one camera in the fields of a
-jaxpose camera file entry: {"K": [[fx, s, cx], [0, fy, cy], [0, 0, 1]], "dist": [k1, k2, p1, p2, k3] or
-null, "image_size": [width, height] or null}; other fields (R, t, name) are ignored.
+jaxpose camera file), e.g. ``calibration.toml cam01``, the name matched to the file's cameras as
+`jaxpose.formats.camera_names` matches them (``cam_01`` finds Pose2Sim's ``int_cam01_img``); or a JSON
+file holding one camera in the fields of a jaxpose camera file entry: {"K": [[fx, s, cx], [0, fy, cy],
+[0, 0, 1]], "dist": [k1, k2, p1, p2, k3] or null, "image_size": [width, height] or null}; other fields
+(R, t, name) are ignored.
 """
 
 from __future__ import annotations

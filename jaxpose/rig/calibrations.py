@@ -6,9 +6,7 @@ set's view order, and the keypoints undistorted with them.
 from __future__ import annotations
 
 import dataclasses
-import logging
 import pathlib
-import re
 from collections.abc import Sequence
 
 import jax
@@ -17,30 +15,23 @@ import numpy as np
 
 from jaxpose.camera import undistort_points
 from jaxpose.formats.calibrated_rig import CalibrationUnit, RigCalibration
+from jaxpose.formats.camera_names import CameraMismatch, match_cameras
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_calibration import find_calibration, read_rig_calibration
 from jaxpose.rig.recordings import Recording
 
-log = logging.getLogger(__name__)
-
-
-def _camera_key(name: str) -> str:
-    """A camera name without case, separators and leading zeros: "cam_01", "Cam1", "cam01" -> "cam1"."""
-    return re.sub(r"\d+", lambda digits: str(int(digits.group())), re.sub(r"[^0-9a-z]", "", name.lower()))
-
 
 def _named_as_detections(calibration: RigCalibration, detection_names: set[str]) -> RigCalibration:
-    """The calibration with its cameras named as the detection folders where the names differ only in
-    case, separators or leading zeros and match one to one (Pose2Sim's calibrations call the cameras of
-    its `cam01_json` folders "cam_01")."""
-    if detection_names <= set(calibration.camera_names):
+    """The calibration with its cameras named as the detection folders, matched as
+    `jaxpose.formats.camera_names.match_cameras` matches them (Pose2Sim's `int_cam01_img` or `cam_01` is
+    the camera of its `cam01_json` folder; by order, as Pose2Sim pairs them, where no name matches at all);
+    where they do not match one to one, the calibration as it is: `RigCalibration.select` reports it."""
+    try:
+        matched = match_cameras(calibration.camera_names, sorted(detection_names), calibration.source, by_order=True)
+    except CameraMismatch:
         return calibration
-    by_key = {_camera_key(name): name for name in detection_names}
-    keys = [_camera_key(name) for name in calibration.camera_names]
-    if len(set(keys)) != len(keys) or len(by_key) != len(detection_names) or not set(by_key) <= set(keys):
-        return calibration  # no one-to-one match: the exact names decide, and their mismatch is reported
-    renamed = tuple(by_key.get(key, name) for key, name in zip(keys, calibration.camera_names))
-    log.info("%s: cameras %s matched to the detection folders %s", calibration.source, calibration.camera_names, renamed)
+    name_of = {camera: name for name, camera in matched.items()}
+    renamed = tuple(name_of.get(camera, camera) for camera in calibration.camera_names)
     return dataclasses.replace(calibration, camera_names=renamed)
 
 
