@@ -1,7 +1,11 @@
 """Parsed input files kept beside them as arrays, in ``.jaxpose_cache/<name>.npz``, reused while unchanged.
 
-The key digests what was cached (a label that carries its version) and the input files' names, sizes and
-modification times: a file added, removed or modified, or a cache of another kind or version, is a miss.
+The key digests what was cached (a label that carries its version) and the input files' names and
+contents (`content_digest`, BLAKE2b of every byte): a file added, removed, renamed or with other bytes, or
+a cache of another kind or version, is a miss.  Contents, not sizes and modification times: a file edited
+in place to the same size with its time kept (``cp -p``, ``rsync -t``, an archive extracted, ``os.utime``)
+must not reuse stale data, and a folder copied without its times need not be parsed again.  The reader
+hashes the bytes it parses anyway, so a first read costs no second pass (benchmarks/keypoint_files.py).
 A cache that cannot be read or written is only a missed shortcut: a warning, never an error.
 """
 
@@ -30,12 +34,23 @@ def cache_file(path: Path) -> Path:
     return path.parent / CACHE_DIR / f"{path.name}.npz"
 
 
-def cache_key(label: str, stats: Iterable[tuple[str, os.stat_result]]) -> str:
-    """The key of a cache of `label` for input files of these (name, stat) pairs, in any order."""
-    digest = hashlib.sha256(f"{label}\n".encode())
-    for name, stat in sorted(stats, key=lambda item: item[0]):
-        digest.update(f"{name}\t{stat.st_size}\t{stat.st_mtime_ns}\n".encode())
-    return digest.hexdigest()
+def content_digest(data: bytes) -> bytes:
+    """The digest of one input file's bytes that cache keys are made of (BLAKE2b, 128 bits)."""
+    return hashlib.blake2b(data, digest_size=16).digest()
+
+
+def file_digest(path: str | os.PathLike) -> bytes:
+    """`content_digest` of the file `path`."""
+    with open(path, "rb") as file:
+        return content_digest(file.read())
+
+
+def cache_key(label: str, digests: Iterable[tuple[str, bytes]]) -> str:
+    """The key of a cache of `label` for input files of these (name, `content_digest`) pairs, in any order."""
+    key = hashlib.sha256(f"{label}\n".encode())
+    for name, digest in sorted(digests):
+        key.update(os.fsencode(name) + b"\0" + digest)  # no name holds a NUL; digests have one length
+    return key.hexdigest()
 
 
 def load(path: Path, key: str, source: str, build: Callable[[Mapping[str, np.ndarray]], _Parsed]) -> _Parsed | None:

@@ -21,7 +21,7 @@ file and the field, before anything is returned.
 Folders of many files are parsed by a process pool (`read_openpose_folder`), with orjson when it is
 importable (`jaxpose.formats.fast_json`); COCO files by `jaxpose.formats.coco_results`.  The results of
 `read_camera_detections` are cached beside the input, in ``.jaxpose_cache/<name>.npz`` in the folder that
-holds the camera folder or results file, keyed by the input files' names, sizes and modification times;
+holds the camera folder or results file, keyed by the input files' names and contents (`file_cache`);
 see benchmarks/README.md for the speeds.
 """
 
@@ -162,15 +162,17 @@ class _FieldError(Exception):
 
 
 def _parse_chunk(paths: Sequence[str]) -> tuple:
-    """Parse OpenPose frames: ("ok", people int32[n], lengths int32[persons], values f32[sum(lengths)])
-    or ("error", where, expected, found) for the first bad file (DataFormatError does not pickle)."""
-    people, lengths, flat = [], [], []
+    """Parse OpenPose frames: ("ok", people int32[n], lengths int32[persons], values f32[sum(lengths)],
+    each file's `file_cache.content_digest`) or ("error", where, expected, found) for the first bad file
+    (DataFormatError does not pickle)."""
+    people, lengths, flat, digests = [], [], [], []
     for path in paths:
         try:
             with open(path, "rb") as file:
                 data = file.read()
         except OSError as error:
             return "error", path, "a readable OpenPose JSON frame", f"{type(error).__name__}: {error.strerror}"
+        digests.append(file_cache.content_digest(data))
         try:
             frame = fast_json.loads(data)
         except ValueError as error:  # json.JSONDecodeError and UnicodeDecodeError are ValueErrors
@@ -193,7 +195,15 @@ def _parse_chunk(paths: Sequence[str]) -> tuple:
             raise ValueError("nested lists")
     except (TypeError, ValueError):
         return _first_non_numeric(paths)
-    return "ok", np.array(people, np.int32), np.array(lengths, np.int32), values
+    return "ok", np.array(people, np.int32), np.array(lengths, np.int32), values, digests
+
+
+def _digest_chunk(paths: Sequence[str]) -> tuple:
+    """("ok", each file's `file_cache.content_digest`) or ("error", where, expected, found), as `_parse_chunk`."""
+    try:
+        return "ok", [file_cache.file_digest(path) for path in paths]
+    except OSError as error:
+        return "error", error.filename, "a readable OpenPose JSON frame", f"{type(error).__name__}: {error.strerror}"
 
 
 def _first_non_numeric(paths: Sequence[str]) -> tuple:
@@ -281,8 +291,25 @@ def read_openpose_frames(
     `workers` processes parse chunks of `CHUNK_FILES` files (default ``os.cpu_count()``; one process below
     `POOL_MIN_FILES` files, where a pool does not pay).  `progress` shows a tqdm bar for long reads.
     """
-    frames = [frame for frame, _ in files]
+    return _read_frames(files, source, progress, workers)[0]
+
+
+def _read_frames(
+    files: Sequence[tuple[int, str]], source: str, progress: bool, workers: int | None
+) -> tuple[CameraDetections, list[bytes]]:
+    """`read_openpose_frames`, and each file's `file_cache.content_digest` (of the bytes it parsed)."""
     paths = [path for _, path in files]
+    parts = _map_chunks(_parse_chunk, paths, f"reading {Path(source).name}", progress, workers)
+    people, lengths, values = (np.concatenate(column) for column in list(zip(*parts))[:3])
+    owners = [os.path.basename(p) for p in paths]
+    detections = _assemble(np.array([frame for frame, _ in files], np.int64), people, lengths, values, source, owners)
+    return detections, [digest for part in parts for digest in part[3]]
+
+
+def _map_chunks(function, paths: Sequence[str], desc: str, progress: bool, workers: int | None) -> list[tuple]:
+    """The results but their "ok" of `function` on chunks of `CHUNK_FILES` paths, in order, by `workers`
+    processes where `len(paths)` makes a pool pay (`read_openpose_frames`); the first ("error", where,
+    expected, found) result raises its `DataFormatError`."""
     chunks = [paths[i : i + CHUNK_FILES] for i in range(0, len(paths), CHUNK_FILES)]
     context, threshold = _pool_context()
     workers = min(workers or os.cpu_count() or 1, len(chunks))
@@ -294,11 +321,10 @@ def read_openpose_frames(
                 # JAX (when the caller started it) warns at every fork; these workers never touch JAX.
                 for category in (RuntimeWarning, DeprecationWarning):
                     warnings.filterwarnings("ignore", r".*(os\.fork|use of fork)", category)
-                results = executor.map(_parse_chunk, chunks)
+                results = executor.map(function, chunks)
         else:
-            results = map(_parse_chunk, chunks)
-        with tqdm(total=len(paths), desc=f"reading {Path(source).name}", unit="file", disable=not progress,
-                  delay=0.5) as bar:  # fmt: skip
+            results = map(function, chunks)
+        with tqdm(total=len(paths), desc=desc, unit="file", disable=not progress, delay=0.5) as bar:
             for chunk, result in zip(chunks, results):
                 if result[0] == "error":
                     raise DataFormatError(*result[1:])
@@ -307,9 +333,7 @@ def read_openpose_frames(
     finally:
         if executor is not None:
             executor.shutdown(wait=True, cancel_futures=True)
-    people, lengths, values = (np.concatenate(column) for column in zip(*parts))
-    owners = [os.path.basename(p) for p in paths]
-    return _assemble(np.array(frames, np.int64), people, lengths, values, source, owners)
+    return parts
 
 
 # ---------------------------------------------------------------------------------------------
@@ -360,37 +384,47 @@ def read_camera_detections(path: str | Path, progress: bool = True, cache: bool 
     the file holds one JSON object, a single OpenPose frame).
 
     With `cache`, the arrays are kept in ``.jaxpose_cache/<name>.npz`` in the folder that holds `path` and
-    reused while no input file was added, removed or modified (names, sizes and modification times);
-    a corrupt or unwritable cache is ignored with a warning.
+    reused while no input file was added, removed, renamed or changed in content (`jaxpose.formats.file_cache`:
+    the files are hashed where a cache exists, and as they are parsed where none does); a corrupt or
+    unwritable cache is ignored with a warning.
     """
     path = Path(path)
     if path.is_dir():
         listing = _json_entries(path)
-        stats = [(e.name, e.stat()) for e in listing]  # the frame numbers only when the cache misses
 
-        def parse() -> CameraDetections:
+        def digests() -> list[tuple[str, bytes]]:
+            parts = _map_chunks(_digest_chunk, [entry.path for entry in listing], f"checking {path.name}", progress, None)
+            return list(zip((entry.name for entry in listing), (digest for part in parts for digest in part[0])))
+
+        def parse() -> tuple[CameraDetections, list[tuple[str, bytes]]]:
             files = [(frame, entry.path) for frame, entry in _numbered(path, listing)]
-            return read_openpose_frames(files, str(path), progress)
+            detections, contents = _read_frames(files, str(path), progress, None)
+            return detections, list(zip((os.path.basename(file) for _, file in files), contents))
 
     elif path.is_file() and path.suffix == ".json":
-        stats = [(path.name, path.stat())]
 
-        def parse() -> CameraDetections:
-            return read_openpose_folder(path) if is_openpose_frame_file(path) else read_coco_results(path)
+        def digests() -> list[tuple[str, bytes]]:
+            return [(path.name, file_cache.file_digest(path))]
+
+        def parse() -> tuple[CameraDetections, list[tuple[str, bytes]]]:
+            contents = digests()  # read before parsing: a file changed meanwhile is read again next time
+            return (read_openpose_folder(path) if is_openpose_frame_file(path) else read_coco_results(path)), contents
 
     else:
         found = "nothing there" if not path.exists() else f"a {path.suffix or 'suffix-less'} file"
         raise DataFormatError(path, "a folder of OpenPose JSON frames or a COCO keypoint-results .json file", found)
     if not cache:
-        return parse()
-    key = file_cache.cache_key(f"jaxpose keypoint cache v{CACHE_VERSION}", stats)
+        return parse()[0]
+    label = f"jaxpose keypoint cache v{CACHE_VERSION}"
     cache_file = file_cache.cache_file(path)
-    cached = file_cache.load(cache_file, key, str(path), lambda arrays: _from_arrays(arrays, str(path)))
-    if cached is not None:
-        return cached
-    detections = parse()
+    if cache_file.exists():
+        key = file_cache.cache_key(label, digests())
+        cached = file_cache.load(cache_file, key, str(path), lambda arrays: _from_arrays(arrays, str(path)))
+        if cached is not None:
+            return cached
+    detections, contents = parse()
     arrays = {field: getattr(detections, field) for field in ("frames", "keypoints", "scores", "people")}
-    file_cache.save(cache_file, key, detections.source, arrays)
+    file_cache.save(cache_file, file_cache.cache_key(label, contents), detections.source, arrays)
     return detections
 
 

@@ -58,22 +58,43 @@ def test_cache_is_reused_and_rebuilt_when_files_change(tmp_path, monkeypatch, ca
     check_matches(changed(lambda: write_frame(folder / "clip_000000000004_keypoints.json", written[4])), written)
     del written[0]  # removed
     check_matches(changed(lambda: (folder / "clip_000000000000_keypoints.json").unlink()), written)
-    # Same size, only the modification time differs.
+    written[7] = written.pop(4)  # renamed: the same bytes under another frame number
+    moved = lambda: os.replace(folder / "clip_000000000004_keypoints.json", folder / "clip_000000000007_keypoints.json")
+    check_matches(changed(moved), written)
+    # The key is the files' contents: a file touched, or a folder copied without its times, is still cached.
     path = folder / "clip_000000000002_keypoints.json"
     stat = path.stat()
-    check_matches(changed(lambda: os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1000))), written)
-
-
-def test_cache_of_a_coco_file(tmp_path, monkeypatch):
-    path = tmp_path / "cam01.json"
-    people = random_people(np.random.default_rng(2), 2, joints=17)
-    path.write_text(json.dumps([coco_entry(5, people[0]), coco_entry("x-6.png", people[1])]))
-    first = kf.read_camera_detections(path)
-    assert (tmp_path / file_cache.CACHE_DIR / "cam01.json.npz").is_file()
+    os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))
     with monkeypatch.context() as patch:
         _no_parsing(patch)
-        check_matches(kf.read_camera_detections(path), {5: [people[0]], 6: [people[1]]})
-    np.testing.assert_array_equal(first.keypoints, kf.read_camera_detections(path, cache=False).keypoints)
+        check_matches(kf.read_camera_detections(folder, progress=False), written)
+
+
+@pytest.mark.parametrize("kind", ["openpose", "coco"])
+def test_same_size_and_time_but_other_bytes_are_read_again(tmp_path, kind, caplog):
+    """A file edited in place to the same size with its modification time kept (cp -p, rsync -t, an
+    archive extracted) is parsed again: the cache key is the files' contents, not their stat."""
+    if kind == "openpose":
+        source = tmp_path / "cam01_json"
+        write_folder(source, [1, 1, 1])
+        path = source / "clip_000000000001_keypoints.json"
+    else:
+        source = path = tmp_path / "cam01.json"
+        people = random_people(np.random.default_rng(5), 2, joints=17)
+        path.write_text(json.dumps([coco_entry(3, people[0]), coco_entry(4, people[1])]))
+    stale = kf.read_camera_detections(source, progress=False)
+    before, stat = path.read_bytes(), path.stat()
+    values = before.index(b"keypoints")  # pose_keypoints_2d or keypoints: past OpenPose's "version": 1.3
+    digit = next(i for i in range(values, len(before)) if before[i - 1 : i] == b"." and before[i : i + 1].isdigit())
+    after = before[:digit] + str((int(before[digit : digit + 1]) + 1) % 10).encode() + before[digit + 1 :]
+    path.write_bytes(after)  # the first decimal of the first coordinate changed, in place
+    os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    assert (path.stat().st_size, path.stat().st_mtime_ns) == (stat.st_size, stat.st_mtime_ns)
+    with caplog.at_level("INFO", logger=file_cache.__name__):
+        again = kf.read_camera_detections(source, progress=False)
+    assert "changed since" in caplog.text and "reading it again" in caplog.text
+    np.testing.assert_array_equal(again.keypoints, kf.read_camera_detections(source, cache=False).keypoints)
+    assert not np.array_equal(again.keypoints, stale.keypoints)
 
 
 @pytest.mark.parametrize("damage", [b"not a zip at all", b"PK\x03\x04truncated"])
