@@ -10,7 +10,8 @@ Output: the camera file (K, R, t in mm, dist as given; world frame and scale in 
 report (`<output>.md`, also printed) with each camera's re-projection error and, with
 `--reference`, its rotation and centre error after a similarity alignment, and a figure of the
 recovered rig (`<output>.png`), beside the reference when there is one.  Train on it unchanged:
-`python -m experiments.h36m --data.cameras-path cameras.json`.
+`python -m experiments.h36m --data.cameras-path cameras.json`.  None of the three files is written over
+without --overwrite, nor an input ever; each is written to a temporary name renamed into place.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from jaxpose.calibration import (
 )  # fmt: skip
 from jaxpose.camera import Cameras, camera_centres
 from jaxpose.formats.camera_file import read_calibration, save_cameras, select_views
+from jaxpose.formats.outputs import atomic_output, check_output
 from jaxpose.formats.h36m_cameras import H36M_IMAGE_SIZES
 from jaxpose.datasets.h36m import CAMERA_NAMES, load_h36m
 
@@ -56,6 +58,9 @@ class CalibrateArgs:
     """The reference's subject to compare with (default: --subject)."""
     calibration: CalibrationConfig = CalibrationConfig()
     """How the rig is recovered (scale prior, frames, robust thresholds)."""
+    overwrite: bool = False
+    """Replace existing output files (the camera file, its report and figure); without it the command stops
+    before any work.  An input (--input, --reference) is never replaced."""
 
 
 def read_input(args: CalibrateArgs) -> RigDetections:
@@ -115,6 +120,9 @@ def report(calibration: Calibration, comparison: RigComparison | None, reference
 def run(args: CalibrateArgs) -> tuple[Calibration, RigComparison | None]:
     if args.output.suffix != ".json":
         raise ValueError(f"--output {args.output}: a jaxpose camera file ends in .json")
+    inputs = [args.input] + ([args.reference] if args.reference is not None else [])
+    for path in (args.output, args.output.with_suffix(".md"), args.output.with_suffix(".png")):
+        check_output(path, args.overwrite, inputs)
     detections = read_input(args)
     calibration = calibrate(detections, args.calibration)
     comment = (
@@ -122,21 +130,24 @@ def run(args: CalibrateArgs) -> tuple[Calibration, RigComparison | None]:
         f" Metric scale from limb lengths (upper arm, forearm, thigh, shank) of {args.calibration.limb_lengths_mm} mm."
     )
     sizes = {args.subject: [tuple(int(v) for v in size) for size in calibration.image_size]}
-    save_cameras(args.output, {args.subject: (list(calibration.camera_names), calibration.cameras)}, sizes, comment)
     comparison = reference = None
-    if args.reference is not None:
+    if args.reference is not None:  # read before anything is written: a bad reference leaves no output
         reference = read_reference(args.reference, args.reference_subject or args.subject, calibration.camera_names)
         R_ref, t_ref = (np.asarray(a, np.float64) for a in (reference.R, reference.t))
         comparison = compare_rigs(calibration.cameras.R, calibration.cameras.t, R_ref, t_ref)
+    with atomic_output(args.output) as temporary:
+        save_cameras(temporary, {args.subject: (list(calibration.camera_names), calibration.cameras)}, sizes, comment)
     text = report(calibration, comparison, reference)
-    args.output.with_suffix(".md").write_text(text)
+    with atomic_output(args.output.with_suffix(".md")) as temporary:
+        temporary.write_text(text)
     figure = viz.figure_rig(
         camera_centres(calibration.cameras.R, calibration.cameras.t) if comparison is None else comparison.aligned_centres,
         calibration.cameras.R if comparison is None else comparison.aligned_R,
         calibration.camera_names,
         reference=None if reference is None else (camera_centres(R_ref, t_ref), R_ref),
     )
-    viz.save_figure(figure, args.output.with_suffix(".png"))
+    with atomic_output(args.output.with_suffix(".png")) as temporary:
+        viz.save_figure(figure, temporary)
     print(text)
     print(f"wrote {args.output}, {args.output.with_suffix('.md')}, {args.output.with_suffix('.png')}")
     return calibration, comparison

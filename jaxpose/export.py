@@ -22,6 +22,9 @@ takes windows instead, keypoints f32[B, T, J, 2] and confidence f32[B, T, J] (T 
 centred on the frame to lift; repeat the first / last frame beyond a sequence's ends, as
 `Lifter3D.predict` does), and returns the centre frame's pose; the window is in the metadata.  Distorted detections must be
 undistorted first (`Lifter3D.predict(distortion=...)` does it; the exported model does not).
+
+None of the three files is written over without --overwrite, nor a file of the run directory ever
+(`jaxpose.formats.outputs`); each is written to a temporary name and renamed into place when complete.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ import jax.numpy as jnp
 import tyro
 
 from jaxpose import checkpoint
+from jaxpose.formats.outputs import OutputError, atomic_output, check_output
 from jaxpose.inference import Lifter3D, load
 from jaxpose.skeleton import ROOT
 
@@ -96,7 +100,8 @@ def export_jax(lifter: Lifter3D, path: str | pathlib.Path) -> pathlib.Path:
     (batch,) = jax.export.symbolic_shape("B")
     exported = jax.export.export(jax.jit(single_view_function(lifter)))(*_input_shapes(lifter, batch))
     path = pathlib.Path(path)
-    path.write_bytes(exported.serialize())
+    with atomic_output(path) as temporary:
+        temporary.write_bytes(exported.serialize())
     return path
 
 
@@ -118,7 +123,8 @@ def export_onnx(lifter: Lifter3D, path: str | pathlib.Path) -> pathlib.Path:
     )  # fmt: skip
     onnx.helper.set_model_props(model, {key: json.dumps(value) for key, value in metadata(lifter).items()})
     path = pathlib.Path(path)
-    onnx.save(model, path)
+    with atomic_output(path) as temporary:
+        onnx.save(model, temporary)
     return path
 
 
@@ -132,17 +138,40 @@ class ExportArgs:
     """The ONNX file to write; the JAX form (suffix .jax_export) and the metadata (.json) go beside it."""
     onnx: bool = True
     """Write the ONNX model (needs `pip install 'jaxpose[export]'`); --no-onnx writes the JAX form only."""
+    overwrite: bool = False
+    """Replace existing output files; without it the command stops before any work.  A file of the run
+    directory is never replaced."""
+
+
+def check_outputs(args: ExportArgs) -> None:
+    """Check the files the export writes (metadata, JAX form, ONNX unless --no-onnx) before any work with
+    `check_output`: the run directory's own files (all but an earlier export's) count as its inputs."""
+    if args.output.is_dir():
+        check_output(args.output, args.overwrite)  # refused as a folder
+    output = args.output.with_suffix(".onnx")
+    run_files = [args.run_dir, *(path for path in args.run_dir.glob("*") if not _exported(path))]
+    paths = [output.with_suffix(".json"), output.with_suffix(JAX_SUFFIX)] + ([output] if args.onnx else [])
+    for path in paths:
+        check_output(path, args.overwrite, run_files)
+
+
+def _exported(path: pathlib.Path) -> bool:
+    """A file an earlier export wrote: a model, or the metadata JSON beside one."""
+    return path.suffix in (".onnx", JAX_SUFFIX) or (
+        path.suffix == ".json" and any(path.with_suffix(s).exists() for s in (".onnx", JAX_SUFFIX))
+    )
 
 
 def main(argv: list[str] | None = None) -> None:
     args = tyro.cli(ExportArgs, args=argv, description=__doc__, prog="python -m jaxpose.export")
     try:
+        check_outputs(args)
         lifter = load(args.run_dir)
-    except (FileNotFoundError, checkpoint.CheckpointError) as error:
+    except (FileNotFoundError, checkpoint.CheckpointError, OutputError) as error:
         raise SystemExit(f"error: {error}") from None
     output = args.output.with_suffix(".onnx")
-    output.parent.mkdir(parents=True, exist_ok=True)
-    output.with_suffix(".json").write_text(json.dumps(metadata(lifter), indent=2) + "\n")
+    with atomic_output(output.with_suffix(".json")) as temporary:
+        temporary.write_text(json.dumps(metadata(lifter), indent=2) + "\n")
     print(f"wrote {export_jax(lifter, output.with_suffix(JAX_SUFFIX))} and {output.with_suffix('.json')}")
     if not args.onnx:
         return

@@ -41,6 +41,10 @@ NaN or empty in the output.
 
 ``--animation clip.gif`` (or ``.mp4``) animates a sequence, one frame per image id: the 2D input beside
 the lifted 3D pose.
+
+No file is written over without --overwrite, and none of the command's inputs ever (`jaxpose.formats.outputs`):
+--output, --animation and the --plot figures are checked before anything is read, and each file is written
+to a temporary name renamed into place when complete.
 """
 
 from __future__ import annotations
@@ -58,10 +62,13 @@ from tqdm.auto import tqdm
 from jaxpose import inference, viz
 from jaxpose.checkpoint import CheckpointError
 from jaxpose.formats import detection_file, intrinsics, pose_files
+from jaxpose.formats.outputs import OutputError, atomic_output, check_output
 from jaxpose.layouts import LAYOUTS, infer_layout, layout_joint_names, layout_of, to_skeleton
 
 # Poses per `Lifter3D.predict` call; inputs larger than this get a progress bar.
 LIFT_BLOCK = 16384
+PLOT_PATTERN = "lifting_*.png"
+"""The --plot figures' names (`lifting_<pose index>.png`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -101,6 +108,9 @@ class PredictArgs:
     A frame with several people shows the pose with the highest mean keypoint score, lifted ones first."""
     fps: float = 10.0
     """Frames per second of --animation, and the DataRate of a .trc --output."""
+    overwrite: bool = False
+    """Replace existing output files (--output, --animation, the --plot figures); without it the command stops
+    before any work.  A file the command reads is never replaced."""
     batch_size: int = inference.DEFAULT_BATCH_SIZE
     """Most poses per jitted lifter call."""
     min_confidence: float = inference.DEFAULT_MIN_CONFIDENCE
@@ -119,6 +129,7 @@ class PredictArgs:
 def run(args: PredictArgs) -> np.ndarray:
     """The whole command: read, convert, lift, write, plot, animate.  Returns the poses f32[N, J, 3]."""
     check_args(args)
+    check_outputs(args)
     detections = detection_file.read_detections(args.input)
     lifter = inference.load(args.checkpoint, batch_size=args.batch_size)
     camera = input_camera(args, detections)
@@ -181,6 +192,24 @@ def check_args(args: PredictArgs) -> None:
         raise ValueError(f"--outside-margin must be >= 0, got {args.outside_margin}")
     if args.reject_inconsistent is not None and not args.reject_inconsistent > 0:
         raise ValueError(f"--reject-inconsistent must be > 0, got {args.reject_inconsistent}")
+
+
+def check_outputs(args: PredictArgs) -> None:
+    """Refuse, before any work, an output that exists (without --overwrite), that is a folder (a file for
+    --plot) or that is one of the command's inputs (`jaxpose.formats.outputs.check_output`)."""
+    inputs = [args.input, *(value for value in args.intrinsics or () if pathlib.Path(value).is_file())]
+    check_output(args.output, args.overwrite, inputs)
+    if args.animation is not None:
+        check_output(args.animation, args.overwrite, [*inputs, args.output], flag="--animation")
+    if args.plot is not None:
+        if args.plot.exists() and not args.plot.is_dir():
+            raise OutputError(f"--plot {args.plot}: is a file; give a folder for the figures")
+        earlier = sorted(args.plot.glob(PLOT_PATTERN)) if args.plot.is_dir() else []
+        if earlier and not args.overwrite:
+            raise OutputError(
+                f"--plot {args.plot}: holds {len(earlier)} figures {PLOT_PATTERN} already ({earlier[0].name}, ...);"
+                " pass --overwrite to replace them"
+            )
 
 
 def input_camera(args: PredictArgs, detections: detection_file.DetectionFile) -> intrinsics.CameraIntrinsics:
@@ -348,7 +377,10 @@ def save_plots(
     for i in np.flatnonzero(np.isfinite(poses).all((1, 2)))[:count]:
         title = f"image {lifted.image_ids[i]} (pose {i})"
         figure = viz.figure_lifting(keypoints[i], poses[i], skeleton, image_size, title, confidence[i])
-        saved.append(viz.save_figure(figure, directory / f"lifting_{i:05d}.png"))
+        path = directory / PLOT_PATTERN.replace("*", f"{i:05d}")
+        with atomic_output(path) as temporary:
+            viz.save_figure(figure, temporary)
+        saved.append(path)
     return saved
 
 
@@ -387,7 +419,9 @@ def save_animation(
     confidence = np.concatenate([confidence, np.zeros((1, joints), np.float32)])[rows]
     poses = np.concatenate([poses, np.full((1, joints, 3), np.nan, np.float32)])[rows]
     titles = [f"image {frame}" + (" (no pose)" if index is None else "") for frame, index in zip(frames, shown)]
-    return viz.save_pose_animation(path, poses, skeleton, keypoints, confidence, image_size, titles, fps)
+    with atomic_output(path) as temporary:
+        viz.save_pose_animation(temporary, poses, skeleton, keypoints, confidence, image_size, titles, fps)
+    return path
 
 
 def main(argv: Sequence[str] | None = None) -> np.ndarray:

@@ -30,7 +30,7 @@ Brown-Conrady model, "h36m" the variant Human3.6M was calibrated with, its `dist
 
 Command line::
 
-    python -m jaxpose.formats.camera_file convert cameras.h5 cameras.json   # Human3.6M calibration
+    python -m jaxpose.formats.camera_file convert cameras.h5 cameras.json   # Human3.6M calibration (--overwrite to replace)
     python -m jaxpose.formats.camera_file check cameras.json                # validate and summarize
 """
 
@@ -52,6 +52,7 @@ from jaxpose.formats.h36m_cameras import H36M_IMAGE_SIZES
 from jaxpose.formats.calibrated_rig import check_intrinsics, check_rotation
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.files import read_json
+from jaxpose.formats.outputs import OutputError, atomic_output, check_output
 
 FORMAT_NAME = "jaxpose-cameras"
 FORMAT_VERSION = 1
@@ -259,7 +260,9 @@ class Convert:
     cameras_h5: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="CAMERAS_H5")]
     """Human3.6M cameras.h5 (from h36m.zip)."""
     out_json: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="OUT_JSON")]
-    """The camera file to write."""
+    """The camera file to write (through a temporary file renamed into place)."""
+    overwrite: bool = False
+    """Replace OUT_JSON if it exists; without it the command stops.  CAMERAS_H5 is never replaced."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -279,14 +282,15 @@ def main(argv: Sequence[str] | None = None) -> None:
     )
     try:
         if isinstance(command, Convert):
-            convert_h36m_cameras(command.cameras_h5, command.out_json)
-            path = command.out_json
+            path = check_output(command.out_json, command.overwrite, [command.cameras_h5], flag="OUT_JSON")
+            with atomic_output(path) as temporary:
+                convert_h36m_cameras(command.cameras_h5, temporary)
         else:
             path = command.path
         for subject, (names, cameras) in load_cameras(path).items():
             distortion = "none" if cameras.dist is None else cameras.distortion_model
             print(f"{subject}: {len(names)} cameras {names}, distortion {distortion}")
-    except DataFormatError as error:
+    except (DataFormatError, OutputError) as error:
         raise SystemExit(f"error: {error}") from None
 
 

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from jaxpose.formats import trc
+from jaxpose.formats.outputs import atomic_output
 
 SUFFIXES = (".json", ".npz", ".csv", ".trc")
 # The .trc axes from the camera frame's (x right, y down, z forward): X = -z, Y = -y, Z = -x, a rotation
@@ -36,13 +37,13 @@ TRC_NOTE = "(jaxpose: root-relative; X=-z Y=-y Z=-x of the camera's x right y do
 
 def write_poses(path: Path, poses: np.ndarray, image_ids: list[Any], joint_names: Sequence[str], fps: float = 10.0) -> None:
     """Poses f32[N, J, 3] mm (NaN rows: not lifted) as the file `path` says by its suffix (`SUFFIXES`, see
-    the module docstring); `fps` is the TRC's rate."""
+    the module docstring); `fps` is the TRC's rate.  Written to a temporary name renamed into place."""
     path.parent.mkdir(parents=True, exist_ok=True)
     valid = np.isfinite(poses).all((1, 2))
     if path.suffix == ".npz":
-        np.savez(
-            path, pose3d_mm=poses, valid=valid, image_id=np.asarray(image_ids), joint_names=np.asarray(joint_names)
-        )
+        with atomic_output(path) as temporary:
+            np.savez(temporary, pose3d_mm=poses, valid=valid, image_id=np.asarray(image_ids),
+                     joint_names=np.asarray(joint_names))  # fmt: skip
         return
     if path.suffix == ".trc":
         if len(set(image_ids)) < len(image_ids):
@@ -57,7 +58,7 @@ def write_poses(path: Path, poses: np.ndarray, image_ids: list[Any], joint_names
     rounded = np.round(poses.astype(np.float64), 2)
     if path.suffix == ".csv":
         header = ["image_id"] + [f"{joint}_{axis}_mm" for joint in joint_names for axis in "xyz"]
-        with open(path, "w", newline="") as file:
+        with atomic_output(path) as temporary, open(temporary, "w", newline="") as file:
             writer = csv.writer(file, lineterminator="\n")
             writer.writerow(header)
             for image_id, pose, ok in zip(image_ids, rounded, valid):
@@ -67,4 +68,5 @@ def write_poses(path: Path, poses: np.ndarray, image_ids: list[Any], joint_names
         {"image_id": image_id, "pose3d_mm": pose.tolist() if ok else None, "joint_names": list(joint_names)}
         for image_id, pose, ok in zip(image_ids, rounded, valid)
     ]
-    path.write_text(json.dumps(records))
+    with atomic_output(path) as temporary:
+        temporary.write_text(json.dumps(records))

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats.outputs import atomic_output
 
 HEADER_KEYS = ("DataRate", "CameraRate", "NumFrames", "NumMarkers", "Units", "OrigDataRate", "OrigDataStartFrame",
                "OrigNumFrames")  # fmt: skip
@@ -134,7 +135,8 @@ def write_trc(
 ) -> Path:
     """Write markers f[N, M, 3] (in `units`; NaN = missing, written as empty fields) as a TRC file.
 
-    Frame# runs from `first_frame`, Time = row / rate.  Names are made OpenSim-safe by `marker_name`.
+    Frame# runs from `first_frame`, Time = row / rate.  Names are made OpenSim-safe by `marker_name`.  The
+    file is written to a temporary name and renamed into place (`jaxpose.formats.outputs.atomic_output`).
     Line 1 is ``PathFileType\\t4\\t(X/Y/Z)\\t<file name>`` with `path_note` after the name in the same
     field (no tab), where the file can state its axes.  `decimals` defaults to 6 for m, 3 otherwise.
     """
@@ -165,5 +167,6 @@ def write_trc(
     for row in range(count):
         lines.append(f"{first_frame + row}\t{row / rate:.6f}\t" + "\t".join(text[row]))
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    with atomic_output(path) as temporary:
+        temporary.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path

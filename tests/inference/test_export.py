@@ -65,5 +65,18 @@ def test_errors_and_help(tmp_path, capsys):
         export.main(["--help"])
     assert stop.value.code == 0
     text = capsys.readouterr().out
-    assert_every_flag_documented(text, ["--output", "--onnx"])
+    assert_every_flag_documented(text, ["--output", "--onnx", "--overwrite"])
     assert "RUN_DIR" in text and "newest readable checkpoint" in text
+
+
+def test_a_second_export_replaces_the_files_only_with_overwrite(trained_run, tmp_path):
+    output = tmp_path / "lifter.onnx"
+    export.main([str(trained_run[0]), "--output", str(output), "--no-onnx"])
+    written = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    assert sorted(written) == ["lifter.jax_export", "lifter.json"]  # no temporary file left behind
+    with pytest.raises(SystemExit, match=r"lifter\.json: exists; pass --overwrite"):
+        export.main([str(trained_run[0]), "--output", str(output), "--no-onnx"])
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == written
+    export.main([str(trained_run[0]), "--output", str(output), "--no-onnx", "--overwrite"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(written)
+    assert json.loads((tmp_path / "lifter.json").read_text()) == json.loads(written["lifter.json"])
