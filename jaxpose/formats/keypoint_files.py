@@ -15,7 +15,8 @@ Users bring, for each camera of a recording, either
 
 Both become a `CameraDetections`: every person of every frame in the detector's own joint order, frames
 sorted, padded to the most people in any frame.  A joint written as undetected (0, 0, 0), or with a
-non-finite value, is stored as 0, 0 with score 0.  Malformed input raises `DataFormatError` naming the
+non-finite value, is stored as 0, 0 with score 0; scores follow `jaxpose.formats.confidences` (a negative
+one refused, those above 1 clipped to 1 and counted).  Malformed input raises `DataFormatError` naming the
 file and the field, before anything is returned.
 
 Folders of many files are parsed by a process pool (`read_openpose_folder`), with orjson when it is
@@ -27,31 +28,23 @@ see benchmarks/README.md for the speeds.
 
 from __future__ import annotations
 
-import concurrent.futures
 import dataclasses
-import multiprocessing
 import os
 import re
-import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm.auto import tqdm
 
-from jaxpose.formats import coco_results, fast_json, file_cache
+from jaxpose.formats import coco_results, confidences, fast_json, file_cache, file_pool
 from jaxpose.formats.errors import DataFormatError
 
 OPENPOSE_SUFFIX = "_keypoints.json"
-CACHE_VERSION = 1
-"""Part of every cache key (`jaxpose.formats.file_cache`): bump it when the cached arrays change meaning."""
-CHUNK_FILES = 256
-"""Files per pool task."""
-POOL_MIN_FILES = 2000
-"""Below this many files one process parses them all: starting a pool does not pay."""
-POOL_MIN_FILES_SPAWN = 20000
-"""The same where workers are spawned (not forked) and must import jax again (macOS, Windows)."""
+CACHE_VERSION = 2
+"""Part of every cache key (`jaxpose.formats.file_cache`): bump it when the cached arrays change meaning
+(2: scores clipped to 1, their count cached)."""
+CACHED_FIELDS = ("frames", "keypoints", "scores", "people", "clipped_scores")
 
 _FRAME_EXPECTED = 'an OpenPose JSON frame {"people": [{"pose_keypoints_2d": [x, y, score, ...]}, ...]}'
 _LAST_DIGITS = re.compile(r"(\d+)(?!.*\d)", re.DOTALL)
@@ -66,11 +59,13 @@ class CameraDetections:
     keypoints: np.ndarray
     """float32[F, P, J, 2] pixels; P = the most people in any frame; padding rows are 0."""
     scores: np.ndarray
-    """float32[F, P, J] detector scores as written (may exceed 1: AlphaPose), 0 for padding / undetected."""
+    """float32[F, P, J] detector scores in [0, 1] (`jaxpose.formats.confidences`), 0 for padding / undetected."""
     people: np.ndarray
     """int32[F] number of people in each frame."""
     source: str
     """The folder or file read."""
+    clipped_scores: int = 0
+    """How many scores of the file(s) were above 1, clipped to 1 (`jaxpose.formats.confidences`)."""
 
     @property
     def values_per_person(self) -> int:
@@ -223,7 +218,8 @@ def _assemble(
 ) -> CameraDetections:
     """CameraDetections from per-frame counts and the persons' flat [x, y, score] lists, in frame order.
 
-    `owners[k]` names where frame k came from, for the error when persons have different lengths.
+    `owners[k]` names where frame k came from (a file, an image_id), for the errors of persons of
+    different lengths and of negative scores; scores go through `jaxpose.formats.confidences`.
     """
     if len(lengths) and (lengths != lengths[0]).any():
         raise _length_error(people, lengths, source, owners)
@@ -231,14 +227,20 @@ def _assemble(
     joints = per_person // 3
     rows = values.reshape(len(lengths), joints, 3)
     rows = np.where(np.isfinite(rows).all(-1, keepdims=True), rows, np.float32(0))
-    most = int(people.max()) if len(people) else 0
-    keypoints = np.zeros((len(frames), most, joints, 2), np.float32)
-    scores = np.zeros((len(frames), most, joints), np.float32)
     frame_of = np.repeat(np.arange(len(frames)), people)
     slot = np.arange(len(lengths)) - np.repeat(np.cumsum(people) - people, people)
+
+    def locate(index: tuple[int, ...]) -> tuple[str, str]:
+        person, joint = index
+        return source, f"{owners[frame_of[person]]} (frame {frames[frame_of[person]]}), person {slot[person]}, joint {joint}"
+
+    scores, clipped = confidences.normalise_scores(rows[..., 2], locate)
+    most = int(people.max()) if len(people) else 0
+    keypoints = np.zeros((len(frames), most, joints, 2), np.float32)
+    padded = np.zeros((len(frames), most, joints), np.float32)
     keypoints[frame_of, slot] = rows[..., :2]
-    scores[frame_of, slot] = rows[..., 2]
-    return CameraDetections(np.asarray(frames, np.int64), keypoints, scores, people.astype(np.int32), source)
+    padded[frame_of, slot] = scores
+    return CameraDetections(np.asarray(frames, np.int64), keypoints, padded, people.astype(np.int32), source, clipped)
 
 
 def _length_error(people: np.ndarray, lengths: np.ndarray, source: str, owners: Sequence[str]) -> DataFormatError:
@@ -274,22 +276,14 @@ def read_openpose_folder(folder: str | Path, progress: bool = True, workers: int
     return read_openpose_frames(frame_files(folder), str(folder), progress, workers)
 
 
-def _pool_context() -> tuple[Any, int]:
-    """Fork where the platform has it (workers start in milliseconds; they run json and numpy only, so
-    a parent's JAX threads do not matter), else the default start method with a higher threshold."""
-    if "fork" in multiprocessing.get_all_start_methods():
-        return multiprocessing.get_context("fork"), POOL_MIN_FILES
-    return None, POOL_MIN_FILES_SPAWN
-
-
 def read_openpose_frames(
     files: Sequence[tuple[int, str]], source: str, progress: bool = True, workers: int | None = None
 ) -> CameraDetections:
     """The OpenPose frame files `files`, (frame number, path) in frame order as `frame_files` lists them,
     as `CameraDetections` of `source`.
 
-    `workers` processes parse chunks of `CHUNK_FILES` files (default ``os.cpu_count()``; one process below
-    `POOL_MIN_FILES` files, where a pool does not pay).  `progress` shows a tqdm bar for long reads.
+    `workers` processes parse them (`jaxpose.formats.file_pool`: default ``os.cpu_count()``, one process
+    where a pool does not pay).  `progress` shows a tqdm bar for long reads.
     """
     return _read_frames(files, source, progress, workers)[0]
 
@@ -299,41 +293,11 @@ def _read_frames(
 ) -> tuple[CameraDetections, list[bytes]]:
     """`read_openpose_frames`, and each file's `file_cache.content_digest` (of the bytes it parsed)."""
     paths = [path for _, path in files]
-    parts = _map_chunks(_parse_chunk, paths, f"reading {Path(source).name}", progress, workers)
+    parts = file_pool.map_chunks(_parse_chunk, paths, f"reading {Path(source).name}", progress, workers)
     people, lengths, values = (np.concatenate(column) for column in list(zip(*parts))[:3])
     owners = [os.path.basename(p) for p in paths]
     detections = _assemble(np.array([frame for frame, _ in files], np.int64), people, lengths, values, source, owners)
     return detections, [digest for part in parts for digest in part[3]]
-
-
-def _map_chunks(function, paths: Sequence[str], desc: str, progress: bool, workers: int | None) -> list[tuple]:
-    """The results but their "ok" of `function` on chunks of `CHUNK_FILES` paths, in order, by `workers`
-    processes where `len(paths)` makes a pool pay (`read_openpose_frames`); the first ("error", where,
-    expected, found) result raises its `DataFormatError`."""
-    chunks = [paths[i : i + CHUNK_FILES] for i in range(0, len(paths), CHUNK_FILES)]
-    context, threshold = _pool_context()
-    workers = min(workers or os.cpu_count() or 1, len(chunks))
-    parts, executor = [], None
-    try:
-        if workers > 1 and len(paths) >= threshold:
-            executor = concurrent.futures.ProcessPoolExecutor(workers, mp_context=context)
-            with warnings.catch_warnings():  # the workers fork at the first submit, inside map
-                # JAX (when the caller started it) warns at every fork; these workers never touch JAX.
-                for category in (RuntimeWarning, DeprecationWarning):
-                    warnings.filterwarnings("ignore", r".*(os\.fork|use of fork)", category)
-                results = executor.map(function, chunks)
-        else:
-            results = map(function, chunks)
-        with tqdm(total=len(paths), desc=desc, unit="file", disable=not progress, delay=0.5) as bar:
-            for chunk, result in zip(chunks, results):
-                if result[0] == "error":
-                    raise DataFormatError(*result[1:])
-                parts.append(result[1:])
-                bar.update(len(chunk))
-    finally:
-        if executor is not None:
-            executor.shutdown(wait=True, cancel_futures=True)
-    return parts
 
 
 # ---------------------------------------------------------------------------------------------
@@ -372,7 +336,8 @@ def read_coco_results(path: str | Path) -> CameraDetections:
     frames, people = np.unique(frame_of_entry, return_counts=True)
     values = keypoints[order].reshape(-1)
     lengths = np.full(len(image_ids), keypoints.shape[1] * 3, np.int32)
-    return _assemble(frames, people.astype(np.int32), lengths, values, str(path), [])
+    owners = [f"image_id {named[frame]!r}" for frame in frames.tolist()]
+    return _assemble(frames, people.astype(np.int32), lengths, values, str(path), owners)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -393,7 +358,7 @@ def read_camera_detections(path: str | Path, progress: bool = True, cache: bool 
         listing = _json_entries(path)
 
         def digests() -> list[tuple[str, bytes]]:
-            parts = _map_chunks(_digest_chunk, [entry.path for entry in listing], f"checking {path.name}", progress, None)
+            parts = file_pool.map_chunks(_digest_chunk, [entry.path for entry in listing], f"checking {path.name}", progress, None)
             return list(zip((entry.name for entry in listing), (digest for part in parts for digest in part[0])))
 
         def parse() -> tuple[CameraDetections, list[tuple[str, bytes]]]:
@@ -423,7 +388,7 @@ def read_camera_detections(path: str | Path, progress: bool = True, cache: bool 
         if cached is not None:
             return cached
     detections, contents = parse()
-    arrays = {field: getattr(detections, field) for field in ("frames", "keypoints", "scores", "people")}
+    arrays = {field: np.asarray(getattr(detections, field)) for field in CACHED_FIELDS}
     file_cache.save(cache_file, file_cache.cache_key(label, contents), detections.source, arrays)
     return detections
 
@@ -440,6 +405,7 @@ def _from_arrays(arrays, source: str) -> CameraDetections:
     detections = CameraDetections(
         np.asarray(arrays["frames"], np.int64), np.asarray(arrays["keypoints"], np.float32),
         np.asarray(arrays["scores"], np.float32), np.asarray(arrays["people"], np.int32), source,
+        int(arrays["clipped_scores"]),
     )  # fmt: skip
     frames, people = len(detections.frames), detections.keypoints.shape[1]
     if (detections.scores.shape != detections.keypoints.shape[:3] or detections.keypoints.shape[-1] != 2

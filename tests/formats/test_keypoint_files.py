@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jaxpose.formats import coco_results
+from jaxpose.formats import coco_results, file_pool
 from jaxpose.formats import keypoint_files as kf
 from jaxpose.formats.errors import DataFormatError
 from keypoint_writers import check_matches, coco_entry, openpose_document, random_people, write_folder, write_frame
@@ -66,6 +66,9 @@ def test_pose2sim_rtmpose_halpe26(camera):
     document = json.loads((HALPE26 / camera / "frame_00007.json").read_text())
     values = np.reshape(document["people"][0]["pose_keypoints_2d"], (26, 3))
     np.testing.assert_allclose(detections.keypoints[6, 0], values[:, :2], rtol=1e-6)
+    written = [json.loads(path.read_text())["people"][0]["pose_keypoints_2d"][2::3] for path in (HALPE26 / camera).iterdir()]
+    assert detections.clipped_scores == (np.array(written) > 1).sum()  # RTMPose's SimCC maxima: cam04 up to 1.015
+    assert detections.scores.max() <= 1 and (camera == "cam03" or detections.clipped_scores > 0)
     # HALPE_26: joint 19 (hip) is about the midpoint of the two hips (11, 12).
     hips = detections.keypoints[:, 0, [11, 12]].mean(1)
     assert np.abs(detections.keypoints[:, 0, 19] - hips).max() < 25.0  # px, in 1088 x 1920 frames
@@ -110,8 +113,10 @@ def test_cocoapi_results():
     assert detections.people.tolist() == [ids.count(i) for i in sorted(set(ids))] and detections.people.sum() == 125
     frame = int(np.argmax(detections.people))
     mine = [e for e in entries if e["image_id"] == detections.frames[frame]]
-    for person, entry in enumerate(mine):
-        np.testing.assert_allclose(detections.scores[frame, person], entry["keypoints"][2::3])
+    for person, entry in enumerate(mine):  # its third values are 0/1/2 visibility flags: 2 is clipped to 1
+        np.testing.assert_allclose(detections.scores[frame, person], np.minimum(entry["keypoints"][2::3], 1))
+    flags = np.array([e["keypoints"][2::3] for e in entries])
+    assert detections.clipped_scores == (flags > 1).sum() == 1314
 
 
 # ---------------------------------------------------------------------------------------------
@@ -186,6 +191,51 @@ def test_non_finite_values_are_undetected(tmp_path):
     detections = kf.read_openpose_folder(folder, progress=False)
     assert not detections.keypoints[0, 0, 1].any() and detections.scores[0, 0, 1] == 0
     assert detections.keypoints[0, 0, 2].tolist() == [7.0, 8.0]
+
+
+# ---------------------------------------------------------------------------------------------
+# The one rule for scores (jaxpose.formats.confidences)
+
+
+@given(scores=st.lists(st.one_of(st.floats(0, 1), st.floats(1, 1e6)), min_size=1, max_size=40))
+def test_scores_above_one_are_clipped_and_counted(tmp_path_factory, scores):
+    folder = tmp_path_factory.mktemp("cam")
+    values = np.zeros((len(scores), 3))
+    values[:, :2], values[:, 2] = 100.0, scores
+    (folder / "f_1.json").write_text(json.dumps(openpose_document([values])))
+    detections = kf.read_openpose_folder(folder, progress=False)
+    written = np.float32(scores)
+    np.testing.assert_array_equal(detections.scores[0, 0], np.minimum(written, 1))
+    assert detections.clipped_scores == (written > 1).sum()
+
+
+def test_the_clipped_count_is_cached(tmp_path, monkeypatch):
+    folder = tmp_path / "cam"
+    written = write_folder(folder, [2, 1])
+    written[1][0][:3, 2] = [1.5, 2.0, 1.0]
+    write_frame(folder / "clip_000000000001_keypoints.json", written[1])
+    first = kf.read_camera_detections(folder, progress=False)
+    monkeypatch.setattr(kf, "_parse_chunk", None)  # served from the cache below
+    cached = kf.read_camera_detections(folder, progress=False)
+    assert first.clipped_scores == cached.clipped_scores == 2
+    np.testing.assert_array_equal(first.scores, cached.scores)
+
+
+@pytest.mark.parametrize("kind", ["openpose", "coco"])
+def test_a_negative_score_is_refused_naming_where(tmp_path, kind):
+    people = random_people(np.random.default_rng(3), 2, joints=17)
+    people[1][5] = [300.0, 400.0, -0.25]
+    if kind == "openpose":
+        source = tmp_path / "cam01_json"
+        source.mkdir()
+        write_frame(source / "cam01.0041.json", people)
+        place = r"cam01\.0041\.json \(frame 41\), person 1, joint 5"
+    else:
+        source = tmp_path / "cam01.json"
+        source.write_text(json.dumps([coco_entry("img_0041.png", person) for person in people]))
+        place = r"image_id 'img_0041.png' \(frame 41\), person 1, joint 5"
+    with pytest.raises(DataFormatError, match=rf"^{source}: expected detector scores >= 0 .*found -0\.25 at {place}"):
+        kf.read_camera_detections(source, progress=False)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -292,9 +342,9 @@ def test_pool_equals_sequential(tmp_path, monkeypatch):
     people = list(np.random.default_rng(7).integers(0, 4, 57))
     written = write_folder(tmp_path / "cam01_json", people, name="cam01.{:04d}.json")
     sequential = kf.read_openpose_folder(tmp_path / "cam01_json", progress=False, workers=1)
-    monkeypatch.setattr(kf, "POOL_MIN_FILES", 10)
-    monkeypatch.setattr(kf, "POOL_MIN_FILES_SPAWN", 10)
-    monkeypatch.setattr(kf, "CHUNK_FILES", 5)
+    monkeypatch.setattr(file_pool, "POOL_MIN_FILES", 10)
+    monkeypatch.setattr(file_pool, "POOL_MIN_FILES_SPAWN", 10)
+    monkeypatch.setattr(file_pool, "CHUNK_FILES", 5)
     pooled = kf.read_openpose_folder(tmp_path / "cam01_json", progress=False, workers=2)
     check_matches(pooled, written)
     for field in ("frames", "keypoints", "scores", "people"):
