@@ -16,7 +16,11 @@ subcommand name and the top-level `--help` would not list them.
 Data errors.  A missing or malformed data file ends the program with one message (what was expected
 where, what was found, the files this run reads, and the manual's "Getting the data", docs/data.md) and a
 non-zero exit status, not a traceback.  The runner loads the data before it creates the run
-directory, so a failed start leaves nothing behind.
+directory, so a failed start leaves nothing behind; a batch larger than the training set is refused there too.
+
+The budget.  A preset may cap the samples a run sees (`--train.max-samples`, e.g. the rig presets'
+min(30 epochs, the Human3.6M cpu recipe's 2.3M samples)).  `--train.epochs` given on the command line
+asks for that many full epochs: it lifts the preset's cap, unless `--train.max-samples` is given too.
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ from experiments import paper_tables
 from experiments.config import ExperimentConfig
 from experiments.runner import run
 from experiments.splits import Splits
+from experiments.training import training_budget
 from jaxpose.formats.errors import DataFormatError
 
 SUPERVISED_SUFFIX = "_supervised"
@@ -85,6 +90,18 @@ class Experiment:
 
         return guarded_load
 
+    def budgeted_loader(self, config: ExperimentConfig) -> Callable[[Any], Splits]:
+        """`loader()`, which also refuses a training budget that cannot start on the data (a batch larger
+        than the training set) in one line: before the run directory is written."""
+        load = self.loader()
+
+        def checked_load(data) -> Splits:
+            splits = load(data)
+            training_budget(len(splits.train), config.train)
+            return splits
+
+        return checked_load
+
 
 def choose(argv: Sequence[str], flag: str, choices: Sequence[str], default: str, prog: str) -> tuple[str, list[str]]:
     """(the value of `flag` among `choices`, the other arguments): a selector read before tyro parses
@@ -125,17 +142,26 @@ def parse(
     usage_prog = f"{prog} [--preset {{{','.join(presets)}}}]"
     preset = presets[name]
     config = tyro.cli(experiment.config_type, default=preset, args=rest, description=text, prog=usage_prog)
+    if config.train.max_samples and given(rest, "--train.epochs") and not given(rest, "--train.max-samples"):
+        config = dataclasses.replace(config, train=dataclasses.replace(config.train, max_samples=0))
     if config.loss.supervision == "full" and config.run.run_dir == preset.run.run_dir:
         supervised_dir = pathlib.Path(f"{preset.run.run_dir}{SUPERVISED_SUFFIX}")
         config = dataclasses.replace(config, run=dataclasses.replace(config.run, run_dir=supervised_dir))
     return config
 
 
+def given(argv: Sequence[str], flag: str) -> bool:
+    """Whether `flag` (tyro's spelling, e.g. --train.max-samples) is among the arguments, in either
+    spelling tyro accepts (hyphens or underscores), as `--flag value` or `--flag=value`."""
+    spellings = {flag, flag.replace("-", "_").replace("__", "--", 1)}
+    return any(argument.split("=", 1)[0] in spellings for argument in argv)
+
+
 def main(experiment: Experiment, argv: Sequence[str] | None, description: str) -> dict:
     """An entry point's whole command: parse, `experiments.runner.run`, then the paper-layout table
     (when the experiment has one) written into, and printed from, the run directory."""
     config = parse(experiment, argv, description)
-    report = run(config, experiment.loader())
+    report = run(config, experiment.budgeted_loader(config))
     if experiment.paper_table is not None and jax.process_index() == 0:
         path = paper_tables.write(experiment.paper_table, report["results"], config.run.run_dir)
         print(path.read_text())

@@ -27,7 +27,13 @@ class TrainConfig:
     batch_size: int = 1024
     """Multi-view samples per step; the lifter sees batch_size x C poses."""
     epochs: int = 20
-    """Passes over the training samples."""
+    """Passes over the training samples.  Given on the command line without --train.max-samples, it
+    lifts a preset's sample cap: that many full epochs are trained."""
+    max_samples: int = 0
+    """The most training samples seen (steps x batch_size; 0 = no cap).  Where the epochs would see
+    more, every epoch is thinned to a random part of the training samples (a new part each epoch) so
+    that the run fits, and the schedules (learning rate, the output triangulation's last 10%,
+    checkpoints) span the shortened run; the report says so."""
     max_steps: int = 0
     """Stop after this many steps (0 = train all epochs).  The schedules still span all epochs."""
     seed: int = 0

@@ -172,6 +172,11 @@ CPU = ExperimentConfig(
     run=RunConfig(run_dir=pathlib.Path("runs/h36m_cpu")),
 )
 
+# The cpu recipe's budget in samples seen: on the full benchmark 30 epochs x 606 steps x batch 128 =
+# 2,327,040 samples, ~17 min at ~2,280 samples/s on 2 cores (docs/benchmarks.md).  A preset of the
+# same recipe on data of another size caps at it (--train.max-samples) so as to take no longer.
+CPU_SAMPLES = 2_300_000
+
 # Preset "paper": Sec. IV-A of the paper (`paper_preset`): batch 8192, 500 epochs, CPN detections.
 # ~9 steps per epoch, ~4,750 steps of ~10 s each on 2 CPU cores: a job for an accelerator.
 PAPER = paper_preset(H36MData(), batch_size=8192, epochs=500, checkpoint_every=250, run_dir="runs/h36m_paper")

@@ -12,6 +12,7 @@ import numpy as np
 from experiments.config import ExperimentConfig, to_json_dict
 from experiments.run_directory import read_jsonl
 from experiments.splits import Splits
+from experiments.training import training_budget
 from jaxpose import evaluation, pseudo_labelling, validation, viz
 from jaxpose.data import ground_truth
 from jaxpose.data.dataset import MultiViewDataset
@@ -65,6 +66,7 @@ def evaluate_and_report(
     history = read_jsonl(run_dir / "metrics.jsonl")
     last_train = next((r for r in reversed(history) if "loss" in r), {})
     shares = {k.removeprefix(GRADIENT_SHARE_PREFIX): v for k, v in last_train.items() if k.startswith(GRADIENT_SHARE_PREFIX)}
+    budget = training_budget(len(splits.train), config.train)
     report = {
         "method": method_name,
         "results": rows,
@@ -75,13 +77,14 @@ def evaluate_and_report(
         "notes": list(splits.notes),
         "final_gradient_shares": shares,
         "train_steps": int(state.step),
+        "training_budget": {"steps": budget.total_steps, "steps_per_epoch": budget.steps_per_epoch, "capped": budget.capped},
         "wall_time_s": wall_time,
         "devices": [str(d) for d in jax.devices()],
         "config": to_json_dict(config),
     }
     if jax.process_index() == 0:
         (run_dir / "report.json").write_text(json.dumps(report, indent=2))
-        tables = list(splits.notes)
+        tables = [*splits.notes, *([f"Training budget: trained {budget.note()}."] if budget.capped else [])]
         if rows:
             tables += [
                 evaluation.markdown_table(rows, "p_mpjpe", f"P-MPJPE (mm) per {splits.group_label}"),

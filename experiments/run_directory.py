@@ -16,7 +16,7 @@ from collections.abc import Iterator
 
 import jax
 
-from experiments.config import ExperimentConfig, dumps, to_json_dict
+from experiments.config import ExperimentConfig, TrainConfig, dumps, to_json_dict
 
 log = logging.getLogger("jaxpose")
 
@@ -25,19 +25,31 @@ LOCK_FILE = "run.lock"
 
 # Fields that must match for a run directory to be resumed (the rest may change between attempts).
 _RESUME_KEYS = ("data", "model", "loss", "optimizer", "pseudo_labels")
-_RESUME_TRAIN_KEYS = ("batch_size", "epochs", "seed")
+_RESUME_TRAIN_KEYS = ("batch_size", "epochs", "max_samples", "seed")
+# A config.json written before a field existed holds its default (max_samples: no cap).
+_TRAIN_DEFAULTS = to_json_dict(TrainConfig())
 
 
 def _identity(config_json: dict) -> dict:
     identity = {key: config_json.get(key) for key in _RESUME_KEYS}
-    identity["train"] = {key: config_json.get("train", {}).get(key) for key in _RESUME_TRAIN_KEYS}
+    train = config_json.get("train", {})
+    identity["train"] = {key: train.get(key, _TRAIN_DEFAULTS[key]) for key in _RESUME_TRAIN_KEYS}
     return identity
+
+
+def holds_a_run(run_dir: pathlib.Path) -> bool:
+    """Whether run_dir holds something a different config must not take over: a committed checkpoint
+    (Orbax names them by step) or a finished run's report.  A start that failed before its first
+    checkpoint (a batch larger than the data, a crash while compiling) left nothing to resume."""
+    checkpoints = run_dir / "checkpoints"
+    committed = checkpoints.is_dir() and any(entry.name.isdigit() for entry in checkpoints.iterdir())
+    return committed or (run_dir / "report.json").exists()
 
 
 def check_resumable(config: ExperimentConfig) -> None:
     """Fail early (before any data are loaded) if run_dir holds a run of a different config."""
     config_path = config.run.run_dir / "config.json"
-    if config.run.overwrite or not config_path.exists():
+    if config.run.overwrite or not config_path.exists() or not holds_a_run(config.run.run_dir):
         return
     if _identity(json.loads(config_path.read_text())) != _identity(to_json_dict(config)):
         raise SystemExit(

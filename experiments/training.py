@@ -3,25 +3,111 @@ test subset now and then, checkpoint, and stop cleanly on Ctrl-C or SIGTERM."""
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import pathlib
 import signal
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import jax
 import numpy as np
+from jax.sharding import Mesh
 from tqdm.auto import tqdm
 
-from experiments.config import ExperimentConfig
+from experiments.config import ExperimentConfig, TrainConfig
 from experiments.run_directory import RunLog
 from jaxpose import checkpoint, evaluation, parallel, pseudo_labelling, validation
 from jaxpose.data import ground_truth
-from jaxpose.data.dataset import MultiViewDataset, steps_per_epoch
+from jaxpose.data.batch import MultiViewBatch
+from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.train import TrainState, init_train_state, jit_train_step, make_eval_step, make_train_step
 
 log = logging.getLogger("jaxpose")
+
+
+@dataclasses.dataclass(frozen=True)
+class Budget:
+    """The steps a run trains: `epochs` epochs of `steps_per_epoch` batches of `batch_size` samples.
+
+    Without a cap (or where it does not bind) an epoch is every training sample once, in full batches.
+    Where `--train.max-samples` binds, each epoch is thinned instead of the run losing epochs: its first
+    `steps_per_epoch` batches of that epoch's shuffled order, so a new random part of the samples each
+    epoch.  The recipe keeps its character: the same number of epochs and reshuffles, the output
+    triangulation in its last 10% of epochs, the learning rate decaying over the whole (shortened) run,
+    every sample still likely to be seen over a long run; and a project whose one epoch is larger
+    than the cap still fits (fewer whole epochs could not).
+    """
+
+    samples: int
+    """Training samples (multi-view instants)."""
+    batch_size: int
+    epochs: int
+    full_steps_per_epoch: int
+    """Full batches in an epoch over every sample (the remainder is dropped: one shape, one compile)."""
+    steps_per_epoch: int
+    """Batches per epoch as trained: `full_steps_per_epoch`, or fewer under the cap."""
+    max_samples: int
+
+    @property
+    def total_steps(self) -> int:
+        return self.steps_per_epoch * self.epochs
+
+    @property
+    def capped(self) -> bool:
+        return self.steps_per_epoch < self.full_steps_per_epoch
+
+    def note(self) -> str:
+        """What a capped budget trains, for the log and the report: "N of M epochs-worth of samples (...):
+        the cap X of --train.max-samples"."""
+        trained = self.total_steps * self.batch_size
+        return (
+            f"{trained / self.samples:.1f} of {self.epochs} epochs-worth of samples ({trained:,} samples: {self.epochs}"
+            f" epochs of {self.steps_per_epoch:,} of {self.full_steps_per_epoch:,} batches each): the cap {self.max_samples:,}"
+            " of --train.max-samples"
+        )
+
+
+def training_budget(num_samples: int, train: TrainConfig) -> Budget:
+    """The steps `train` gives a training set of `num_samples` samples; a batch larger than the data,
+    or a cap below one batch per epoch, ends the program in one line."""
+    if num_samples < train.batch_size:
+        raise SystemExit(
+            f"error: --train.batch-size {train.batch_size} is larger than the training set ({num_samples} samples);"
+            f" choose at most {num_samples}"
+        )
+    if 0 < train.max_samples < train.batch_size * train.epochs:
+        raise SystemExit(
+            f"error: --train.max-samples {train.max_samples} is below one batch per epoch (--train.batch-size"
+            f" {train.batch_size} x --train.epochs {train.epochs} = {train.batch_size * train.epochs}); raise it, or"
+            " lower --train.epochs"
+        )
+    full = num_samples // train.batch_size
+    per_epoch = full
+    if train.max_samples > 0:
+        per_epoch = min(full, train.max_samples // (train.batch_size * train.epochs))
+    return Budget(num_samples, train.batch_size, train.epochs, full, per_epoch, train.max_samples)
+
+
+def budget_batches(
+    dataset: MultiViewDataset, budget: Budget, seed: int, mesh: Mesh, start_step: int, window: int
+) -> Iterator[tuple[int, MultiViewBatch]]:
+    """Endless (step, global batch) stream of `budget` from `start_step` on: `parallel.process_batches`
+    itself where the budget is not capped; else each epoch's first `budget.steps_per_epoch` batches of
+    that stream, so a step's batch still depends only on (seed, step) and a resume replays it."""
+    if not budget.capped:
+        yield from parallel.process_batches(dataset, budget.batch_size, seed, mesh, start_step, window)
+        return
+    step = start_step
+    while True:
+        epoch, offset = divmod(step, budget.steps_per_epoch)
+        full_step = epoch * budget.full_steps_per_epoch + offset
+        for _, batch in parallel.process_batches(dataset, budget.batch_size, seed, mesh, full_step, window):
+            yield step, batch
+            step += 1
+            if step % budget.steps_per_epoch == 0:
+                break
 
 
 class Interrupted(Exception):
@@ -87,8 +173,8 @@ def train(
     returned state is this process's copy, on one local device.
     """
     cfg = config.train
-    per_epoch = steps_per_epoch(len(train_set), cfg.batch_size)
-    total_steps = per_epoch * cfg.epochs
+    budget = training_budget(len(train_set), cfg)
+    per_epoch, total_steps = budget.steps_per_epoch, budget.total_steps
     stop_step = min(total_steps, cfg.max_steps) if cfg.max_steps > 0 else total_steps
     model = config.model.build(train_set.skeleton.num_joints)
     optimizer = config.optimizer.build(total_steps)
@@ -117,10 +203,12 @@ def train(
         " %d epochs (%d steps), from step %d",
         len(train_set), views, cfg.batch_size, mesh.size, jax.process_count(), per_epoch, cfg.epochs, total_steps, start,
     )
+    if budget.capped:
+        log.info("training %s", budget.note())
     bar = tqdm(total=stop_step, initial=start, desc="train", unit="step", disable=not config.run.progress or jax.process_index() != 0)
     last_time, last_step = time.perf_counter(), start
     with _SignalFlag() as interrupt:
-        batches = parallel.process_batches(train_set, cfg.batch_size, cfg.seed, mesh, start, config.model.temporal_window)
+        batches = budget_batches(train_set, budget, cfg.seed, mesh, start, config.model.temporal_window)
         for step, batch in batches:
             if step >= stop_step:
                 break

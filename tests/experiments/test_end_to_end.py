@@ -95,6 +95,7 @@ def test_main_job_writes_the_run_directory(tmp_path):
 def test_a_run_directory_refuses_a_different_config(tmp_path):
     config = _tiny_config(tmp_path / "run")
     prepare_run_dir(config)
+    (tmp_path / "run" / "checkpoints" / "3").mkdir(parents=True)  # a committed checkpoint: a run to resume
     changed = dataclasses.replace(config, model=ModelConfig(width=32))
     with pytest.raises(SystemExit, match="different config"):
         prepare_run_dir(changed)
