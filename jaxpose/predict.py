@@ -21,10 +21,11 @@ The keypoints are converted to the checkpoint's joints by `jaxpose.layouts.to_sk
 trained on a rig project (`experiments.rig`) takes its detector's own layout, and the H36M_17 lifters of
 the benchmarks take COCO-17, BODY_25 and HALPE_26 (through its COCO-17 keypoints).
 
-Output, by suffix, one pose per input pose, in input order (`jaxpose.formats.pose_files`), root-relative:
-``.json``, ``.npz`` or ``.csv`` in mm in the camera frame (x right, y down, z forward), or ``.trc``
-(OpenSim markers in m, X = -z, Y = -y, Z = -x of the camera frame: OpenSim's X forward, Y up, Z right for
-a subject facing the camera); see --output.
+Output by suffix (see --output; `jaxpose.formats.pose_files`), root-relative, on the input's time axis: each
+pose keeps its frame (an OpenPose file's index, a COCO image id's number), its time (frame - first frame) / --fps
+and its person, followed through the frames by its 2D keypoints (`jaxpose.tracking`).  A ``.trc`` is a file per
+person, a row per frame: gaps of up to --max-gap frames are interpolated, a longer one starts a new file, and
+the command prints what it filled and split.
 
 Keypoints that cannot be right are lifted as missing, and the command says how many joints of how many
 poses it treated so, per reason (`jaxpose.inference.implausible_joints`): NaN or infinite coordinates
@@ -42,9 +43,8 @@ NaN or empty in the output.
 ``--animation clip.gif`` (or ``.mp4``) animates a sequence, one frame per image id: the 2D input beside
 the lifted 3D pose.
 
-No file is written over without --overwrite, and none of the command's inputs ever (`jaxpose.formats.outputs`):
---output, --animation and the --plot figures are checked before anything is read, and each file is written
-to a temporary name renamed into place when complete.
+No file is written over without --overwrite, nor an input ever, all checked before anything is read; each is
+written to a temporary name renamed into place when complete (`jaxpose.formats.outputs`).
 """
 
 from __future__ import annotations
@@ -59,7 +59,7 @@ import numpy as np
 import tyro
 from tqdm.auto import tqdm
 
-from jaxpose import inference, viz
+from jaxpose import inference, tracking, viz
 from jaxpose.checkpoint import CheckpointError
 from jaxpose.formats import detection_file, intrinsics, pose_files
 from jaxpose.formats.outputs import OutputError, atomic_output, check_output
@@ -81,11 +81,13 @@ class PredictArgs:
     """COCO keypoint-results .json, OpenPose folder of per-frame .json files (or one such file), or .npz
     (keypoints, confidence, image_id, K)."""
     output: Annotated[pathlib.Path, tyro.conf.arg(metavar="FILE")]
-    """Output by suffix, a pose per input pose, root-relative: .json (list of {image_id, pose3d_mm,
-    joint_names}), .npz (pose3d_mm, valid, image_id, joint_names) or .csv (image_id, <joint>_x_mm, ...;
-    empty cells where a pose could not be lifted), all in mm in the camera frame (x right, y down,
-    z forward); or .trc (OpenSim markers in m at --fps, axes X = -z, Y = -y, Z = -x of the camera: X
-    forward, Y up, Z right for a subject facing the camera; empty fields where a pose could not be lifted)."""
+    """Output by suffix, root-relative: a pose per input pose as .json (list of {image_id, frame, time_s,
+    person, pose3d_mm, joint_names}), .npz (pose3d_mm, valid, image_id, frame, time_s, person, joint_names)
+    or .csv (image_id, frame, time_s, person, <joint>_x_mm, ...; empty cells where a pose could not be
+    lifted), in mm in the camera frame (x right, y down, z forward); or .trc, OpenSim markers in m (axes
+    X = -z, Y = -y, Z = -x of the camera: X forward, Y up, Z right for a subject facing the camera), a row per
+    frame, Frame# the input's frame, Time = (frame - first frame) / --fps: FILE itself where one person is
+    followed without a gap over --max-gap, else <stem>.person<P>.trc and <stem>.person<P>.seg<S>.trc."""
     format: Literal[LAYOUTS] | None = None  # type: ignore[valid-type]
     """Joint layout of the input keypoints (default: the checkpoint's own detector layout where it was
     trained on one and the file's keypoint count fits it; else told by the keypoint count for COCO and
@@ -107,10 +109,17 @@ class PredictArgs:
     in frame-number order, empty ones too), the 2D input beside the lifted 3D pose, at limits fixed over the sequence.
     A frame with several people shows the pose with the highest mean keypoint score, lifted ones first."""
     fps: float = 10.0
-    """Frames per second of --animation, and the DataRate of a .trc --output."""
+    """Frames per second of the input sequence (pass your video's; the default is 10): the outputs' time,
+    (frame - first frame) / fps in seconds, a .trc's DataRate, and the rate of --animation."""
+    max_gap: int = pose_files.DEFAULT_MAX_GAP
+    """A .trc output: up to this many frames in a row without a lifted pose of a person are filled by linear
+    interpolation (Pose2Sim's default, 10); a longer gap ends the file and a new segment begins."""
+    track_gap: int = tracking.DEFAULT_MAX_GAP
+    """Frames a person may go unseen and still be followed (`jaxpose.tracking`); one who comes back later
+    counts as another person."""
     overwrite: bool = False
-    """Replace existing output files (--output, --animation, the --plot figures); without it the command stops
-    before any work.  A file the command reads is never replaced."""
+    """Replace existing output files (--output, a .trc output's person files, --animation, the --plot
+    figures); without it the command stops before any work.  A file the command reads is never replaced."""
     batch_size: int = inference.DEFAULT_BATCH_SIZE
     """Most poses per jitted lifter call."""
     min_confidence: float = inference.DEFAULT_MIN_CONFIDENCE
@@ -129,8 +138,10 @@ class PredictArgs:
 def run(args: PredictArgs) -> np.ndarray:
     """The whole command: read, convert, lift, write, plot, animate.  Returns the poses f32[N, J, 3]."""
     check_args(args)
-    check_outputs(args)
+    earlier = check_outputs(args)
     detections = detection_file.read_detections(args.input)
+    if detections.frames_note:
+        print(detections.frames_note, file=sys.stderr)
     lifter = inference.load(args.checkpoint, batch_size=args.batch_size)
     camera = input_camera(args, detections)
     layout = args.format or input_layout(lifter.skeleton, detections)
@@ -144,6 +155,7 @@ def run(args: PredictArgs) -> np.ndarray:
         keypoints, confidence = detections.keypoints, scores
     else:
         keypoints, confidence = to_skeleton(layout, lifter.skeleton, detections.keypoints, scores)
+    persons = tracking.follow_people(detections.frames, keypoints, confidence > 0, max_gap=args.track_gap)
     count = len(keypoints)
     not_followed = 0  # a temporal lifter's other people in a frame
     if lifter.model_config.temporal_window > 1:
@@ -155,14 +167,21 @@ def run(args: PredictArgs) -> np.ndarray:
         if args.reject_inconsistent is not None:
             print(rejection_report(rejected, keypoints, lifter.joint_names, args.reject_inconsistent), file=sys.stderr)
             confidence = np.where(rejected, 0.0, confidence).astype(np.float32)  # the plots show them as missing
-    pose_files.write_poses(args.output, poses, detections.image_ids, lifter.joint_names, args.fps)
+    lifted_poses = pose_files.LiftedPoses(
+        poses, lifter.joint_names, detections.image_ids, detections.frames, persons, detections.first_frame, args.fps
+    )
+    if args.output.suffix == ".trc":
+        written = pose_files.write_trc_files(args.output, lifted_poses, args.max_gap)
+        print(pose_files.trc_summary(written, lifted_poses, args.max_gap, earlier), file=sys.stderr)
+    else:
+        pose_files.write_poses(args.output, lifted_poses)
     lifted = int(np.isfinite(poses).all((1, 2)).sum())
     rootless = count - lifted - not_followed
     unliftable = f"; {rootless} without a detected root are null" if rootless else ""
     unliftable += f"; {not_followed} other people, not followed, are null" if not_followed else ""
     print(
         f"lifted {lifted} of {count} poses with the {lifter.skeleton.name} lifter (step {lifter.step}) of"
-        f" {lifter.source} -> {args.output}{unliftable}",
+        f" {lifter.source} -> {'the .trc files above' if args.output.suffix == '.trc' else args.output}{unliftable}",
         file=sys.stderr,
     )
     result = LiftedInput(keypoints, confidence, poses, detections.image_ids, detections.frame_ids)
@@ -179,8 +198,10 @@ def check_args(args: PredictArgs) -> None:
     """The flags' own errors, before anything is read."""
     if args.output.suffix not in pose_files.SUFFIXES:
         raise ValueError(f"--output {args.output}: the suffix must be one of {pose_files.SUFFIXES}")
-    if args.output.suffix == ".trc" and not args.fps > 0:
-        raise ValueError(f"--fps must be positive for a .trc output, got {args.fps}")
+    if not args.fps > 0:
+        raise ValueError(f"--fps must be positive, got {args.fps}")
+    if args.max_gap < 0 or args.track_gap < 0:
+        raise ValueError(f"--max-gap and --track-gap must be >= 0, got {args.max_gap} and {args.track_gap}")
     if args.animation is not None:
         try:  # a wrong suffix, or no encoder for .mp4, fails before the lifting
             viz.check_animation_path(args.animation, args.fps)
@@ -194,22 +215,27 @@ def check_args(args: PredictArgs) -> None:
         raise ValueError(f"--reject-inconsistent must be > 0, got {args.reject_inconsistent}")
 
 
-def check_outputs(args: PredictArgs) -> None:
+def check_outputs(args: PredictArgs) -> list[pathlib.Path]:
     """Refuse, before any work, an output that exists (without --overwrite), that is a folder (a file for
-    --plot) or that is one of the command's inputs (`jaxpose.formats.outputs.check_output`)."""
+    --plot) or that is one of the command's inputs (`jaxpose.formats.outputs.check_output`).  A .trc output
+    may write person files beside FILE: returns those that exist (`pose_files.trc_family`), each checked."""
     inputs = [args.input, *(value for value in args.intrinsics or () if pathlib.Path(value).is_file())]
     check_output(args.output, args.overwrite, inputs)
+    earlier = pose_files.trc_family(args.output) if args.output.suffix == ".trc" else []
+    for path in earlier:
+        check_output(path, args.overwrite, inputs)
     if args.animation is not None:
         check_output(args.animation, args.overwrite, [*inputs, args.output], flag="--animation")
     if args.plot is not None:
         if args.plot.exists() and not args.plot.is_dir():
             raise OutputError(f"--plot {args.plot}: is a file; give a folder for the figures")
-        earlier = sorted(args.plot.glob(PLOT_PATTERN)) if args.plot.is_dir() else []
-        if earlier and not args.overwrite:
+        figures = sorted(args.plot.glob(PLOT_PATTERN)) if args.plot.is_dir() else []
+        if figures and not args.overwrite:
             raise OutputError(
-                f"--plot {args.plot}: holds {len(earlier)} figures {PLOT_PATTERN} already ({earlier[0].name}, ...);"
+                f"--plot {args.plot}: holds {len(figures)} figures {PLOT_PATTERN} already ({figures[0].name}, ...);"
                 " pass --overwrite to replace them"
             )
+    return earlier
 
 
 def input_camera(args: PredictArgs, detections: detection_file.DetectionFile) -> intrinsics.CameraIntrinsics:
@@ -384,11 +410,6 @@ def save_plots(
     return saved
 
 
-def _sequence_order(image_id: Any) -> tuple[bool, Any]:
-    """Numbers first, numerically, then names as strings sort."""
-    return isinstance(image_id, str), image_id
-
-
 def animation_frames(
     image_ids: list[Any], confidence: np.ndarray, lifted: np.ndarray, frame_ids: list[Any] | None
 ) -> tuple[list[Any], list[int | None]]:
@@ -402,7 +423,7 @@ def animation_frames(
     for index, image_id in enumerate(image_ids):
         if image_id not in shown or rank[index] > rank[shown[image_id]]:
             shown[image_id] = index
-    frames = frame_ids if frame_ids is not None else sorted(shown, key=_sequence_order)
+    frames = frame_ids if frame_ids is not None else sorted(shown, key=detection_file.sequence_order)
     return frames, [shown.get(frame) for frame in frames]
 
 

@@ -48,7 +48,7 @@ COMMANDS: dict[str, tuple[Callable, Argv, Callable[[dict[str, Path]], list[str]]
     "predict --animation": (
         predict.main,
         lambda w, out: ["--checkpoint", str(w["run"]), "--input", str(w["detections"]),
-                        "--output", str(w["run"].parent / "new.json"), "--animation", str(out)],  # fmt: skip
+                        "--output", str(w["run"].parent / "new.json"), "--animation", str(out)],
         None,  # an input is never a .gif or .mp4, the only suffixes --animation takes
         "clip.gif",
     ),

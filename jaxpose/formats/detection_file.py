@@ -10,6 +10,11 @@ The kind is told by the path:
 - ``.npz`` with ``keypoints`` [N, J, 2] px and optionally ``confidence`` [N, J], ``image_id`` [N] and
   ``K`` [N, 3, 3] (one camera per pose).
 
+Every pose has a frame number, the time axis of the outputs: an OpenPose file's index (the last digits of
+its name, `keypoint_files.frame_number`), else its image id's (`keypoint_files.image_frame_number`: an
+integer itself, a file name's last digits).  Where some image id has no digits, or two ids share a number,
+the frames are numbered 0, 1, ... in sequence order (`sequence_order`) and `frames_note` says so.
+
 The JSON files are parsed by `jaxpose.formats.keypoint_files` and `coco_results`, one parser per format; this
 module only lays their poses out a row each.  Which joint layout the keypoints are in is the reader's
 caller's to decide (`jaxpose.layouts`): a detector's JSON says it by its keypoint count alone, an
@@ -26,6 +31,7 @@ from typing import Any, Literal
 import numpy as np
 
 from jaxpose.formats import coco_results, keypoint_files
+from jaxpose.formats.errors import DataFormatError
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,10 +48,17 @@ class DetectionFile:
     """f32[N, J] detector scores, or None (all detected)."""
     image_ids: list[Any]
     """One per pose (int or str), kept in the output."""
+    frames: np.ndarray
+    """int64[N] the frame number of each pose (see the module docstring)."""
+    first_frame: int
+    """The sequence's first frame: an OpenPose folder's first file (with or without people), else the
+    smallest frame of a pose (COCO results leave out the images without anyone)."""
     intrinsics: np.ndarray | None = None
     """f32[N, 3, 3], when the file gives a camera per pose."""
     frame_ids: list[Any] | None = None
     """Every frame in sequence order, those without a pose too (OpenPose files); None: the sorted image_ids."""
+    frames_note: str | None = None
+    """Set where the image ids gave no frame numbers and the frames were numbered by sequence order."""
 
 
 def read_detections(path: Path) -> DetectionFile:
@@ -58,6 +71,29 @@ def read_detections(path: Path) -> DetectionFile:
             pose, joint = np.argwhere(negative)[0]
             raise ValueError(f"{path}: scores must be >= 0; pose {pose} joint {joint} has {detections.scores[pose, joint]}")
     return detections
+
+
+def sequence_order(image_id: Any) -> tuple[bool, Any]:
+    """The sort key of image ids in sequence order: numbers first, numerically, then names as they sort."""
+    return isinstance(image_id, str), image_id
+
+
+def frame_numbers(image_ids: list[Any], where: Path) -> tuple[np.ndarray, str | None]:
+    """int64[N] the frame number of each image id (`keypoint_files.image_frame_number`), and None; or, where
+    an id has none or two ids share one, their ranks in `sequence_order` and a note saying so."""
+    numbers: dict[Any, int | None] = {}
+    for image_id in dict.fromkeys(image_ids):
+        try:
+            numbers[image_id] = keypoint_files.image_frame_number(image_id) if isinstance(image_id, int | str) else None
+        except DataFormatError:
+            numbers[image_id] = None
+    problem = next((i for i, n in numbers.items() if n is None), None)
+    if problem is None and len(set(numbers.values())) == len(numbers):
+        return np.array([numbers[i] for i in image_ids], np.int64), None
+    ranked = {image_id: rank for rank, image_id in enumerate(sorted(numbers, key=sequence_order))}
+    reason = f"image id {problem!r} has no digits" if problem is not None else "two image ids share a frame number"
+    note = f"{where}: {reason}, so the frames are numbered 0, 1, ... in the image ids' order"
+    return np.array([ranked[i] for i in image_ids], np.int64), note
 
 
 def _read_by_kind(path: Path) -> DetectionFile:
@@ -73,19 +109,23 @@ def _read_by_kind(path: Path) -> DetectionFile:
     raise ValueError(f"input {path}: expected a COCO results .json, an OpenPose folder or a .npz")
 
 
-def _from_rows(
-    kind: Literal["openpose", "coco"], rows: np.ndarray, image_ids: list[Any], where: Path, frame_ids: list[Any] | None = None
-) -> DetectionFile:
-    """rows f32[N, J, 3] of [x, y, score]."""
+def _from_rows(kind: Literal["openpose", "coco"], rows: np.ndarray, image_ids: list[Any], where: Path, **frames) -> DetectionFile:
+    """rows f32[N, J, 3] of [x, y, score]; `frames` the DetectionFile's frame fields."""
     if not len(rows):
         raise ValueError(f"{where}: no poses to lift")
-    return DetectionFile(kind, where, rows[..., :2], rows[..., 2], image_ids, frame_ids=frame_ids)
+    return DetectionFile(kind, where, rows[..., :2], rows[..., 2], image_ids, **frames)
+
+
+def _frame_fields(image_ids: list[Any], where: Path) -> dict[str, Any]:
+    """The DetectionFile's frame fields for a file whose image ids tell the frames."""
+    frames, note = frame_numbers(image_ids, where)
+    return {"frames": frames, "first_frame": int(frames.min()) if len(frames) else 0, "frames_note": note}
 
 
 def _read_coco(path: Path) -> DetectionFile:
     """COCO keypoint results: one pose per entry, in file order, the image ids as written."""
     image_ids, rows = coco_results.load_coco_entries(path)
-    return _from_rows("coco", rows, image_ids, path)
+    return _from_rows("coco", rows, image_ids, path, **_frame_fields(image_ids, path))
 
 
 def _read_openpose(path: Path) -> DetectionFile:
@@ -96,7 +136,9 @@ def _read_openpose(path: Path) -> DetectionFile:
     present = np.arange(detections.keypoints.shape[1]) < detections.people[:, None]  # [F, P]
     rows = np.concatenate([detections.keypoints, detections.scores[..., None]], -1)[present]
     image_ids = np.repeat(np.array(frame_ids, object), detections.people).tolist()
-    return _from_rows("openpose", rows, image_ids, path, frame_ids)
+    frames = np.repeat(detections.frames, detections.people)
+    return _from_rows("openpose", rows, image_ids, path, frame_ids=frame_ids, frames=frames,
+                      first_frame=int(detections.frames[0]))  # fmt: skip
 
 
 def _read_npz(path: Path) -> DetectionFile:
@@ -115,4 +157,4 @@ def _read_npz(path: Path) -> DetectionFile:
         raise ValueError(f"{path}: 'image_id' has {len(image_ids)} entries for {count} poses")
     if intrinsics is not None and intrinsics.shape != (count, 3, 3):
         raise ValueError(f"{path}: 'K' must be [N, 3, 3] = {(count, 3, 3)}, got {intrinsics.shape}")
-    return DetectionFile("npz", path, keypoints, scores, image_ids, intrinsics)
+    return DetectionFile("npz", path, keypoints, scores, image_ids, **_frame_fields(image_ids, path), intrinsics=intrinsics)

@@ -132,10 +132,13 @@ def write_trc(
     path_note: str = "",
     first_frame: int = 1,
     decimals: int | None = None,
+    time_zero_frame: int | None = None,
 ) -> Path:
     """Write markers f[N, M, 3] (in `units`; NaN = missing, written as empty fields) as a TRC file.
 
-    Frame# runs from `first_frame`, Time = row / rate.  Names are made OpenSim-safe by `marker_name`.  The
+    Frame# runs from `first_frame` (also OrigDataStartFrame), Time = (Frame# - `time_zero_frame`) / rate, the
+    frame at Time 0 being the first row's unless given (Pose2Sim numbers Frame# from 1 and writes Time =
+    Frame# / rate, which is `time_zero_frame=0`).  Names are made OpenSim-safe by `marker_name`.  The
     file is written to a temporary name and renamed into place (`jaxpose.formats.outputs.atomic_output`).
     Line 1 is ``PathFileType\\t4\\t(X/Y/Z)\\t<file name>`` with `path_note` after the name in the same
     field (no tab), where the file can state its axes.  `decimals` defaults to 6 for m, 3 otherwise.
@@ -164,8 +167,9 @@ def write_trc(
     finite = np.isfinite(flat)
     text = np.char.mod(f"%.{decimals}f", np.where(finite, flat, 0.0))
     text = np.where(finite, text, "")
+    zero = first_frame if time_zero_frame is None else time_zero_frame
     for row in range(count):
-        lines.append(f"{first_frame + row}\t{row / rate:.6f}\t" + "\t".join(text[row]))
+        lines.append(f"{first_frame + row}\t{(first_frame + row - zero) / rate:.6f}\t" + "\t".join(text[row]))
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_output(path) as temporary:
         temporary.write_text("\n".join(lines) + "\n", encoding="utf-8")
