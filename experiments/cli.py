@@ -18,9 +18,12 @@ where, what was found, the files this run reads, and the manual's "Getting the d
 non-zero exit status, not a traceback.  The runner loads the data before it creates the run
 directory, so a failed start leaves nothing behind; a batch larger than the training set is refused there too.
 
-The budget.  A preset may cap the samples a run sees (`--train.max-samples`, e.g. the rig presets'
-min(30 epochs, the Human3.6M cpu recipe's 2.3M samples)).  `--train.epochs` given on the command line
-asks for that many full epochs: it lifts the preset's cap, unless `--train.max-samples` is given too.
+The budget.  A preset may cap the samples a run sees (`--train.max-samples`: min(its epochs, e.g. the
+Human3.6M cpu recipe's 2.3M samples) on a project of any size).  `--train.epochs` given on the command
+line asks for that many full epochs: it lifts the preset's cap, unless `--train.max-samples` is given too.
+
+Compiled programs are cached on disk for the next run (`jaxpose.compilation_cache`;
+JAXPOSE_COMPILATION_CACHE=off to disable).
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ from experiments.config import ExperimentConfig
 from experiments.runner import run
 from experiments.splits import Splits
 from experiments.training import training_budget
+from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.formats.errors import DataFormatError
 
 SUPERVISED_SUFFIX = "_supervised"
@@ -126,6 +130,7 @@ def parse(
     full-supervision run (`--supervision full`) left on the preset's run directory gets its own
     directory, `<run_dir>_supervised`, so that it neither resumes nor overwrites the self-supervised run.
     """
+    enable_compilation_cache()
     argv = list(sys.argv[1:] if argv is None else argv)
     presets = experiment.presets if presets is None else presets
     prog = experiment.prog if prog is None else prog

@@ -1,10 +1,15 @@
 import logging
+import os
 
 import hypothesis
 import pytest
 
 from experiments import synthetic as synthetic_job
-from jaxpose import inference, logs
+from jaxpose import compilation_cache, inference, logs
+
+# Hermetic: the command lines run in-process (and the processes the tests start) write no
+# compilation cache to the user's home; a test that wants one names its own folder.
+os.environ[compilation_cache.ENVIRONMENT] = compilation_cache.OFF
 
 # Property tests jit per example shape; keep them deterministic and within the CI budget.
 hypothesis.settings.register_profile("jaxpose", max_examples=25, deadline=None, derandomize=True)

@@ -1,0 +1,67 @@
+"""The command lines' persistent compilation cache (jaxpose.compilation_cache): where it goes, how to
+move or disable it, a cache JAX was given left alone, and the experiments' command lines turning it on."""
+
+import os
+import pathlib
+import subprocess
+import sys
+
+import jax
+import pytest
+
+import paths
+from experiments import cli, synthetic
+from jaxpose.compilation_cache import ENVIRONMENT, MIN_COMPILE_TIME_S, cache_folder
+
+
+def test_the_folder_follows_the_variable_then_xdg_then_the_home():
+    home = pathlib.Path.home()
+    assert cache_folder({ENVIRONMENT: "off"}) is None
+    assert cache_folder({ENVIRONMENT: " OFF "}) is None
+    assert cache_folder({ENVIRONMENT: "/data/xla", "XDG_CACHE_HOME": "/x"}) == pathlib.Path("/data/xla")
+    assert cache_folder({ENVIRONMENT: "~/xla"}) == home / "xla"
+    assert cache_folder({"XDG_CACHE_HOME": "/x"}) == pathlib.Path("/x/jaxpose/xla")
+    assert cache_folder({"XDG_CACHE_HOME": "relative"}) == home / ".cache" / "jaxpose" / "xla"
+    assert cache_folder({}) == home / ".cache" / "jaxpose" / "xla"
+
+
+CHOSEN = """
+import jax
+from jaxpose.compilation_cache import enable_compilation_cache
+print(enable_compilation_cache(), jax.config.jax_persistent_cache_min_compile_time_secs)
+"""
+
+
+def _python(code: str, tmp_path, **environment) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_COMPILATION_CACHE") and k != ENVIRONMENT}
+    env |= {"JAX_PLATFORMS": "cpu", "HOME": str(tmp_path / "home")} | environment
+    return subprocess.run([sys.executable, "-c", code], cwd=paths.REPO, env=env, capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.processes
+def test_a_cache_jax_was_given_is_kept_and_an_unwritable_folder_is_one_warning(tmp_path):
+    kept = _python(CHOSEN, tmp_path, JAX_COMPILATION_CACHE_DIR=str(tmp_path / "jax"), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0")
+    assert kept.stdout.split() == [str(tmp_path / "jax"), "0.0"]
+    (tmp_path / "file").write_text("")
+    refused = _python(CHOSEN, tmp_path, **{ENVIRONMENT: str(tmp_path / "file" / "xla")})
+    assert refused.stdout.split() == ["None", "1.0"]
+    assert f"no compilation cache: {tmp_path / 'file' / 'xla'} cannot be written" in refused.stderr
+
+
+@pytest.fixture
+def jax_cache_settings():
+    """Puts JAX's cache settings back after a test that turned the cache on in this process (nothing is
+    compiled in between, so JAX never opened the folder)."""
+    names = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs", "jax_compilation_cache_max_size")
+    before = {name: getattr(jax.config, name) for name in names}
+    yield
+    for name, value in before.items():
+        jax.config.update(name, value)
+
+
+def test_every_experiment_command_line_turns_it_on_in_the_folder_given(tmp_path, monkeypatch, jax_cache_settings):
+    jax.config.update("jax_compilation_cache_dir", None)  # as without JAX_COMPILATION_CACHE_DIR
+    monkeypatch.setenv(ENVIRONMENT, str(tmp_path / "xla"))
+    cli.parse(synthetic.EXPERIMENT, ["--preset", "tiny"], "test")
+    assert jax.config.jax_compilation_cache_dir == str(tmp_path / "xla") and (tmp_path / "xla").is_dir()
+    assert jax.config.jax_persistent_cache_min_compile_time_secs == MIN_COMPILE_TIME_S
