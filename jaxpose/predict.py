@@ -61,9 +61,11 @@ from tqdm.auto import tqdm
 
 from jaxpose import inference, tracking, viz
 from jaxpose.checkpoint import CheckpointError
+from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.formats import detection_file, intrinsics, pose_files
 from jaxpose.formats.outputs import OutputError, atomic_output, check_output
 from jaxpose.layouts import LAYOUTS, infer_layout, layout_joint_names, layout_of, to_skeleton
+from jaxpose.logs import show_logs
 
 # Poses per `Lifter3D.predict` call; inputs larger than this get a progress bar.
 LIFT_BLOCK = 16384
@@ -448,6 +450,8 @@ def save_animation(
 def main(argv: Sequence[str] | None = None) -> np.ndarray:
     """Entry point; input, checkpoint and shape errors end the process with a one-line message."""
     args = tyro.cli(PredictArgs, args=argv, description=__doc__, prog="python -m jaxpose.predict")
+    show_logs()
+    enable_compilation_cache()  # the lifter's programs from disk on the next run
     try:
         return run(args)
     except (ValueError, FileNotFoundError, CheckpointError) as error:

@@ -6,6 +6,10 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import logging
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -33,11 +37,13 @@ def _cli(*args) -> np.ndarray:
     return predict.main([str(a) for a in args])
 
 
-def test_a_second_run_replaces_every_output_only_with_overwrite(trained_run, tmp_path):
+def test_a_second_run_replaces_every_output_only_with_overwrite(trained_run, tmp_path, capsys):
     _coco_results(trained_run, tmp_path / "results.json", [1, 2, 3])
     outputs = ["--output", tmp_path / "out" / "poses.npz", "--plot", tmp_path / "plots", "--animation", tmp_path / "clip.gif"]
     common = ["--checkpoint", trained_run[0], "--input", tmp_path / "results.json", "--image-size", 1000, 1000, *outputs]
     first = _cli(*common, "--plot-count", 2)
+    logging.getLogger("jaxpose.inference").info("a jaxpose log line")  # predict shows them (jaxpose.logs)
+    assert capsys.readouterr().err.count("a jaxpose log line") == 1
     written = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*") if p.is_file())
     assert [str(p) for p in written] == [
         "clip.gif", "out/poses.npz", "plots/lifting_00000.png", "plots/lifting_00001.png", "results.json",
@@ -51,6 +57,19 @@ def test_a_second_run_replaces_every_output_only_with_overwrite(trained_run, tmp
     assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*") if p.is_file()) == written
     with np.load(tmp_path / "out" / "poses.npz") as data:
         np.testing.assert_array_equal(data["pose3d_mm"], second)
+
+
+@pytest.mark.processes
+def test_the_command_line_caches_its_compiled_programs(trained_run, tmp_path):
+    """`python -m jaxpose.predict` turns on the persistent compilation cache (`jaxpose.compilation_cache`)."""
+    _coco_results(trained_run, tmp_path / "results.json", [1, 2])
+    cache = tmp_path / "xla"
+    command = [sys.executable, "-m", "jaxpose.predict", "--checkpoint", str(trained_run[0]), "--input",
+               str(tmp_path / "results.json"), "--output", str(tmp_path / "poses.json"), "--image-size", "1000", "1000"]  # fmt: skip
+    environment = os.environ | {"JAXPOSE_COMPILATION_CACHE": str(cache), "JAX_PLATFORMS": "cpu"}
+    result = subprocess.run(command, capture_output=True, text=True, env=environment, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert any(cache.iterdir()) and (tmp_path / "poses.json").is_file()
 
 
 # ---------------------------------------------------------------------------------------------
