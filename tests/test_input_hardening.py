@@ -5,14 +5,19 @@ bytes), replaces arrays inside well-formed files (NaN, inf, strings, complex, wr
 frames), turns a camera around, and corrupts `MultiViewBatch` fields.  The contract: loading and
 then preparing training data (pseudo-labels, `validate_batch`) either raises `DataFormatError` /
 `BatchValidationError` with a message naming the problem, or yields data that is finite and valid.
+The files users bring for a rig (issue 34): cameras named differently by the calibration and the
+folders, and what must be a one-line refusal naming the culprit that leaves every file as it was (a frame
+file name that is not UTF-8, near-singular intrinsics, two cameras at one centre).
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import os
 import pickle
+import re
 import shutil
 
 import h5py
@@ -21,6 +26,7 @@ import numpy as np
 import paths
 import pytest
 import scipy.io
+from calibration_writers import aniposelib_style_toml, synthetic_rig, write_easymocap
 from fixtures_real_data import (
     write_h36m_martinez_tree,
     write_h36m_videopose3d_files,
@@ -31,15 +37,20 @@ from geometry_helpers import exact_batch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from experiments import rig as rig_experiment
 from jaxpose import pseudo_labelling
 from jaxpose.data import BatchValidationError, validate_batch
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.datasets.h36m import load_h36m
 from jaxpose.datasets.humaneva import load_humaneva
 from jaxpose.datasets.mpi_inf_3dhp import load_mpi_inf_3dhp_test
+from jaxpose.formats import file_cache
+from jaxpose.formats.calibrated_rig import RigCalibration, check_intrinsics
+from jaxpose.formats.camera_file import save_cameras
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_calibration import read_rig_calibration
 from jaxpose.rig.project import RigProjectConfig, load_rig_project
+from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
 
 # Few examples keep the suite fast; HARDEN_EXAMPLES=500 explores more (it passed so when written).
 SMALL = settings(
@@ -328,3 +339,118 @@ def test_pose2sim_scene_calibration_names_its_folders_cameras(tmp_path):
     assert data.camera_names == ("cam01", "cam02", "cam03", "cam04")
     rig = read_rig_calibration(scene)
     np.testing.assert_allclose(data.train.cameras_for(np.arange(1)).K[0], rig.cameras.K, rtol=1e-6)
+
+
+# ----------------------------------------------------------------------------------------------
+# Tracebacks where a sentence belongs (issue 34 items 10-12): each refusal is one line naming the
+# culprit, raised while reading, and leaves every file as it was (the .jaxpose_cache aside).
+
+
+def _broken_rig(defect: str) -> RigCalibration:
+    rig = synthetic_rig(3)
+    K, R, t = (np.array(field) for field in (rig.cameras.K, rig.cameras.R, rig.cameras.t))
+    if defect == "coincident":
+        R[2], t[2] = R[1], t[1]  # one camera's pose pasted onto another
+    else:
+        K[1, 0, 0] = K[1, 1, 1] = 1e-6  # near-singular: a focal length of a millionth of a pixel
+    return dataclasses.replace(rig, cameras=rig.cameras.replace(K=K, R=R, t=t))
+
+
+def _written(rig: RigCalibration, kind: str, folder) -> tuple:
+    """`rig` written as `kind`: (the path to read, the field that holds camera 1's intrinsics)."""
+    folder.mkdir()
+    if kind == "anipose":
+        (folder / "calibration.toml").write_text(aniposelib_style_toml(rig, scale=1000.0))
+        return folder / "calibration.toml", r"table \[cam_1\], key 'matrix' \(camera 'cam1'\)"
+    if kind == "easymocap":
+        write_easymocap(folder, rig)
+        return folder, r"intri\.yml: key 'K_cam1'"
+    valid = dataclasses.replace(rig, cameras=rig.cameras.replace(K=synthetic_rig(3).cameras.K))
+    save_cameras(folder / "cameras.json", {"rig": (list(rig.camera_names), valid.cameras)})
+    document = json.loads((folder / "cameras.json").read_text())
+    document["subjects"]["rig"][1]["K"] = np.asarray(rig.cameras.K[1]).tolist()  # what save_cameras refuses to write
+    (folder / "cameras.json").write_text(json.dumps(document))
+    return folder / "cameras.json", r"cameras\.json: subject 'rig', camera 1 \('cam1'\), field 'K'"
+
+
+@pytest.mark.parametrize("kind", ["anipose", "easymocap", "camera file"])
+def test_two_cameras_at_one_centre_are_named_by_every_calibration_reader(tmp_path, kind):
+    path, _ = _written(_broken_rig("coincident"), kind, tmp_path / "calibration")
+    expected = r"expected cameras at distinct centres.*cameras 'cam1' and 'cam2' at one centre"
+    with pytest.raises(DataFormatError, match=expected):
+        read_rig_calibration(path)
+
+
+@pytest.mark.parametrize("kind", ["anipose", "easymocap", "camera file"])
+def test_near_singular_intrinsics_are_named_by_every_calibration_reader(tmp_path, kind):
+    path, field = _written(_broken_rig("singular"), kind, tmp_path / "calibration")
+    with pytest.raises(DataFormatError, match=rf"{field}: expected intrinsics in pixels.*found fx 1e-06, fy 1e-06"):
+        read_rig_calibration(path)
+
+
+@pytest.mark.parametrize(
+    "K, found",
+    [
+        ([[1500.0, 0, 960], [0, 15.0, 540], [0, 0, 1]], "fy 15"),  # fy / fx = 0.01
+        ([[2e6, 0, 960], [0, 2e6, 540], [0, 0, 1]], r"fx 2e\+06"),
+        ([[1.0, 0, 4000], [0, 1.0, 4000], [0, 0, 1]], r"condition number 3\.2e\+07"),
+    ],
+)
+def test_absurd_focal_lengths_are_refused(K, found):
+    with pytest.raises(DataFormatError, match=rf"^calib\.toml, camera 'c': expected intrinsics in pixels.*{found}"):
+        check_intrinsics(np.array(K), "calib.toml, camera 'c'")
+
+
+def _every_file(root) -> dict:
+    return {
+        os.path.relpath(os.path.join(folder, name), root): open(os.path.join(folder, name), "rb").read()
+        for folder, folders, names in os.walk(root)
+        if file_cache.CACHE_DIR not in os.path.relpath(folder, root).split(os.sep)
+        for name in names
+    }
+
+
+@pytest.fixture(scope="module")
+def example_project(tmp_path_factory):
+    config = ExampleProjectConfig(recordings=1, frames_per_recording=60)
+    return write_rig_project(tmp_path_factory.mktemp("rig") / "project", config)
+
+
+def _refused_by_the_rig_command(project, run_dir) -> str:
+    """The first line of `experiments.rig`'s refusal of `project`, which must change no file and write no run."""
+    before = _every_file(project)
+    with pytest.raises(SystemExit) as stop:
+        rig_experiment.main(["--data.root", str(project), "--run.run-dir", str(run_dir), "--run.no-progress"])
+    assert _every_file(project) == before and not run_dir.exists()
+    message = str(stop.value.code)
+    assert message.startswith("error: ") and "Traceback" not in message
+    return message.splitlines()[0]
+
+
+def test_a_frame_file_name_that_is_not_utf8_is_named(example_project, tmp_path):
+    project = tmp_path / "project"
+    shutil.copytree(example_project, project)
+    frames = project / "walking01" / "cam02_json"
+    name = os.fsdecode(b"clip_\xe9t\xe9_000000000999_keypoints.json")  # Latin-1 bytes, as an old archive holds them
+    shutil.copy(sorted(frames.iterdir())[0], frames / name)
+    line = _refused_by_the_rig_command(project, tmp_path / "run")
+    expected = r"cam02_json: expected frame file names in UTF-8 .*found the file 'clip_\\xe9t\\xe9_0+999_keypoints\.json'"
+    assert re.search(expected, line), line
+
+
+@pytest.mark.parametrize("defect", ["coincident", "singular"])
+def test_a_calibration_refused_by_the_rig_command_names_its_cameras(example_project, tmp_path, defect):
+    project = tmp_path / "project"
+    shutil.copytree(example_project, project)
+    tables = (project / "calibration.toml").read_text().split("\n\n")
+    if defect == "coincident":  # cam03's table gets cam02's pose
+        pose = [line for line in tables[1].splitlines() if line.startswith(("rotation", "translation"))]
+        kept = [line for line in tables[2].splitlines() if not line.startswith(("rotation", "translation"))]
+        tables[2] = "\n".join(kept + pose)
+        expected = r"calibration\.toml: expected cameras at distinct centres.*cameras 'cam02' and 'cam03' at one centre"
+    else:
+        focal = r"matrix = \[ \[ [^,]+, 0\.0, ([^\]]+)\], \[ 0\.0, [^,]+,"  # fx and fy of cam02 made 1e-9 px
+        tables[1] = re.sub(focal, r"matrix = [ [ 1e-9, 0.0, \1], [ 0.0, 1e-9,", tables[1])
+        expected = r"calibration\.toml: table \[cam_1\], key 'matrix' \(camera 'cam02'\): expected intrinsics in pixels"
+    (project / "calibration.toml").write_text("\n\n".join(tables))
+    assert re.search(expected, _refused_by_the_rig_command(project, tmp_path / "run"))

@@ -11,6 +11,7 @@ import numpy as np
 from flax import struct
 
 from jaxpose.camera import Cameras, camera_centres
+from jaxpose.formats.calibrated_rig import MIN_BASELINE_MM
 
 
 @struct.dataclass
@@ -108,11 +109,11 @@ def validate_cameras(cameras: Cameras, batch_shape: tuple[int, ...], name: str =
         centers = camera_centres(R, t)
         gaps = np.linalg.norm(centers[..., :, None, :] - centers[..., None, :, :], axis=-1)
         gaps = gaps + np.eye(batch_shape[-1]) * 1e9
-        coincident = gaps.min(-1) < 1.0
+        coincident = gaps.min(-1) < MIN_BASELINE_MM
         if coincident.any():
             raise BatchValidationError(
-                f"{name}: two views share one camera centre (baseline < 1 mm) at index {_first_index(coincident)};"
-                " triangulation needs distinct viewpoints"
+                f"{name}: two views share one camera centre (baseline < {MIN_BASELINE_MM:g} mm) at index"
+                f" {_first_index(coincident)}; triangulation needs distinct viewpoints"
             )
 
 

@@ -80,7 +80,7 @@ def read_anipose_toml(path: Path, unit: CalibrationUnit) -> RigCalibration:
     t_file = np.array([camera["t"] for camera in cameras])
     resolved, how = _resolve_unit(unit, R, t_file, _metadata_unit(path, document))
     t = t_file * MM_PER_UNIT[resolved]
-    check_rig_size(str(path), R, t, resolved, how)
+    check_rig_size(str(path), names, R, t, resolved, how)
 
     model = "fisheye" if fisheye.pop() else "opencv"
     dist = np.array([camera["dist"] for camera in cameras])
@@ -203,7 +203,7 @@ def _toml_camera(path: Path, key: str, table: dict[str, Any]) -> dict[str, Any]:
             raise DataFormatError(f"{where}, key 'size'", "[width, height]: two positive whole numbers", repr(size))
         size = (int(size_array[0]), int(size_array[1]))
     K = _numbers(table["matrix"], [(3, 3)], f"{where}, key 'matrix'", "a 3x3 intrinsic matrix")
-    check_intrinsics(K, f"{where}, key 'matrix'")
+    check_intrinsics(K, f"{where}, key 'matrix' (camera {name!r})")
     fisheye = table.get("fisheye", False)
     if not isinstance(fisheye, bool):
         raise DataFormatError(f"{where}, key 'fisheye'", "true or false", repr(fisheye))

@@ -23,9 +23,11 @@ from jaxpose.formats.camera_names import CameraMismatch, match_cameras
 from jaxpose.formats.errors import DataFormatError
 
 __all__ = [
+    "MIN_BASELINE_MM",
     "MM_PER_UNIT",
     "CalibrationUnit",
     "RigCalibration",
+    "check_distinct_centres",
     "check_intrinsics",
     "check_rig_size",
     "check_rotation",
@@ -39,6 +41,15 @@ RIG_SIZE_RANGE_MM = (100.0, 200_000.0)
 UNIT_FLAG = "--data.calibration-unit"
 # Written matrices carry few digits: a rotation is accepted when R R^T is this close to I.
 ROTATION_TOLERANCE = 1e-4
+# Two views closer than this share one viewpoint: nothing can be triangulated between them.
+MIN_BASELINE_MM = 1.0
+# Intrinsics no camera has (pixels): a focal length under 1 px would see over 180 degrees, over 1e6 px
+# a 1920-px image would span 0.1 degrees; pixels are square within a few percent (anamorphic lenses: 2x).
+# K's condition number is about max(f, c^2 / f): ~1e3 in every real calibration; 1e7 takes a focal
+# length under 1 px with the principal point 3,000 px away, and float32 keeps only 7 digits.
+FOCAL_RANGE_PX = (1.0, 1e6)
+ASPECT_RANGE = (0.25, 4.0)
+MAX_CONDITION = 1e7
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -94,20 +105,29 @@ class RigCalibration:
 
 def rig_size(R: np.ndarray, t: np.ndarray) -> float:
     """The largest distance between two camera centres (R [C, 3, 3], t [C, 3]), in the unit of t; 0 for one camera."""
+    gaps = _centre_gaps(R, t)
+    return float(np.where(np.isinf(gaps), 0.0, gaps).max()) if gaps.size else 0.0
+
+
+def _centre_gaps(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """[C, C] distances between camera centres, in the unit of t, inf on the diagonal."""
     centres = camera_centres(R, t)
-    if len(centres) < 2:
-        return 0.0
-    return float(np.linalg.norm(centres[:, None] - centres[None], axis=-1).max())
+    return np.linalg.norm(centres[:, None] - centres[None], axis=-1) + np.diag(np.full(len(centres), np.inf))
 
 
-def check_rig_size(source: str, R: np.ndarray, t_mm: np.ndarray, unit: str, resolved_how: str) -> None:
-    """Refuse a rig whose size, in mm, cannot be a rig that films people: the unit must be wrong.
+def check_rig_size(source: str, names: Sequence[str], R: np.ndarray, t_mm: np.ndarray, unit: str, resolved_how: str) -> None:
+    """Refuse a rig whose size, in mm, cannot be a rig that films people (the unit must be wrong), or two
+    of its cameras `names` at one centre (`check_distinct_centres`).
 
     `unit` is the unit the file was read in and `resolved_how` how it was chosen, both for the
-    message; a single camera is not checked.
+    message; a single camera is not checked.  Two cameras that no unit would separate (under
+    `MIN_BASELINE_MM` apart even read in metres) are named as such before the size is checked.
     """
     if len(t_mm) < 2:
         return
+    gaps = _centre_gaps(R, t_mm)
+    if gaps.min() * MM_PER_UNIT["m"] / MM_PER_UNIT[unit] < MIN_BASELINE_MM:
+        check_distinct_centres(source, names, R, t_mm)
     size = rig_size(R, t_mm)
     low, high = RIG_SIZE_RANGE_MM
     if not low <= size <= high:
@@ -117,12 +137,42 @@ def check_rig_size(source: str, R: np.ndarray, t_mm: np.ndarray, unit: str, reso
             f"a rig {size:.6g} mm across when the file is read in {unit!r} ({resolved_how}); if the file is "
             f"in another unit, say which with {UNIT_FLAG} m|cm|mm",
         )
+    check_distinct_centres(source, names, R, t_mm)
+
+
+def check_distinct_centres(source: str, names: Sequence[str], R: np.ndarray, t_mm: np.ndarray) -> None:
+    """Refuse two cameras `names` whose centres are under `MIN_BASELINE_MM` apart: triangulation needs
+    a baseline between every two views (`jaxpose.data.batch` refuses such a batch too)."""
+    if len(t_mm) < 2:
+        return
+    gaps = _centre_gaps(R, t_mm)
+    first, second = np.unravel_index(np.argmin(gaps), gaps.shape)
+    if gaps[first, second] < MIN_BASELINE_MM:
+        raise DataFormatError(
+            source,
+            f"cameras at distinct centres, at least {MIN_BASELINE_MM:g} mm apart (triangulation needs a baseline)",
+            f"cameras {names[first]!r} and {names[second]!r} at one centre ({gaps[first, second]:.3g} mm apart):"
+            " one camera listed twice, or a pose copied from another camera?",
+        )
 
 
 def check_intrinsics(K: np.ndarray, where: str) -> None:
-    """Refuse a 3x3 `K` that is not [[fx, skew, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0."""
+    """Refuse a 3x3 `K` that is not [[fx, skew, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, or whose focal
+    lengths are absurd (outside `FOCAL_RANGE_PX`, or an aspect fy / fx outside `ASPECT_RANGE`) or which is
+    near-singular (condition number above `MAX_CONDITION`): undistortion and triangulation through it
+    would give NaN or noise far from the message that could name the file."""
     if K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or not np.array_equal(K[2], [0.0, 0.0, 1.0]):
         raise DataFormatError(where, "[[fx, skew, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0", str(K.tolist()))
+    fx, fy = float(K[0, 0]), float(K[1, 1])
+    (low, high), (narrow, wide) = FOCAL_RANGE_PX, ASPECT_RANGE
+    condition = float(np.linalg.cond(K))
+    if not (low <= fx <= high and low <= fy <= high and narrow <= fy / fx <= wide and condition <= MAX_CONDITION):
+        raise DataFormatError(
+            where,
+            f"intrinsics in pixels: focal lengths fx, fy from {low:g} to {high:g} px, fy / fx from {narrow:g} to {wide:g}, "
+            f"condition number at most {MAX_CONDITION:g} (real cameras: about 1e3)",
+            f"fx {fx:.6g}, fy {fy:.6g}, condition number {condition:.3g} in {K.tolist()}",
+        )
 
 
 def check_rotation(matrix: np.ndarray, where: str) -> None:

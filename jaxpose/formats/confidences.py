@@ -36,6 +36,7 @@ def normalise_scores(scores: np.ndarray, locate: Callable[[tuple[int, ...]], tup
     if negative.any():
         index = tuple(int(i) for i in np.argwhere(negative)[0])
         where, place = locate(index)
-        raise DataFormatError(where, EXPECTED, f"{scores[index]:g} at {place} ({int(negative.sum())} negative scores in all)")
+        found = f"{scores[index]:g} at {place} ({int(negative.sum())} negative scores in all)"
+        raise DataFormatError(where, EXPECTED, found)
     above = scores > MAX_SCORE
     return (np.minimum(scores, np.float32(MAX_SCORE)) if above.any() else scores), int(above.sum())

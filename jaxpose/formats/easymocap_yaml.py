@@ -68,7 +68,7 @@ def read_easymocap(path: Path, unit: CalibrationUnit) -> RigCalibration:
     R, t_file = np.array(R), np.array(t_file)
     resolved = "m" if unit == "auto" else unit
     t = t_file * MM_PER_UNIT[resolved]
-    check_rig_size(source, R, t, resolved, "EasyMocap's metres" if unit == "auto" else "as given")
+    check_rig_size(source, common, R, t, resolved, "EasyMocap's metres" if unit == "auto" else "as given")
     K = np.array([intrinsics[name][0] for name in common])
     dist = np.array([intrinsics[name][1] for name in common])
     return RigCalibration(

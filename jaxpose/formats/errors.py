@@ -16,7 +16,16 @@ class DataFormatError(ValueError):
     """
 
     def __init__(self, where: str | PathLike, expected: str, found: str):
-        self.where = str(where)
-        self.expected = expected
-        self.found = found
-        super().__init__(f"{self.where}: expected {expected}; found {found}. See the {README_SECTION}.")
+        self.where = printable(str(where))
+        self.expected = printable(expected)
+        self.found = printable(found)
+        super().__init__(f"{self.where}: expected {self.expected}; found {self.found}. See the {README_SECTION}.")
+
+
+def printable(text: str) -> str:
+    """`text` with the bytes of a file name that is not UTF-8 (Python's surrogate escapes) written as
+    ``\\xNN``, so that a message naming the file prints on any terminal and into any log."""
+    try:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    except UnicodeEncodeError:  # a lone surrogate that is no escaped byte (from JSON text, say)
+        return text.encode("utf-8", "backslashreplace").decode("utf-8")

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from jaxpose.formats import coco_results, confidences, fast_json, file_cache, file_pool
-from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats.errors import DataFormatError, printable
 
 OPENPOSE_SUFFIX = "_keypoints.json"
 CACHE_VERSION = 2
@@ -114,6 +114,10 @@ def _json_entries(folder: Path) -> list[os.DirEntry]:
         entries = [e for e in listing if e.name.endswith(".json") and not e.name.startswith(".") and e.is_file()]
     if not entries:
         raise DataFormatError(folder, "OpenPose JSON frames (*.json files)", "no .json file")
+    for entry in entries:  # a name in another encoding would reach the outputs' image ids undecodable
+        if printable(entry.name) != entry.name:
+            found = f"the file '{printable(entry.name)}' (undecodable bytes as \\xNN)"
+            raise DataFormatError(folder, "frame file names in UTF-8 (rename the file, e.g. with convmv)", found)
     return entries
 
 
@@ -358,7 +362,8 @@ def read_camera_detections(path: str | Path, progress: bool = True, cache: bool 
         listing = _json_entries(path)
 
         def digests() -> list[tuple[str, bytes]]:
-            parts = file_pool.map_chunks(_digest_chunk, [entry.path for entry in listing], f"checking {path.name}", progress, None)
+            paths = [entry.path for entry in listing]
+            parts = file_pool.map_chunks(_digest_chunk, paths, f"checking {path.name}", progress, None)
             return list(zip((entry.name for entry in listing), (digest for part in parts for digest in part[0])))
 
         def parse() -> tuple[CameraDetections, list[tuple[str, bytes]]]:

@@ -26,7 +26,7 @@ from typing import get_args
 import numpy as np
 
 from jaxpose.formats import anipose_toml, camera_file, easymocap_yaml, h36m_cameras
-from jaxpose.formats.calibrated_rig import CalibrationUnit, RigCalibration
+from jaxpose.formats.calibrated_rig import CalibrationUnit, RigCalibration, check_distinct_centres
 from jaxpose.formats.errors import DataFormatError
 
 __all__ = ["CalibrationUnit", "RigCalibration", "find_calibration", "read_rig_calibration"]
@@ -133,6 +133,7 @@ def _read_camera_file(path: Path, subject: str | None) -> RigCalibration:
     rigs = camera_file.load_cameras(path, np.float64)
     subject = _pick_subject(path, list(rigs), subject)
     names, cameras = rigs[subject]
+    check_distinct_centres(str(path), names, cameras.R, cameras.t)
     sizes = camera_file.load_image_sizes(path)[subject]
     return RigCalibration(tuple(names), cameras, _image_sizes(sizes), str(path), "mm")
 
@@ -141,5 +142,6 @@ def _read_h36m_file(path: Path, subject: str | None) -> RigCalibration:
     rigs = h36m_cameras.read_h36m_cameras(path, np.float64)
     subject = _pick_subject(path, list(rigs), subject)
     names, cameras = rigs[subject]
+    check_distinct_centres(f"{path} (subject {subject})", names, cameras.R, cameras.t)
     sizes = [h36m_cameras.H36M_IMAGE_SIZES.get(name) for name in names]
     return RigCalibration(tuple(names), cameras, _image_sizes(sizes), f"{path} (subject {subject})", "mm")
