@@ -154,3 +154,14 @@ def test_convert_replaces_its_output_with_overwrite_and_leaves_no_temporary_file
     camera_file.main(["convert", str(tmp_path / "cameras.h5"), str(output), "--overwrite"])
     assert list(camera_file.load_cameras(output)) == ["S9"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cameras.h5", "cameras.json"]
+
+
+def test_predict_trc_person_files_of_an_earlier_run_are_refused(tmp_path):
+    """A .trc output may write <stem>.person<P>[.seg<S>].trc beside FILE: an existing one stops the command too."""
+    workspace = _workspace(tmp_path)
+    (tmp_path / "poses.person1.seg2.trc").write_bytes(b"earlier")
+    (tmp_path / "poses.other.trc").write_bytes(b"not ours")
+    before = _snapshot(tmp_path)
+    message = _refusal(predict.main, COMMANDS["predict --output"][1](workspace, tmp_path / "poses.trc"))
+    assert "poses.person1.seg2.trc: exists; pass --overwrite" in message
+    assert _snapshot(tmp_path) == before

@@ -167,3 +167,30 @@ def test_intrinsics_of_one_camera_of_a_pose2sim_calibration():
     np.testing.assert_allclose(camera.K, [[1681.244873046875, 0, 532.97369384375], [0, 1681.075439453125, 948.137390140625], [0, 0, 1]])
     np.testing.assert_allclose(camera.dist, [-0.000721609375, 0.002187234375, 9.5e-06, 1.078125e-05, 0.0], rtol=1e-6)
     assert camera.image_size == (1088.0, 1920.0)
+
+
+@pytest.mark.parametrize(
+    "image_ids, frames, note",
+    [
+        ([10, 9, 9, 2], [10, 9, 9, 2], None),  # COCO's own numbers; images with nobody are simply absent
+        (["out-012.jpg", "out-003.jpg"], [12, 3], None),  # AlphaPose's file names: their last digits
+        (["b.jpg", 4, "a.jpg"], [2, 0, 1], "image id 'b.jpg' has no digits"),  # numbers first, then names
+        (["cam1_007.png", "cam2_007.png"], [0, 1], "two image ids share a frame number"),
+    ],
+)
+def test_frame_numbers_of_coco_results(tmp_path, image_ids, frames, note):
+    entries = [{"image_id": i, "keypoints": [500.0, 500.0, 0.9] * 17} for i in image_ids]
+    (tmp_path / "results.json").write_text(json.dumps(entries))
+    detections = detection_file.read_detections(tmp_path / "results.json")
+    assert detections.frames.tolist() == frames and detections.first_frame == min(frames)
+    assert (detections.frames_note is None) if note is None else (note in detections.frames_note)
+
+
+def test_frame_numbers_of_an_openpose_folder_start_at_its_first_file(tmp_path):
+    folder = tmp_path / "openpose"
+    folder.mkdir()
+    person = np.full((25, 3), 0.5)
+    for frame, people in ((4, []), (5, [person, person]), (7, [person])):
+        write_frame(folder / f"clip_{frame:012d}_keypoints.json", people)
+    detections = detection_file.read_detections(folder)
+    assert detections.frames.tolist() == [5, 5, 7] and detections.first_frame == 4
