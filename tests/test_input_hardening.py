@@ -44,7 +44,7 @@ from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.datasets.h36m import load_h36m
 from jaxpose.datasets.humaneva import load_humaneva
 from jaxpose.datasets.mpi_inf_3dhp import load_mpi_inf_3dhp_test
-from jaxpose.formats import file_cache
+from jaxpose.formats import file_cache, intrinsics
 from jaxpose.formats.calibrated_rig import RigCalibration, check_intrinsics
 from jaxpose.formats.camera_file import save_cameras
 from jaxpose.formats.errors import DataFormatError
@@ -399,6 +399,18 @@ def test_near_singular_intrinsics_are_named_by_every_calibration_reader(tmp_path
 def test_absurd_focal_lengths_are_refused(K, found):
     with pytest.raises(DataFormatError, match=rf"^calib\.toml, camera 'c': expected intrinsics in pixels.*{found}"):
         check_intrinsics(np.array(K), "calib.toml, camera 'c'")
+
+
+def test_near_singular_intrinsics_given_to_predict_are_named(tmp_path):
+    with pytest.raises(DataFormatError, match=r"^--intrinsics fx fy cx cy: expected intrinsics in pixels.*found fx 1e-09"):
+        intrinsics.read_intrinsics(["1e-9", "1e-9", "960", "540"])
+    camera = tmp_path / "camera.json"
+    camera.write_text(json.dumps({"K": [[1000.0, 0, 960], [0, 1e-3, 540], [0, 0, 1]], "dist": None}))
+    with pytest.raises(DataFormatError, match=rf"^--intrinsics {camera}, field 'K': expected intrinsics in pixels.*fy 0\.001"):
+        intrinsics.read_intrinsics([str(camera)])
+    camera.write_text(json.dumps({"K": [[1000.0, 0, 960], [0, 1000.0, 540]]}))
+    with pytest.raises(DataFormatError, match=r"field 'K': expected a 3x3 intrinsic matrix of finite numbers"):
+        intrinsics.read_intrinsics([str(camera)])
 
 
 def _every_file(root) -> dict:

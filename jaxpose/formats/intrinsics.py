@@ -18,6 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from jaxpose.formats import files, rig_calibration
+from jaxpose.formats.calibrated_rig import check_intrinsics
+from jaxpose.formats.errors import DataFormatError
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,7 +42,7 @@ def read_intrinsics(values: Sequence[str]) -> CameraIntrinsics:
     """The camera `values` name, in one of the forms of the module docstring."""
     if len(values) == 4:
         fx, fy, cx, cy = (float(v) for v in values)
-        return CameraIntrinsics(np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], np.float32))
+        return CameraIntrinsics(_checked_K([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], "--intrinsics fx fy cx cy"))
     if len(values) == 2:
         return _calibration_camera(Path(values[0]), values[1])
     if len(values) != 1:
@@ -57,10 +59,23 @@ def read_intrinsics(values: Sequence[str]) -> CameraIntrinsics:
     dist = camera.get("dist")
     size = camera.get("image_size")
     return CameraIntrinsics(
-        np.asarray(camera["K"], np.float32),
+        _checked_K(camera["K"], f"--intrinsics {path}, field 'K'"),
         None if dist is None else np.asarray(dist, np.float32),
         None if size is None else tuple(size),
     )
+
+
+def _checked_K(value, where: str) -> np.ndarray:
+    """f32[3, 3] intrinsics from `value`, refused as every calibration reader refuses them
+    (`jaxpose.formats.calibrated_rig.check_intrinsics`: a near-singular K too)."""
+    try:
+        K = np.array(value, np.float64)
+    except (TypeError, ValueError):
+        K = None
+    if K is None or K.shape != (3, 3) or not np.isfinite(K).all():
+        raise DataFormatError(where, "a 3x3 intrinsic matrix of finite numbers", repr(value)[:200])
+    check_intrinsics(K, where)
+    return K.astype(np.float32)
 
 
 def _calibration_camera(path: Path, camera: str) -> CameraIntrinsics:
