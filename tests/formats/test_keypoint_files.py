@@ -349,6 +349,11 @@ def test_pool_equals_sequential(tmp_path, monkeypatch):
     check_matches(pooled, written)
     for field in ("frames", "keypoints", "scores", "people"):
         np.testing.assert_array_equal(getattr(pooled, field), getattr(sequential, field))
+    # The cache key from the digests the pool's parse computed is the one its digest pass computes.
+    kf.read_camera_detections(tmp_path / "cam01_json", progress=False)
+    with monkeypatch.context() as patch:
+        patch.setattr(kf, "_parse_chunk", None)
+        check_matches(kf.read_camera_detections(tmp_path / "cam01_json", progress=False), written)
     # A bad file in a later chunk: the pool reports it as the sequential path does.
     (tmp_path / "cam01_json" / "cam01.0031.json").write_text('{"people": [{"pose_keypoints_2d": [1, 2]}]}')
     for workers in (1, 2):
