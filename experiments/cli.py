@@ -42,8 +42,6 @@ from experiments import paper_tables
 from experiments.config import ExperimentConfig
 from experiments.runner import run
 from experiments.splits import Splits
-from experiments.training import training_budget
-from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.formats.errors import DataFormatError
 
 SUPERVISED_SUFFIX = "_supervised"
@@ -94,18 +92,6 @@ class Experiment:
 
         return guarded_load
 
-    def budgeted_loader(self, config: ExperimentConfig) -> Callable[[Any], Splits]:
-        """`loader()`, which also refuses a training budget that cannot start on the data (a batch larger
-        than the training set) in one line: before the run directory is written."""
-        load = self.loader()
-
-        def checked_load(data) -> Splits:
-            splits = load(data)
-            training_budget(len(splits.train), config.train)
-            return splits
-
-        return checked_load
-
 
 def choose(argv: Sequence[str], flag: str, choices: Sequence[str], default: str, prog: str) -> tuple[str, list[str]]:
     """(the value of `flag` among `choices`, the other arguments): a selector read before tyro parses
@@ -130,7 +116,6 @@ def parse(
     full-supervision run (`--supervision full`) left on the preset's run directory gets its own
     directory, `<run_dir>_supervised`, so that it neither resumes nor overwrites the self-supervised run.
     """
-    enable_compilation_cache()
     argv = list(sys.argv[1:] if argv is None else argv)
     presets = experiment.presets if presets is None else presets
     prog = experiment.prog if prog is None else prog
@@ -166,7 +151,7 @@ def main(experiment: Experiment, argv: Sequence[str] | None, description: str) -
     """An entry point's whole command: parse, `experiments.runner.run`, then the paper-layout table
     (when the experiment has one) written into, and printed from, the run directory."""
     config = parse(experiment, argv, description)
-    report = run(config, experiment.budgeted_loader(config))
+    report = run(config, experiment.loader())
     if experiment.paper_table is not None and jax.process_index() == 0:
         path = paper_tables.write(experiment.paper_table, report["results"], config.run.run_dir)
         print(path.read_text())

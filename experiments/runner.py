@@ -29,8 +29,9 @@ from experiments.config import ExperimentConfig
 from experiments.report import evaluate_and_report
 from experiments.run_directory import check_resumable, exclusive, prepare_run_dir
 from experiments.splits import Splits
-from experiments.training import Interrupted, train
+from experiments.training import Interrupted, train, training_budget
 from jaxpose import parallel, pseudo_labelling
+from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.data.batch import validate_batch
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.logs import show_logs
@@ -49,6 +50,7 @@ def run(
     studies of what the labels cost (`experiments.label_bias`), never part of a method.
     """
     show_logs()
+    enable_compilation_cache()  # the train step's programs come from disk on the next run
     # Before anything touches a device: a multi-host run connects its processes first.
     parallel.initialize(config.parallel.coordinator_address, config.parallel.num_processes, config.parallel.process_id)
     check_resumable(config)
@@ -65,20 +67,21 @@ def _run_holding_the_directory(
     # Data first: a missing or malformed file then leaves no run directory behind (and an
     # --run.overwrite start does not delete the previous run before the data are known to load).
     splits = load_data(config.data)
-    run_dir = prepare_run_dir(config)
-    if jax.process_index() == 0:
-        for name, write in splits.artifacts.items():
-            write(run_dir / name)
     log.info("data: %d train / %d test samples, %d views, %d joints", len(splits.train), len(splits.test), splits.train.num_views, splits.train.skeleton.num_joints)
     usable = splits.train.usable_view_count() >= config.pseudo_labels.min_views
     if not usable.all():
         log.warning("dropping %d training samples with fewer than %d usable views", int((~usable).sum()), config.pseudo_labels.min_views)
     train_set = splits.train.subset(np.flatnonzero(usable))
+    training_budget(len(train_set), config.train)  # a batch larger than the data stops here, before the run directory is written
     train_set = pseudo_labelling.label(train_set, config.pseudo_labels)
     if replace_labels is not None:
         train_set = replace_labels(train_set)
     validate_batch(train_set.batch(np.arange(len(train_set)), config.model.temporal_window))
     splits = dataclasses.replace(splits, train=train_set)
+    run_dir = prepare_run_dir(config)
+    if jax.process_index() == 0:
+        for name, write in splits.artifacts.items():
+            write(run_dir / name)
     try:
         state, model = train(config, train_set, run_dir, splits.test)
     except Interrupted as stop:

@@ -10,7 +10,7 @@ import jax
 import pytest
 
 import paths
-from experiments import cli, synthetic
+from experiments import cli, runner, synthetic
 from jaxpose.compilation_cache import ENVIRONMENT, MIN_COMPILE_TIME_S, cache_folder
 
 
@@ -59,9 +59,17 @@ def jax_cache_settings():
         jax.config.update(name, value)
 
 
-def test_every_experiment_command_line_turns_it_on_in_the_folder_given(tmp_path, monkeypatch, jax_cache_settings):
+def test_every_experiment_run_turns_it_on_in_the_folder_given_before_loading(tmp_path, monkeypatch, jax_cache_settings):
     jax.config.update("jax_compilation_cache_dir", None)  # as without JAX_COMPILATION_CACHE_DIR
     monkeypatch.setenv(ENVIRONMENT, str(tmp_path / "xla"))
-    cli.parse(synthetic.EXPERIMENT, ["--preset", "tiny"], "test")
-    assert jax.config.jax_compilation_cache_dir == str(tmp_path / "xla") and (tmp_path / "xla").is_dir()
-    assert jax.config.jax_persistent_cache_min_compile_time_secs == MIN_COMPILE_TIME_S
+    seen = {}
+
+    def load(data):  # the first thing that may compile
+        seen["folder"] = jax.config.jax_compilation_cache_dir
+        seen["min_time"] = jax.config.jax_persistent_cache_min_compile_time_secs
+        raise SystemExit("loaded")
+
+    config = cli.parse(synthetic.EXPERIMENT, ["--preset", "tiny", "--run.run-dir", str(tmp_path / "run")], "test")
+    with pytest.raises(SystemExit, match="loaded"):
+        runner.run(config, load)
+    assert seen == {"folder": str(tmp_path / "xla"), "min_time": MIN_COMPILE_TIME_S} and (tmp_path / "xla").is_dir()
