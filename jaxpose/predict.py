@@ -144,6 +144,8 @@ def run(args: PredictArgs) -> np.ndarray:
     detections = detection_file.read_detections(args.input)
     if detections.frames_note:
         print(detections.frames_note, file=sys.stderr)
+    if detections.clipped_scores:
+        print(f"{detections.clipped_scores} scores above 1 clipped to 1 (docs/files.md)", file=sys.stderr)
     lifter = inference.load(args.checkpoint, batch_size=args.batch_size)
     camera = input_camera(args, detections)
     layout = args.format or input_layout(lifter.skeleton, detections)

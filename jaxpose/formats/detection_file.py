@@ -30,7 +30,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from jaxpose.formats import coco_results, keypoint_files
+from jaxpose.formats import coco_results, confidences, keypoint_files
 from jaxpose.formats.errors import DataFormatError
 
 
@@ -59,18 +59,19 @@ class DetectionFile:
     """Every frame in sequence order, those without a pose too (OpenPose files); None: the sorted image_ids."""
     frames_note: str | None = None
     """Set where the image ids gave no frame numbers and the frames were numbered by sequence order."""
+    clipped_scores: int = 0
+    """Scores above 1 clipped to 1 (`jaxpose.formats.confidences`)."""
 
 
 def read_detections(path: Path) -> DetectionFile:
-    """The poses of `path`, by its kind (`_read_by_kind`); a negative score is refused."""
+    """The poses of `path`, by its kind (`_read_by_kind`), their scores by the one rule of
+    `jaxpose.formats.confidences` (a negative one refused, those above 1 clipped and counted)."""
     detections = _read_by_kind(path)
-    if detections.scores is not None:
-        with np.errstate(invalid="ignore"):  # NaN scores are the lifter's to report as missing
-            negative = detections.scores < 0
-        if negative.any():
-            pose, joint = np.argwhere(negative)[0]
-            raise ValueError(f"{path}: scores must be >= 0; pose {pose} joint {joint} has {detections.scores[pose, joint]}")
-    return detections
+    if detections.scores is None:
+        return detections
+    with np.errstate(invalid="ignore"):  # NaN scores stay: the lifter reports them as missing
+        scores, clipped = confidences.normalise_scores(detections.scores, lambda index: (path, f"pose {index[0]} joint {index[1]}"))
+    return dataclasses.replace(detections, scores=scores, clipped_scores=clipped)
 
 
 def sequence_order(image_id: Any) -> tuple[bool, Any]:

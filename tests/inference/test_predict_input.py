@@ -124,9 +124,19 @@ def test_a_negative_score_is_refused_by_every_kind(tmp_path):
     np.savez(tmp_path / "poses.npz", keypoints=np.zeros((2, 17, 2), np.float32), confidence=np.full((2, 17), -0.5, np.float32))
     entries = [{"image_id": 1, "keypoints": [500.0, 500.0, 0.9] * 16 + [500.0, 500.0, -0.1]}]
     (tmp_path / "coco.json").write_text(json.dumps(entries))
-    for name, where in (("poses.npz", "pose 0 joint 0 has -0.5"), ("coco.json", "pose 0 joint 16 has -0.1")):
-        with pytest.raises(ValueError, match=rf"{name}: scores must be >= 0; {where}"):
+    for name, where in (("poses.npz", "-0.5 at pose 0 joint 0"), ("coco.json", "-0.1 at pose 0 joint 16")):
+        with pytest.raises(ValueError, match=rf"{name}: expected detector scores >= 0.*; found {where}"):
             detection_file.read_detections(tmp_path / name)
+
+
+def test_scores_above_one_are_clipped_and_counted_by_every_kind(tmp_path):
+    confidence = np.full((2, 17), 0.5, np.float32)
+    confidence[1, 3] = 1.4
+    np.savez(tmp_path / "poses.npz", keypoints=np.zeros((2, 17, 2), np.float32), confidence=confidence)
+    (tmp_path / "coco.json").write_text(json.dumps([{"image_id": 1, "keypoints": [500.0, 500.0, 2.0] * 2 + [500.0, 500.0, 0.7] * 15}]))
+    npz, coco = (detection_file.read_detections(tmp_path / name) for name in ("poses.npz", "coco.json"))
+    assert npz.clipped_scores == 1 and npz.scores[1, 3] == 1.0 and npz.scores[0, 0] == 0.5
+    assert coco.clipped_scores == 2 and coco.scores.max() == 1.0 and np.isclose(coco.scores[0, 2], 0.7)
 
 
 def test_intrinsics_in_each_form(tmp_path):
