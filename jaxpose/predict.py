@@ -53,23 +53,22 @@ import dataclasses
 import pathlib
 import sys
 from collections.abc import Sequence
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 import numpy as np
 import tyro
 from tqdm.auto import tqdm
 
-from jaxpose import inference, tracking, viz
+from jaxpose import inference, lifting_figures, tracking, viz
 from jaxpose.checkpoint import CheckpointError
 from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.formats import detection_file, intrinsics, pose_files
-from jaxpose.formats.outputs import OutputError, atomic_output, check_output
+from jaxpose.formats.outputs import OutputError, check_output
 from jaxpose.layouts import LAYOUTS, infer_layout, layout_joint_names, layout_of, to_skeleton
 from jaxpose.logs import show_logs
 
 # Poses per `Lifter3D.predict` call; inputs larger than this get a progress bar.
 LIFT_BLOCK = 16384
-PLOT_PATTERN = "lifting_*.png"
 """The --plot figures' names (`lifting_<pose index>.png`)."""
 
 
@@ -188,12 +187,12 @@ def run(args: PredictArgs) -> np.ndarray:
         f" {lifter.source} -> {'the .trc files above' if args.output.suffix == '.trc' else args.output}{unliftable}",
         file=sys.stderr,
     )
-    result = LiftedInput(keypoints, confidence, poses, detections.image_ids, detections.frame_ids)
+    result = lifting_figures.LiftedInput(keypoints, confidence, poses, detections.image_ids, detections.frame_ids)
     if args.plot is not None:
-        saved = save_plots(args.plot, result, lifter.skeleton, camera.image_size, args.plot_count)
+        saved = lifting_figures.save_plots(args.plot, result, lifter.skeleton, camera.image_size, args.plot_count)
         print(f"saved {len(saved)} figures to {args.plot}", file=sys.stderr)
     if args.animation is not None:
-        save_animation(args.animation, result, lifter.skeleton, camera.image_size, args.fps)
+        lifting_figures.save_animation(args.animation, result, lifter.skeleton, camera.image_size, args.fps)
         print(f"saved the animation {args.animation}", file=sys.stderr)
     return poses
 
@@ -233,10 +232,10 @@ def check_outputs(args: PredictArgs) -> list[pathlib.Path]:
     if args.plot is not None:
         if args.plot.exists() and not args.plot.is_dir():
             raise OutputError(f"--plot {args.plot}: is a file; give a folder for the figures")
-        figures = sorted(args.plot.glob(PLOT_PATTERN)) if args.plot.is_dir() else []
+        figures = sorted(args.plot.glob(lifting_figures.PLOT_PATTERN)) if args.plot.is_dir() else []
         if figures and not args.overwrite:
             raise OutputError(
-                f"--plot {args.plot}: holds {len(figures)} figures {PLOT_PATTERN} already ({figures[0].name}, ...);"
+                f"--plot {args.plot}: holds {len(figures)} figures {lifting_figures.PLOT_PATTERN} already ({figures[0].name}, ...);"
                 " pass --overwrite to replace them"
             )
     return earlier
@@ -298,13 +297,13 @@ def lift_sequence(
     lifter, keypoints, confidence, camera: intrinsics.CameraIntrinsics, detections: detection_file.DetectionFile
 ) -> tuple[np.ndarray, int]:
     """A temporal lifter's poses f32[N, J, 3] and how many of them were not followed: the input's frames
-    in sequence order (`animation_frames`: OpenPose frames in frame-number order, image ids in numerical
+    in sequence order (`lifting_figures.animation_frames`: OpenPose frames in frame-number order, image ids in numerical
     order), one person per frame (the highest mean score), each lifted with the window of frames around
     it; a frame without a pose is a frame of missing joints in its neighbours' windows.  The other
     people's poses are NaN, and said so."""
     count = len(keypoints)
     # Ranked by score alone: nothing is lifted yet.
-    frames, shown = animation_frames(detections.image_ids, confidence, np.ones(count, bool), detections.frame_ids)
+    frames, shown = lifting_figures.animation_frames(detections.image_ids, confidence, np.ones(count, bool), detections.frame_ids)
     rows = np.array([count if index is None else index for index in shown])
     blank_keypoints = np.concatenate([keypoints, np.zeros((1, *keypoints.shape[1:]), np.float32)])
     blank_confidence = np.concatenate([confidence, np.zeros((1, confidence.shape[1]), np.float32)])
@@ -381,72 +380,6 @@ def drop_implausible(
     if image_size is None and outside_margin is not None:
         message += " (no image size, so keypoints outside the image were not looked for: pass --image-size W H)"
     return np.where(any_dropped, 0.0, scores).astype(np.float32), message
-
-
-@dataclasses.dataclass(frozen=True)
-class LiftedInput:
-    """The input as the lifter took it and the poses it gave, a row per input pose, for the figures."""
-
-    keypoints: np.ndarray
-    """f32[N, J, 2] pixels in the lifter's joints."""
-    confidence: np.ndarray
-    """f32[N, J]: 0 where a joint was lifted as missing."""
-    poses: np.ndarray
-    """f32[N, J, 3] mm; NaN rows were not lifted."""
-    image_ids: list[Any]
-    frame_ids: list[Any] | None
-    """As `detection_file.DetectionFile.frame_ids`."""
-
-
-def save_plots(
-    directory: pathlib.Path, lifted: LiftedInput, skeleton, image_size: tuple[float, float] | None, count: int
-) -> list[pathlib.Path]:
-    """`viz.figure_lifting` PNGs of the first `count` lifted poses, named by their input index."""
-    keypoints, confidence, poses = lifted.keypoints, lifted.confidence, lifted.poses
-    saved = []
-    for i in np.flatnonzero(np.isfinite(poses).all((1, 2)))[:count]:
-        title = f"image {lifted.image_ids[i]} (pose {i})"
-        figure = viz.figure_lifting(keypoints[i], poses[i], skeleton, image_size, title, confidence[i])
-        path = directory / PLOT_PATTERN.replace("*", f"{i:05d}")
-        with atomic_output(path) as temporary:
-            viz.save_figure(figure, temporary)
-        saved.append(path)
-    return saved
-
-
-def animation_frames(
-    image_ids: list[Any], confidence: np.ndarray, lifted: np.ndarray, frame_ids: list[Any] | None
-) -> tuple[list[Any], list[int | None]]:
-    """The frames in sequence order and the pose each one shows (None: no pose in that frame).
-
-    A frame with several poses shows the one with the highest mean keypoint confidence, lifted ones
-    (bool[N] `lifted`) first.
-    """
-    rank = list(zip(np.asarray(lifted, bool), confidence.mean(1)))
-    shown: dict[Any, int] = {}
-    for index, image_id in enumerate(image_ids):
-        if image_id not in shown or rank[index] > rank[shown[image_id]]:
-            shown[image_id] = index
-    frames = frame_ids if frame_ids is not None else sorted(shown, key=detection_file.sequence_order)
-    return frames, [shown.get(frame) for frame in frames]
-
-
-def save_animation(
-    path: pathlib.Path, lifted: LiftedInput, skeleton, image_size: tuple[float, float] | None, fps: float
-) -> pathlib.Path:
-    """`viz.save_pose_animation` of one pose per frame (`animation_frames`); a frame without one is blank."""
-    keypoints, confidence, poses = lifted.keypoints, lifted.confidence, lifted.poses
-    frames, shown = animation_frames(lifted.image_ids, confidence, np.isfinite(poses).all((1, 2)), lifted.frame_ids)
-    blank = len(poses)  # the index of a row appended for frames without a pose
-    rows = [blank if index is None else index for index in shown]
-    joints = keypoints.shape[1]
-    keypoints = np.concatenate([keypoints, np.full((1, joints, 2), np.nan, np.float32)])[rows]
-    confidence = np.concatenate([confidence, np.zeros((1, joints), np.float32)])[rows]
-    poses = np.concatenate([poses, np.full((1, joints, 3), np.nan, np.float32)])[rows]
-    titles = [f"image {frame}" + (" (no pose)" if index is None else "") for frame, index in zip(frames, shown)]
-    with atomic_output(path) as temporary:
-        viz.save_pose_animation(temporary, poses, skeleton, keypoints, confidence, image_size, titles, fps)
-    return path
 
 
 def main(argv: Sequence[str] | None = None) -> np.ndarray:

@@ -30,7 +30,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
         "jaxpose.evaluation", "jaxpose.validation", "jaxpose.pseudo_labelling", "jaxpose.viz",
     )),
     ("inference and the command lines", (
-        "jaxpose.inference", "jaxpose.tracking", "jaxpose.predict", "jaxpose.export", "jaxpose.calibrate",
+        "jaxpose.inference", "jaxpose.tracking", "jaxpose.lifting_figures", "jaxpose.predict", "jaxpose.export", "jaxpose.calibrate",
         "jaxpose.reconstruct", "jaxpose.reconstruction.",
     )),
     ("experiments", ("experiments.",)),

@@ -12,7 +12,7 @@ from matplotlib import animation
 from PIL import Image, ImageSequence
 
 from detection_helpers import body25_from_coco, coco_from_h36m, views
-from jaxpose import predict, viz
+from jaxpose import lifting_figures, predict, viz
 from jaxpose.skeleton import COCO_17
 
 IMAGE_SIZE = (1000, 1000)  # the synthetic rig's images
@@ -62,10 +62,10 @@ def test_frames_in_sequence_order_one_pose_each():
     confidence = np.array([0.9, 0.5, 0.8, 0.9, 0.9, 0.9, 0.95])[:, None] * np.ones((1, 17))
     poses = np.zeros((7, 17, 3))
     poses[6] = np.nan  # the best-scored pose of image 9, but not lifted
-    frames, shown = predict.animation_frames(image_ids, confidence, np.isfinite(poses).all((1, 2)), None)
+    frames, shown = lifting_figures.animation_frames(image_ids, confidence, np.isfinite(poses).all((1, 2)), None)
     assert frames == [2, 9, 10, "a", "b"]  # numbers numerically, then names
     assert shown == [3, 2, 0, 5, 4]
-    frames, shown = predict.animation_frames(["f0", "f2"], confidence[:2], np.isfinite(poses[:2]).all((1, 2)), ["f0", "f1", "f2"])
+    frames, shown = lifting_figures.animation_frames(["f0", "f2"], confidence[:2], np.isfinite(poses[:2]).all((1, 2)), ["f0", "f1", "f2"])
     assert frames == ["f0", "f1", "f2"] and shown == [0, None, 1]  # OpenPose: an empty frame stays
 
 
