@@ -195,15 +195,26 @@ def undistort_points(cameras: Cameras, pixels: jax.Array, iterations: int = 20) 
     """
     if cameras.dist is None:
         return pixels
-    distorted = _remove_intrinsics(cameras.K, pixels)
-    if cameras.distortion_model == "fisheye":
-        return _apply_intrinsics(cameras.K, _undistort_fisheye(distorted, cameras.dist, iterations))
+    return undistort_lens(cameras.K, cameras.dist, pixels, cameras.distortion_model, iterations)
+
+
+def undistort_lens(K: jax.Array, dist: jax.Array, pixels: jax.Array, model: str = "opencv", iterations: int = 20) -> jax.Array:
+    """`undistort_points` of the lens K [..., 3, 3], dist [..., 5] of `model`: pixels [..., N, 2]."""
+    distorted = _remove_intrinsics(K, pixels)
+    if model == "fisheye":
+        return _apply_intrinsics(K, _undistort_fisheye(distorted, dist, iterations))
 
     def refine(_, estimate):
-        return distorted - (_distort(estimate, cameras.dist, cameras.distortion_model) - estimate)
+        return distorted - (_distort(estimate, dist, model) - estimate)
 
     undistorted = jax.lax.fori_loop(0, iterations, refine, distorted)
-    return _apply_intrinsics(cameras.K, undistorted)
+    return _apply_intrinsics(K, undistorted)
+
+
+# `undistort_lens` compiled once per shape and model, the lens an argument: the loaders undistort
+# every camera of every recording through it in fixed-size chunks (`jaxpose.chunks`), so that
+# neither the number of cameras nor the recordings' lengths add a compilation.
+undistort_compiled = jax.jit(undistort_lens, static_argnames=("model", "iterations"))
 
 
 def _undistort_fisheye(distorted: jax.Array, dist: jax.Array, iterations: int) -> jax.Array:

@@ -11,14 +11,17 @@ sample of a `MultiViewDataset` in fixed-size chunks and stores the result in the
 from __future__ import annotations
 
 import dataclasses
+import logging
+import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tqdm.auto import tqdm
 
 from jaxpose import robust
 from jaxpose.camera import projection_matrices
-from jaxpose.chunks import map_in_chunks
+from jaxpose.chunks import chunk_rows, map_in_chunks
 from jaxpose.config import PseudoLabelConfig
 from jaxpose.data.dataset import MultiViewDataset
 
@@ -40,12 +43,16 @@ def _labels_and_agreeing_views(P, points2d, confidence, config: PseudoLabelConfi
     return points, weight, robust.agreeing_views(P, points2d, confidence, points, config.threshold_px)
 
 
+log = logging.getLogger(__name__)
+
 # Module-level, so that every data set (train and test splits, repeated calls) shares its
 # compilations; the config is static (a frozen dataclass hashes by value).
 _solve = jax.jit(_labels_and_agreeing_views, static_argnames="config")
 
 
-def label(dataset: MultiViewDataset, config: PseudoLabelConfig = PseudoLabelConfig(), chunk_size: int = 16384) -> MultiViewDataset:
+def label(
+    dataset: MultiViewDataset, config: PseudoLabelConfig = PseudoLabelConfig(), chunk_size: int = 16384, progress: bool = False
+) -> MultiViewDataset:
     """The data set, undistorted, with `pseudo3d` and `pseudo3d_weight` (and, for the outlier-rejecting
     methods, `detection_weight`) set from the detections of all its views.
 
@@ -56,16 +63,25 @@ def label(dataset: MultiViewDataset, config: PseudoLabelConfig = PseudoLabelConf
     root gets 0: the pseudo-label is used root-relative, so a bad root spoils every joint.
     "irls" and "ransac" also set `detection_weight`: 0 for a detection that does not agree with
     its joint's label, so that the losses do not take an outlier as a target either.
+
+    Chunks of `jaxpose.chunks.chunk_rows` rows (at most `chunk_size`): a few compilations whatever
+    the data set's size, bounded memory, and a memory-mapped data set read chunk by chunk.
+    `progress`: a progress bar over the chunks; either way one timed log line.
     """
+    started = time.perf_counter()
     dataset = dataset.undistorted()
+    size = chunk_rows(len(dataset), chunk_size)
+    bar = tqdm(total=len(dataset), desc="pseudo-labels", unit="instant", unit_scale=True, disable=not progress, leave=False)
 
     def solve_rows(rows, keypoints2d, confidence):
         P = projection_matrices(dataset.cameras_for(rows))
-        return _solve(P, jnp.asarray(keypoints2d), jnp.asarray(confidence), config=config)
+        solved = _solve(P, jnp.asarray(keypoints2d), jnp.asarray(confidence), config=config)
+        bar.update(min(len(rows), len(dataset) - bar.n))
+        return solved
 
-    # Fixed-size chunks: one compilation, bounded memory.
-    rows = np.arange(len(dataset))
-    pseudo3d, weight, views = map_in_chunks(solve_rows, (rows, dataset.keypoints2d, dataset.confidence), chunk_size)
+    with bar:
+        pseudo3d, weight, views = map_in_chunks(solve_rows, (np.arange(len(dataset)), dataset.keypoints2d, dataset.confidence), size)
     agreeing = views.astype(np.float32) if config.method in robust.OUTLIER_REJECTING_METHODS else None
     weight = weight.astype(np.float32) * weight[:, :1]
+    log.info("pseudo-labels (%s) of %s instants in %.1f s", config.method, f"{len(dataset):,}", time.perf_counter() - started)
     return dataclasses.replace(dataset, pseudo3d=pseudo3d, pseudo3d_weight=weight, detection_weight=agreeing)

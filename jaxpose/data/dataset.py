@@ -14,10 +14,10 @@ import dataclasses
 from collections.abc import Iterator, Mapping, Sequence
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from jaxpose.camera import Cameras, undistort_points
+from jaxpose.camera import Cameras, undistort_compiled
+from jaxpose.chunks import map_in_chunks
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.skeleton import Skeleton
 
@@ -145,6 +145,11 @@ class MultiViewDataset:
         return self.keypoints2d.shape[1]
 
     def subset(self, indices: np.ndarray) -> "MultiViewDataset":
+        """The samples `indices`, copied; every sample in order is the data set itself (a memory-mapped
+        data set then stays on disk)."""
+        if len(indices) == len(self) and np.array_equal(indices, np.arange(len(self))):
+            return self
+
         def take(array):
             return None if array is None else array[indices]
 
@@ -217,16 +222,13 @@ class MultiViewDataset:
         """
         if self.rigs.dist is None:
             return self
-        undistort = jax.jit(undistort_points)
-        cameras = self.cameras_for(np.arange(len(self)))
-        points = np.asarray(undistort(cameras, jnp.asarray(self.keypoints2d)))
-        dataset = dataclasses.replace(self, keypoints2d=points.astype(np.float32), rigs=self.rigs.without_distortion())
+        points = _undistort(self.rigs, self.rig_index, self.keypoints2d)
+        dataset = dataclasses.replace(self, keypoints2d=points, rigs=self.rigs.without_distortion())
         if self.context is None:
             return dataset
         # Only the frames some sample's window can reach, each through the rig of a sample that reaches it.
         dataset = self._compact_context(dataset)
-        cameras = jax.tree.map(lambda field: field[self._context_rig_index(dataset)], self.rigs)
-        context = np.asarray(undistort(cameras, jnp.asarray(dataset.context.keypoints2d))).astype(np.float32)
+        context = _undistort(self.rigs, self._context_rig_index(dataset), dataset.context.keypoints2d)
         return dataclasses.replace(dataset, context=dataclasses.replace(dataset.context, keypoints2d=context))
 
     @staticmethod
@@ -252,6 +254,20 @@ class MultiViewDataset:
         for (start, end), sample in zip(spans.tolist(), first.tolist()):
             rig[start:end] = dataset.rig_index[sample]
         return rig
+
+
+UNDISTORT_CHUNK = 4096  # instants per call of the compiled undistortion
+
+
+def _undistort(rigs: Cameras, rig_index: np.ndarray, keypoints2d: np.ndarray) -> np.ndarray:
+    """f32[N, C, J, 2] pixels of the rigs `rig_index` [N] undistorted, in fixed-size chunks (one compilation
+    per chunk size, the lenses arguments), reading `keypoints2d` chunk by chunk (a memory-mapped array stays on disk)."""
+    K, dist = np.asarray(rigs.K, np.float32), np.asarray(rigs.dist, np.float32)
+
+    def chunk(rig_rows, points):
+        return undistort_compiled(K[rig_rows], dist[rig_rows], points, model=rigs.distortion_model)
+
+    return map_in_chunks(chunk, (rig_index, keypoints2d), UNDISTORT_CHUNK).astype(np.float32, copy=False)
 
 
 def concatenate(parts: Sequence[MultiViewDataset]) -> MultiViewDataset:
