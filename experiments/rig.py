@@ -22,6 +22,7 @@ directory is used by `jaxpose.predict` and `jaxpose.export` like any other.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import pathlib
 
@@ -37,15 +38,16 @@ EXAMPLE_ROOT = RigProjectConfig().root
 RECOVERED_CALIBRATION = "recovered_cameras.json"
 
 
-def load_splits(data: RigProjectConfig) -> Splits:
+def load_splits(data: RigProjectConfig, progress: bool = True, window: int = 1) -> Splits:
     """The project's training recordings and its held-out part; the embedded example is written first
-    when --data.root is left at its default and does not exist yet."""
+    when --data.root is left at its default and does not exist yet.  `progress`: --run.progress;
+    `window`: --model.temporal-window (the frames around each sample are prepared too)."""
     if data.root == EXAMPLE_ROOT and not data.root.exists():
         from jaxpose.synthetic.project import write_rig_project
 
         log.info("writing the embedded example project to %s", data.root)
         write_rig_project(data.root)
-    project = load_rig_project(data)
+    project = load_rig_project(data, progress=progress, window=window)
     artifacts = {}
     if project.recovered_calibration is not None:
         calibration = project.recovered_calibration
@@ -90,7 +92,10 @@ def project_notes(project: RigProject, data: RigProjectConfig) -> tuple[str, ...
         if project.ground_truth_joints
         else "No ground truth: the validation is the ground-truth-free table below."
     )
-    notes.append(f"Training: {len(project.train)} instants; validation ({held_out}): {len(project.validation)} instants. {truth}")
+    notes.append(
+        f"Training: {len(project.train)} instants; validation ({held_out}): {len(project.validation)} instants. {truth}"
+        f" The prepared project was {project.prepared}."
+    )
     if project.recovered_calibration is not None:
         from jaxpose.calibrate import report as calibration_report
 
@@ -136,7 +141,10 @@ EXPERIMENT = cli.Experiment(
 
 
 def main(argv: list[str] | None = None) -> dict:
-    return cli.main(EXPERIMENT, argv, __doc__)
+    # Parsed first for the two flags loading needs: the progress bars and the temporal window.
+    config = cli.parse(EXPERIMENT, argv, __doc__)
+    loading = functools.partial(load_splits, progress=config.run.progress, window=config.model.temporal_window)
+    return cli.main(dataclasses.replace(EXPERIMENT, load_splits=loading), argv, __doc__)
 
 
 if __name__ == "__main__":

@@ -108,6 +108,16 @@ def check(
         fail("distortion_model", f"one of {DISTORTION_MODELS}", repr(distortion_model))
 
 
+def read_camera_names(path: str | Path) -> tuple[str, ...]:
+    """The ``camera_names`` of a ``detections.npz``, reading no other array (`read` reads and checks them all)."""
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            names = archive["camera_names"]
+    except Exception:  # a file numpy cannot read, or no camera_names: `read` says which, naming the file
+        return read(path).camera_names
+    return tuple(str(name) for name in np.atleast_1d(names))
+
+
 def read(path: str | Path, required: Sequence[str] = ()) -> MultiViewDetections:
     """Read and check a ``detections.npz``; `required` names optional arrays the caller needs."""
     path = Path(path)

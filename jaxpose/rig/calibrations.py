@@ -1,24 +1,32 @@
 """The rig of each recording of a project: the calibration files found (the project's, a recording's
 own, or --data.calibration), their cameras matched to the detection folders by name, put in the data
-set's view order, and the keypoints undistorted with them.
+set's view order, and their unit checked against the people in view.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
+import math
 import pathlib
 from collections.abc import Sequence
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
-from jaxpose.camera import undistort_points
-from jaxpose.formats.calibrated_rig import CalibrationUnit, RigCalibration
+from jaxpose.formats.calibrated_rig import (
+    MM_PER_UNIT,
+    UNIT_FLAG,
+    CalibrationUnit,
+    RigCalibration,
+)
 from jaxpose.formats.camera_names import CameraMismatch, match_cameras
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_calibration import find_calibration, read_rig_calibration
 from jaxpose.rig.recordings import Recording
+from jaxpose.skeleton import Skeleton
+
+log = logging.getLogger(__name__)
+UNIT_TOLERANCE = 1.5  # an adult's limbs are the prior's within this factor
 
 
 def _named_as_detections(calibration: RigCalibration, detection_names: set[str]) -> RigCalibration:
@@ -82,11 +90,39 @@ def in_view_order(calibration: RigCalibration, camera_order: Sequence[str]) -> R
     )
 
 
-def undistorted(calibration: RigCalibration | None, camera: str, keypoints: np.ndarray) -> np.ndarray:
-    """Keypoints [..., 2] of `camera` undistorted with `calibration` (as they are without a calibration or distortion)."""
-    if calibration is None or calibration.cameras.dist is None:
-        return keypoints
-    index = calibration.camera_names.index(camera)
-    cameras = jax.tree.map(lambda field: jnp.asarray(field[index], jnp.float32), calibration.cameras)
-    flat = keypoints.reshape(-1, 2)
-    return np.asarray(undistort_points(cameras, jnp.asarray(flat))).reshape(keypoints.shape)
+def check_unit_against_people(calibration: RigCalibration, points: np.ndarray, reliable: np.ndarray, skeleton: Skeleton) -> None:
+    """Refuse a calibration whose unit makes the people in view 10, 100 or 1000 times too small or large.
+
+    A file that states no unit is read in metres or millimetres by the rig's size (`--data.calibration-unit
+    auto`); a rig in centimetres then reads as millimetres, trains, and reports errors ten times too large.
+    The people in view know better: their limbs (upper arm, forearm, thigh, shank: `jaxpose.calibration.scale`),
+    triangulated through the rig as read (`points` f[N, J, 3] mm, `reliable` bool[N, J]), are an adult's
+    within a factor `UNIT_TOLERANCE`.  Off by a power of ten (within that factor) is a wrong unit: stop,
+    naming the file and the flag; off by another factor is logged (a child, or a poor calibration).
+    """
+    try:
+        from jaxpose.calibration.scale import metric_scale  # the calibrate extra
+    except ImportError:
+        log.warning("%s: its unit was not checked against the people in view (needs pip install 'jaxpose[calibrate]')", calibration.source)
+        return
+    try:
+        scale = metric_scale(points, reliable, skeleton)
+    except ValueError:
+        return  # no limb triangulated: nothing to compare with
+    factor = scale.mm_per_unit  # the prior over the measured lengths
+    if 1.0 / UNIT_TOLERANCE <= factor <= UNIT_TOLERANCE:
+        return
+    limbs = ", ".join(f"{limb} {length / factor:.0f}" for limb, length in scale.measured_mm.items())
+    adult = ", ".join(f"{limb} {length:.0f}" for limb, length in scale.prior_mm.items())
+    power = round(math.log10(factor))
+    if power == 0 or abs(math.log10(factor) - power) > math.log10(UNIT_TOLERANCE):
+        log.warning("%s: the people in view have limbs of %s mm where an adult's are %s mm: is the calibration right?", calibration.source, limbs, adult)
+        return
+    mm_per_unit = MM_PER_UNIT[calibration.unit] * factor
+    likely = min(MM_PER_UNIT, key=lambda unit: abs(math.log10(MM_PER_UNIT[unit] / mm_per_unit)))
+    raise DataFormatError(
+        calibration.source,
+        f"people of an adult's size (limbs {adult} mm) when read in {calibration.unit!r}",
+        f"limbs of {limbs} mm, {factor:.3g} times too {'short' if factor > 1 else 'long'}: the file is likely in"
+        f" {likely!r}; say its unit with {UNIT_FLAG} m|cm|mm",
+    )

@@ -20,7 +20,7 @@ are matched to the detection folders by name (a folder's name without `_json`), 
 separators and leading zeros where that matches them one to one ("cam_01" is folder "cam01_json").  Without any
 calibration the rig is recovered from the recordings (`jaxpose.calibrate`).
 
-What loading does to each recording, in order:
+What loading does to each recording, in order (one recording at a time: `jaxpose.rig.preparation`):
 1. reads every camera's detections (parsed once, then cached: `jaxpose.formats.keypoint_files`),
    and finds its calibration (`jaxpose.rig.recordings`, `jaxpose.rig.calibrations`);
 2. converts them from the detector's layout to its lifting skeleton (the detector's own joints,
@@ -28,13 +28,20 @@ What loading does to each recording, in order:
    treated as missing;
 3. aligns the cameras in time: camera c's frame f shows instant f + offset[c]; offsets given, or
    estimated (`jaxpose.rig.timeline`, `jaxpose.rig.sync`); instants seen by no camera are absent, a
-   camera without a frame at an instant has confidence 0 there;
+   camera without a frame at an instant has confidence 0 there; only the instants the strides keep
+   (and the frames of their temporal windows) go further;
 4. without any calibration, recovers the rig from all recordings (`jaxpose.rig.recovered`);
 5. undistorts the keypoints with the calibration (the data sets' rigs are then pinhole);
-6. keeps one person per instant, the one the views agree on (`jaxpose.rig.people`);
+6. keeps one person per instant, the one the views agree on (`jaxpose.rig.people`), and checks a
+   calibration read without a stated unit against that person's limbs;
 7. attaches the ground truth where there is one, over the joints it shares with the lifting
    skeleton by name (the derived root from the hips where the ground truth has both:
    `jaxpose.data.ground_truth`), moved into a recovered rig's world.
+
+The result is prepared once: written beside the recordings (``PROJECT/.jaxpose_cache/prepared-<key>/``,
+`jaxpose.rig.prepared`) and memory-mapped from there by every later run with the same inputs and options.
+Steps 5 and 6 run in chunks of one fixed size across recordings (`jaxpose.rig.geometry`): the compilations
+of loading do not grow with the number or the lengths of the recordings.
 """
 
 from __future__ import annotations
@@ -42,23 +49,38 @@ from __future__ import annotations
 import dataclasses
 import logging
 import pathlib
-from collections.abc import Sequence
+import shutil
+import time
+from collections.abc import Iterator, Sequence
 from typing import Literal
 
-import jax
 import numpy as np
 
-from jaxpose.camera import projection_matrices
+from jaxpose.camera import Cameras
 from jaxpose.data import ground_truth
-from jaxpose.data.dataset import MultiViewDataset, concatenate
+from jaxpose.data.dataset import FrameContext, MultiViewDataset
 from jaxpose.formats.calibrated_rig import CalibrationUnit
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.layouts import lifting_skeleton
-from jaxpose.rig.calibrations import attach_calibrations, in_view_order, undistorted
-from jaxpose.rig.people import DEFAULT_THRESHOLD_PX, choose_person
-from jaxpose.rig.recordings import Recording, ground_truth_on_instants, lifting_views, read_recording, recording_folders
-from jaxpose.rig.recovered import ground_truth_into_recovered_world, recover_rig
-from jaxpose.rig.timeline import align, estimate_recording_offsets, parse_frame_offsets
+from jaxpose.rig import prepared
+from jaxpose.rig.calibrations import attach_calibrations, in_view_order
+from jaxpose.rig.geometry import Rigs
+from jaxpose.rig.people import DEFAULT_THRESHOLD_PX
+from jaxpose.rig.preparation import Aligned, Phases, kept_rows, prepare
+from jaxpose.rig.recordings import (
+    Recording,
+    find_recording,
+    lifting_views,
+    read_detections,
+    recording_folders,
+)
+from jaxpose.rig.recovered import recover_rig
+from jaxpose.rig.timeline import (
+    align,
+    estimate_recording_offsets,
+    instants_of,
+    parse_frame_offsets,
+)
 
 log = logging.getLogger(__name__)
 
@@ -121,7 +143,7 @@ class RigProjectConfig:
 
 @dataclasses.dataclass(frozen=True)
 class RecordingSummary:
-    """What loading did to one recording, for the report."""
+    """What loading did to one recording, for the report (counts over the instants the strides keep)."""
 
     name: str
     cameras: tuple[str, ...]
@@ -148,17 +170,61 @@ class RigProject:
     """The lifting skeleton's joints that the ground truth has (empty without ground truth)."""
     recovered_calibration: object | None = None
     """The `jaxpose.calibration.Calibration` recovered from the recordings, when there was no calibration."""
+    prepared: str = ""
+    """How the prepared arrays were had: read from the cache, prepared and cached, or prepared in memory."""
 
 
-def load_rig_project(config: RigProjectConfig, progress: bool = True) -> RigProject:
+def load_rig_project(config: RigProjectConfig, progress: bool = True, window: int = 1) -> RigProject:
     """Every recording of the project, read, aligned, calibrated and reduced to one person, split into
-    training and validation parts (see the module docstring)."""
-    recordings = [read_recording(folder, config.skeleton, progress) for folder in recording_folders(config.root, config.recordings)]
-    layouts = {recording.name: recording.layout for recording in recordings}
-    if len(set(layouts.values())) > 1:
-        raise DataFormatError(config.root, "one keypoint layout in every recording", f"layouts {layouts}")
-    layout = recordings[0].layout
-    skeleton = lifting_skeleton(layout)
+    training and validation parts (see the module docstring), or all that from the cache.
+
+    `window`: the frames a temporal lifter's input spans (--model.temporal-window); above 1 the frames
+    around each sample are prepared too and kept as the data sets' context (`MultiViewDataset.windows`).
+    """
+    if window < 1:
+        raise ValueError(f"load_rig_project: window must be >= 1, got {window}")
+    started = time.perf_counter()
+    recordings = [find_recording(folder) for folder in recording_folders(config.root, config.recordings)]
+    cache_key = prepared.key(_options(config, window), _input_files(config, recordings))
+    cached = prepared.folder(config.root, cache_key)
+    if cached.is_dir():
+        try:
+            meta, recovered = prepared.read_meta(cached)
+            project = _project(meta, prepared.read_arrays(cached), recovered, f"read from the cache {cached}")
+        except Exception as error:  # noqa: BLE001 - an unreadable cache is only a missed shortcut
+            log.warning("ignoring the unreadable prepared project %s (%s: %s)", cached, type(error).__name__, error)
+        else:
+            log.info("prepared project read from the cache %s in %.1f s (%d recordings)", cached, time.perf_counter() - started, len(recordings))
+            return project
+    return _prepare(config, recordings, progress, window, cache_key)
+
+
+def _options(config: RigProjectConfig, window: int) -> dict:
+    """Every option that changes the prepared arrays (the project folder is where they are kept)."""
+    options = {field.name: getattr(config, field.name) for field in dataclasses.fields(config) if field.name != "root"}
+    options["calibration"] = None if config.calibration is None else str(config.calibration.resolve())
+    return options | {"window": window}
+
+
+def _input_files(config: RigProjectConfig, recordings: Sequence[Recording]) -> list[pathlib.Path]:
+    """Every file loading may read: the project's and each recording folder's files, every camera's
+    detections, and --data.calibration with its siblings of the same kind (EasyMocap's extri.yml)."""
+
+    def plain_files(folder: pathlib.Path, suffix: str = "") -> list[pathlib.Path]:
+        return [entry for entry in folder.iterdir() if not entry.name.startswith(".") and entry.suffix.endswith(suffix) and not entry.is_dir()]
+
+    files = plain_files(config.root)
+    if config.calibration is not None:
+        files += [config.calibration, *plain_files(config.calibration.parent, config.calibration.suffix)]
+    for recording in recordings:
+        files += plain_files(recording.folder)
+        for source in recording.sources.values():
+            files += plain_files(source, ".json") if source.is_dir() else [source]
+    return files
+
+
+def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bool, window: int, cache_key: str) -> RigProject:
+    """The project prepared from its recordings (`jaxpose.rig.preparation`), and cached."""
     project_calibration = attach_calibrations(recordings, config.root, config.calibration, config.calibration_unit)
     present = set().union(*(recording.cameras for recording in recordings))
     if project_calibration is not None:
@@ -171,106 +237,137 @@ def load_rig_project(config: RigProjectConfig, progress: bool = True) -> RigProj
     unknown_validation = sorted(set(config.validation_recordings) - {recording.name for recording in recordings})
     if unknown_validation:
         raise ValueError(f"--data.validation-recordings {unknown_validation}: no such recording (have {[r.name for r in recordings]})")
-    aligned = _on_one_time_axis(config, recordings, camera_order)
+    phases = Phases(len(recordings), progress)
+    layouts: dict[str, str] = {}
+    parts = _aligned(config, recordings, camera_order, parse_frame_offsets(config.frame_offsets, recordings), window, phases, layouts)
     recovered_calibration = None
     if project_calibration is None and all(recording.calibration is None for recording in recordings):
-        rig, recovered_calibration = recover_rig(
-            recordings, aligned, camera_order, skeleton,
-            image_size=config.image_size, max_frames=config.recovery_frames, root=config.root,
-        )  # fmt: skip
+        parts = list(parts)
+        with phases("rig recovered"):
+            rig, recovered_calibration = recover_rig(
+                recordings, [(part.keypoints, part.confidence) for part in parts], camera_order,
+                lifting_skeleton(next(iter(layouts.values()))),
+                image_size=config.image_size, max_frames=config.recovery_frames, root=config.root,
+            )  # fmt: skip
         for recording in recordings:
             recording.calibration = rig
-
-    rigs, rig_keys, parts = [], {}, []
-    ground_truth_seen = False
-    summaries = []
+    rig_index: dict[int, int] = {}
     for recording in recordings:
-        instants, candidates, candidate_confidence = aligned[recording.name]
-        rig = in_view_order(recording.calibration, camera_order)
-        for index, camera in enumerate(camera_order):
-            candidates[:, index] = undistorted(rig, camera, candidates[:, index])
-        pinhole = rig.cameras.without_distortion()
-        choice = choose_person(np.asarray(projection_matrices(pinhole)), candidates, candidate_confidence, config.person_threshold_px)
-        target, truth_instants = ground_truth_on_instants(recording.folder, skeleton, layout, instants)
-        if target is not None and recovered_calibration is not None:
-            target = ground_truth_into_recovered_world(target, choice.keypoints, choice.confidence, rig)
-        ground_truth_seen |= target is not None
-        key = id(recording.calibration)
-        if key not in rig_keys:
-            rig_keys[key] = len(rigs)
-            rigs.append(jax.tree.map(lambda field: np.asarray(field, np.float32), pinhole))
-        parts.append((recording, instants, choice, target, rig_keys[key]))
-        summaries.append(
-            RecordingSummary(
-                name=recording.name,
-                cameras=tuple(camera for camera in camera_order if camera in recording.cameras),
-                instants=len(instants),
-                calibration=recording.calibration.source,
-                offsets=dict(recording.offsets),
-                offsets_estimated=recording.sync is not None,
-                sync_reliable=None if recording.sync is None else recording.sync.reliable,
-                instants_with_choice=choice.instants_with_choice,
-                views_without_match=choice.views_without_match,
-                ground_truth_instants=truth_instants,
-            )
-        )
-    stacked_rigs = jax.tree.map(lambda *fields: np.stack(fields), *rigs)
-    train, validation = [], []
-    for recording, instants, choice, target, rig_index in parts:
-        if target is None and ground_truth_seen:
-            target = np.full((len(instants), skeleton.num_joints, 3), np.nan, np.float32)
-        dataset = MultiViewDataset(
-            skeleton=skeleton,
-            keypoints2d=choice.keypoints,
-            confidence=choice.confidence,
-            rigs=stacked_rigs,
-            rig_index=np.full(len(instants), rig_index, np.int32),
-            target3d=target,
-            labels={
-                "subject": np.full(len(instants), f"rig{rig_index}"),
-                "recording": np.full(len(instants), recording.name),
-                "sequence": np.full(len(instants), recording.name),  # what motion metrics difference along
-                "frame": instants.astype(np.int32),
-            },
-        ).with_own_context()
-        held_out, position = _held_out(config, recording.name, len(instants)), np.arange(len(instants))
-        train.append(dataset.subset(np.flatnonzero(~held_out & (position % config.train_stride == 0))))
-        validation.append(dataset.subset(np.flatnonzero(held_out & (position % config.validation_stride == 0))))
-    validation_set, train_set = concatenate(validation), concatenate(train)
-    if train_set.target3d is not None and not np.isfinite(train_set.target3d).all():
-        # Ground truth for only some joints or recordings serves evaluation, not the supervised twin.
-        log.info("the ground truth does not cover every training instant and joint: no --supervision full")
-        train_set = dataclasses.replace(train_set, target3d=None)
-    return RigProject(
-        train=train_set,
-        validation=validation_set,
-        camera_names=tuple(camera_order),
-        layout=layout,
-        recordings=tuple(summaries),
-        ground_truth_joints=ground_truth.ground_truth_joint_names(validation_set) if ground_truth_seen else (),
-        recovered_calibration=recovered_calibration,
-    )
+        rig_index.setdefault(id(recording.calibration), len(rig_index))
+    distinct = {id(recording.calibration): recording.calibration for recording in recordings}
+    rigs = Rigs.of([in_view_order(distinct[key], camera_order) for key in rig_index])
+    temporary = prepared.start(config.root, cache_key)
+    assembly = prepared.Assembly(temporary)
+    try:
+        done = prepare(
+            iter(parts), rigs, lambda recording: rig_index[id(recording.calibration)],
+            lambda: lifting_skeleton(next(iter(layouts.values()))), assembly, phases,
+            threshold_px=config.person_threshold_px, recovered=recovered_calibration is not None,
+            check_unit=config.calibration_unit == "auto" and recovered_calibration is None, context=window > 1,
+            labels={"subject": np.dtype(f"<U{len(f'rig{len(rig_index) - 1}')}"),
+                    "recording": np.dtype(f"<U{max(len(recording.name) for recording in recordings)}")},
+        )  # fmt: skip
+        arrays = assembly.close()
+    except BaseException:
+        if temporary is not None:
+            shutil.rmtree(temporary, ignore_errors=True)
+        raise
+    finally:
+        phases.close()
+    for summary, recording in zip(done.summaries, recordings):
+        summary["cameras"] = [camera for camera in camera_order if camera in recording.cameras]
+    meta = {
+        "camera_names": camera_order,
+        "layout": next(iter(layouts.values())),
+        "recordings": done.summaries,
+        "ground_truth_seen": done.ground_truth_seen,
+        "train_target_complete": done.train_target_complete,
+        "rigs": {field: np.stack([np.asarray(getattr(c.cameras, field), np.float32) for c in rigs.calibrations]).tolist() for field in ("K", "R", "t")},
+    }
+    if temporary is None:
+        return _project(meta, arrays, recovered_calibration, "prepared in memory (the project folder cannot be written: not cached)")
+    final = prepared.commit(temporary, cache_key, meta, recovered_calibration)
+    return _project(meta, prepared.read_arrays(final), recovered_calibration, f"prepared and written to the cache {final}")
 
 
-def _on_one_time_axis(
-    config: RigProjectConfig, recordings: Sequence[Recording], camera_order: Sequence[str]
-) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Each recording's lifting views on one time axis (`jaxpose.rig.timeline.align`), by recording
-    name; sets each recording's offsets (given, or estimated with --data.sync auto)."""
-    given = parse_frame_offsets(config.frame_offsets, recordings)
-    aligned = {}
+def _aligned(
+    config: RigProjectConfig,
+    recordings: Sequence[Recording],
+    camera_order: Sequence[str],
+    given: dict[tuple[str, str], int],
+    window: int,
+    phases: Phases,
+    layouts: dict[str, str],
+) -> Iterator[Aligned]:
+    """Each recording read, on one time axis at the instants kept, one at a time (its offsets set:
+    `given` by --data.frame-offsets, or estimated with --data.sync auto); `layouts` collects each
+    recording's layout."""
     for recording in recordings:
-        views = lifting_views(recording, config.min_confidence)
+        with phases("recordings read"):
+            views = lifting_views(recording, read_detections(recording, config.skeleton, phases.progress), config.min_confidence)
+        layouts[recording.name] = recording.layout
+        if len(set(layouts.values())) > 1:
+            raise DataFormatError(config.root, "one keypoint layout in every recording", f"layouts {layouts}")
         cameras = [camera for camera in camera_order if camera in views]
         if config.sync == "auto":
-            recording.sync = estimate_recording_offsets(recording, views, cameras, config.max_sync_offset)
+            with phases("offsets"):
+                recording.sync = estimate_recording_offsets(recording, views, cameras, config.max_sync_offset)
             recording.offsets = dict(zip(cameras, recording.sync.offsets.tolist()))
             state = "" if recording.sync.reliable else " (UNRELIABLE: the person hardly moves between frames)"
             log.info("recording %s: estimated frame offsets %s%s", recording.name, recording.offsets, state)
+            phases.advance("offsets")
         else:
             recording.offsets = {camera: given.get((recording.name, camera), 0) for camera in cameras}
-        aligned[recording.name] = align(views, camera_order, recording.offsets)
-    return aligned
+        with phases("recordings read"):
+            instants = instants_of(views, recording.offsets)
+            if not len(instants):
+                raise DataFormatError(recording.folder, "detections in at least one frame", "no frame")
+            held_out = _held_out(config, recording.name, len(instants))
+            rows, sample = kept_rows(held_out, config.train_stride, config.validation_stride, window)
+            keypoints, confidence = align(views, camera_order, recording.offsets, instants[rows])
+        phases.advance("recordings read", len(instants))
+        yield Aligned(recording, instants, rows, sample, held_out[rows], keypoints, confidence)
+
+
+def _project(meta: dict, arrays: dict[str, dict[str, np.ndarray]], recovered: object | None, how: str) -> RigProject:
+    """The loaded project from the prepared arrays (memory-mapped from the cache, or in memory) and their metadata."""
+    skeleton = lifting_skeleton(meta["layout"])
+    rigs = Cameras(**{field: np.asarray(values, np.float32) for field, values in meta["rigs"].items()})
+    C, J = len(meta["camera_names"]), skeleton.num_joints
+    context = arrays.get("context")
+    seen = meta["ground_truth_seen"]
+    if seen and not meta["train_target_complete"]:
+        # Ground truth for only some joints or recordings serves evaluation, not the supervised twin.
+        log.info("the ground truth does not cover every training instant and joint: no --supervision full")
+
+    def dataset(part: str, target: bool) -> MultiViewDataset:
+        rows = arrays.get(part, {})
+        count = len(rows["frame"]) if rows else 0
+        empty = {"keypoints2d": ((C, J, 2), np.float32), "confidence": ((C, J), np.float32), "rig_index": ((), np.int32),
+                 "frame": ((), np.int32), "subject": ((), "<U1"), "recording": ((), "<U1"), "context_row": ((), np.int32),
+                 "context_span": ((2,), np.int32)}  # fmt: skip
+        get = {name: rows.get(name, np.zeros((0, *shape), dtype)) for name, (shape, dtype) in empty.items()}
+        target3d = rows.get("target3d", np.full((count, J, 3), np.nan, np.float32)) if target else None
+        return MultiViewDataset(
+            skeleton=skeleton, keypoints2d=get["keypoints2d"], confidence=get["confidence"], rigs=rigs, rig_index=get["rig_index"],
+            target3d=target3d,
+            labels={"subject": get["subject"], "recording": get["recording"], "sequence": get["recording"], "frame": get["frame"]},
+            context=None if context is None else FrameContext(context["keypoints2d"], context["confidence"]),
+            context_row=None if context is None else get["context_row"],
+            context_span=None if context is None else get["context_span"],
+        )  # fmt: skip
+
+    validation = dataset("validation", seen)
+    return RigProject(
+        train=dataset("train", seen and meta["train_target_complete"]),
+        validation=validation,
+        camera_names=tuple(meta["camera_names"]),
+        layout=meta["layout"],
+        recordings=tuple(RecordingSummary(**summary | {"cameras": tuple(summary["cameras"])}) for summary in meta["recordings"]),
+        ground_truth_joints=ground_truth.ground_truth_joint_names(validation) if seen else (),
+        recovered_calibration=recovered,
+        prepared=how,
+    )
 
 
 def _held_out(config: RigProjectConfig, recording: str, instants: int) -> np.ndarray:

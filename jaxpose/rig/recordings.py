@@ -7,6 +7,7 @@ detections brought onto the lifting skeleton, and a recording's ground truth on 
 from __future__ import annotations
 
 import dataclasses
+import os
 import pathlib
 from collections.abc import Mapping, Sequence
 
@@ -18,8 +19,18 @@ from jaxpose.formats.calibrated_rig import RigCalibration
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.keypoint_files import CameraDetections, read_camera_detections
 from jaxpose.formats.rig_calibration import find_calibration
-from jaxpose.formats.rig_folder import DETECTIONS_NPZ, GROUND_TRUTH_NPZ, folder_camera, read_ground_truth
-from jaxpose.layouts import LAYOUTS, infer_layout, layout_joint_names, to_lifting_skeleton
+from jaxpose.formats.rig_folder import (
+    DETECTIONS_NPZ,
+    GROUND_TRUTH_NPZ,
+    folder_camera,
+    read_ground_truth,
+)
+from jaxpose.layouts import (
+    LAYOUTS,
+    infer_layout,
+    layout_joint_names,
+    to_lifting_skeleton,
+)
 from jaxpose.rig.sync import SyncEstimate
 from jaxpose.skeleton import DETECTOR_LAYOUTS, Skeleton
 
@@ -31,26 +42,60 @@ Views = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
 
 @dataclasses.dataclass
 class Recording:
-    """One recording while it is being loaded."""
+    """One recording while it is being loaded: found (`find_recording`), its detections read once
+    (`read_detections`) and let go after alignment."""
 
     name: str
     folder: pathlib.Path
-    cameras: dict[str, CameraDetections]
-    layout: str
-    npz: detections_npz.MultiViewDetections | None = None
+    cameras: tuple[str, ...]
+    """Its cameras' names (detection folders, COCO files or the detections.npz's camera_names)."""
+    sources: dict[str, pathlib.Path]
+    """Camera -> its JSON folder or COCO file; {DETECTIONS_NPZ: path} for a detections.npz."""
+    layout: str | None = None
+    known_cameras: dict[str, dict] = dataclasses.field(default_factory=dict)
+    """Camera -> what its detections.npz gives of it: image_size, K, dist (those present) and model."""
     calibration: RigCalibration | None = None
     offsets: dict[str, int] = dataclasses.field(default_factory=dict)
     sync: SyncEstimate | None = None
+
+
+def printable(path: pathlib.Path | str) -> str:
+    """A path as text that any terminal and file can take: bytes that are not UTF-8 as \\xNN escapes."""
+    return os.fsencode(path).decode("utf-8", "backslashreplace")
+
+
+def _utf8_name(path: pathlib.Path, what: str) -> None:
+    """Refuse a file or folder name that is not UTF-8: it names a recording or camera in every report."""
+    try:
+        path.name.encode("utf-8")
+    except UnicodeEncodeError:
+        raise DataFormatError(printable(path), f"a {what} name in UTF-8 (it names the {what} in the report)", "other bytes") from None
+
+
+def _is_dir(path: pathlib.Path) -> bool:
+    """`path.is_dir()`; a symbolic link that loops (in a circle, or to a folder that holds it) is refused in one line."""
+    if path.is_symlink():
+        try:
+            loops = path.parent.resolve().is_relative_to(path.resolve(strict=True))
+        except FileNotFoundError:
+            return False  # a link to nothing: not a folder
+        except (OSError, RuntimeError):
+            loops = True
+        if loops:
+            raise DataFormatError(printable(path), "a folder or a file", "a symbolic link that loops (to itself or a folder holding it)")
+    return path.is_dir()
 
 
 def recording_folders(root: pathlib.Path, names: Sequence[str] = ()) -> list[pathlib.Path]:
     """The project's recording folders (sub-folders holding detections), sorted by name."""
     if not root.is_dir():
         raise DataFormatError(root, "a rig project folder (one sub-folder per recording)", "no such folder")
-    folders = [
-        folder for folder in sorted(root.iterdir())
-        if folder.is_dir() and not folder.name.startswith(".") and _camera_sources(folder, probe=True)
-    ]  # fmt: skip
+    folders = []
+    for folder in sorted(root.iterdir()):
+        if folder.name.startswith(".") or not _is_dir(folder) or not _camera_sources(folder, probe=True):
+            continue
+        _utf8_name(folder, "recording")
+        folders.append(folder)
     if names:
         by_name = {folder.name: folder for folder in folders}
         unknown = [name for name in names if name not in by_name]
@@ -61,7 +106,7 @@ def recording_folders(root: pathlib.Path, names: Sequence[str] = ()) -> list[pat
         raise DataFormatError(
             root,
             f"recording folders holding {DETECTIONS_NPZ}, camera folders of OpenPose JSON frames or COCO results per camera",
-            f"no such sub-folder (found {sorted(p.name for p in root.iterdir())[:20]})",
+            f"no such sub-folder (found {sorted(printable(p.name) for p in root.iterdir())[:20]})",
         )
     return folders
 
@@ -73,7 +118,7 @@ def _camera_sources(folder: pathlib.Path, probe: bool = False) -> dict[str, path
     folders = {
         folder_camera(entry.name): entry
         for entry in sorted(folder.iterdir())
-        if entry.is_dir() and not entry.name.startswith(".") and next(entry.glob("*.json"), None) is not None
+        if not entry.name.startswith(".") and _is_dir(entry) and next(entry.glob("*.json"), None) is not None
     }
     calibration = None if probe else find_calibration(folder)  # a recording's own camera file is no camera
     files = {
@@ -88,6 +133,22 @@ def _camera_sources(folder: pathlib.Path, probe: bool = False) -> dict[str, path
             f"both folders {sorted(folders)} and JSON files {sorted(files)}",
         )
     return folders or files
+
+
+def find_recording(folder: pathlib.Path) -> Recording:
+    """A recording folder's cameras and where their detections are (nothing read but a detections.npz's camera names)."""
+    sources = _camera_sources(folder)
+    if DETECTIONS_NPZ in sources:
+        cameras = detections_npz.read_camera_names(sources[DETECTIONS_NPZ])
+    else:
+        for path in sources.values():
+            _utf8_name(path, "camera")
+        cameras = tuple(sources)
+    if len(cameras) < 2:
+        raise DataFormatError(
+            folder, "detections of at least 2 cameras (multi-view geometry needs two views)", f"cameras {sorted(cameras)}"
+        )
+    return Recording(name=folder.name, folder=folder, cameras=cameras, sources=sources)
 
 
 def _npz_cameras(detections: detections_npz.MultiViewDetections) -> dict[str, CameraDetections]:
@@ -131,29 +192,30 @@ def _layout(
     return layout
 
 
-def read_recording(folder: pathlib.Path, skeleton: str, progress: bool) -> Recording:
-    """One recording's detections, per camera, and their layout (`skeleton`: see `RigProjectConfig.skeleton`)."""
-    sources = _camera_sources(folder)
+def read_detections(recording: Recording, skeleton: str, progress: bool) -> dict[str, CameraDetections]:
+    """The recording's detections, per camera; sets its layout (`skeleton`: see `RigProjectConfig.skeleton`)
+    and, from a detections.npz, what it gives of each camera."""
     npz = None
-    if DETECTIONS_NPZ in sources:
-        npz = detections_npz.read(sources[DETECTIONS_NPZ])
+    if DETECTIONS_NPZ in recording.sources:
+        npz = detections_npz.read(recording.sources[DETECTIONS_NPZ])
         cameras = _npz_cameras(npz)
+        given = {key: getattr(npz, key) for key in ("image_size", "K", "dist") if getattr(npz, key) is not None}
+        recording.known_cameras = {
+            camera: {key: array[index] for key, array in given.items()} | {"model": npz.distortion_model}
+            for index, camera in enumerate(npz.camera_names)
+        }
     else:
-        cameras = {name: read_camera_detections(path, progress=progress) for name, path in sources.items()}
-    if len(cameras) < 2:
-        raise DataFormatError(
-            folder, "detections of at least 2 cameras (multi-view geometry needs two views)", f"cameras {sorted(cameras)}"
-        )
-    layout = _layout(skeleton, folder.name, cameras, npz)
-    return Recording(name=folder.name, folder=folder, cameras=cameras, layout=layout, npz=npz)
+        cameras = {name: read_camera_detections(path, progress=progress) for name, path in recording.sources.items()}
+    recording.layout = _layout(skeleton, recording.name, cameras, npz)
+    return cameras
 
 
-def lifting_views(recording: Recording, min_confidence: float) -> Views:
+def lifting_views(recording: Recording, cameras: Mapping[str, CameraDetections], min_confidence: float) -> Views:
     """The recording's `Views` in the lifting skeleton, scores below `min_confidence` made 0, at most `MAX_PEOPLE` detections per frame (the most confident: a crowd only costs memory), and at
     least one (a camera that never saw anybody keeps an empty slot)."""
     views = {}
     joints = len(layout_joint_names(recording.layout))
-    for name, detections in recording.cameras.items():
+    for name, detections in cameras.items():
         keypoints, scores = detections.keypoints, detections.scores
         if keypoints.shape[1] == 0:
             keypoints, scores = np.zeros((len(keypoints), 1, joints, 2), np.float32), np.zeros((len(keypoints), 1, joints), np.float32)

@@ -10,25 +10,24 @@ capture's world is moved into it for evaluation (`ground_truth_into_recovered_wo
 from __future__ import annotations
 
 import pathlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 
-import jax.numpy as jnp
 import numpy as np
 
 from jaxpose.camera import projection_matrices
 from jaxpose.formats.calibrated_rig import RigCalibration
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_folder import GROUND_TRUTH_NPZ
+from jaxpose.rig.geometry import triangulate_rows
 from jaxpose.rig.recordings import Recording, one_person
 from jaxpose.skeleton import Skeleton
-from jaxpose.triangulation import triangulate
 
 MIN_ALIGNMENT_POINTS = 50  # ground-truth joints needed to align it with a recovered rig
 
 
 def recover_rig(
     recordings: Sequence[Recording],
-    aligned: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
+    aligned: Sequence[tuple[np.ndarray, np.ndarray]],
     camera_order: Sequence[str],
     skeleton: Skeleton,
     *,
@@ -36,26 +35,22 @@ def recover_rig(
     max_frames: int,
     root: pathlib.Path,
 ):
-    """`jaxpose.calibrate` on the instants of all recordings (`aligned` by recording name:
-    `jaxpose.rig.timeline.align`), each view's detection where it saw one person, on at most
-    `max_frames` instants; `image_size` (--data.image-size) serves the cameras no detections.npz gives
-    one.  Returns (the rig as a `RigCalibration`, the `jaxpose.calibration.Calibration`)."""
+    """`jaxpose.calibrate` on the instants of all recordings (`aligned`: each recording's keypoints and
+    confidence on one time axis, `jaxpose.rig.timeline.align`), each view's detection where it saw one
+    person, on at most `max_frames` instants; `image_size` (--data.image-size) serves the cameras no
+    detections.npz gives one.  Returns (the rig as a `RigCalibration`, the `jaxpose.calibration.Calibration`)."""
     from jaxpose.calibration import CalibrationConfig, RigDetections, calibrate  # the calibrate extra
 
     keypoints, confidence = [], []
-    for recording in recordings:
-        _, candidates, candidate_confidence = aligned[recording.name]
+    for candidates, candidate_confidence in aligned:
         single_keypoints, single_confidence = one_person(candidates, candidate_confidence)
         keypoints.append(single_keypoints)
         confidence.append(single_confidence)
     # Per camera, by name from every recording's detections.npz: image size and, where given, intrinsics.
     known: dict[str, dict[str, np.ndarray]] = {}
     for recording in recordings:
-        if recording.npz is None:
-            continue
-        given = {key: getattr(recording.npz, key) for key in ("image_size", "K", "dist") if getattr(recording.npz, key) is not None}
-        for index, camera in enumerate(recording.npz.camera_names):
-            known.setdefault(camera, {key: array[index] for key, array in given.items()} | {"model": recording.npz.distortion_model})
+        for camera, fields in recording.known_cameras.items():
+            known.setdefault(camera, fields)
     sizes = []
     for camera in camera_order:
         if "image_size" in known.get(camera, {}):
@@ -113,8 +108,8 @@ def ground_truth_into_recovered_world(target: np.ndarray, keypoints, confidence,
     without the worst 10% of joints); only the rotation and translation are applied, so it keeps
     its true size: MPJPE then includes the recovered rig's scale error, P-MPJPE does not.
     """
-    P = jnp.asarray(projection_matrices(rig.cameras.without_distortion()), jnp.float32)
-    points = np.asarray(triangulate(P, jnp.asarray(keypoints), jnp.asarray(confidence), method="normal"))
+    P = np.asarray(projection_matrices(rig.cameras.without_distortion()), np.float32)
+    points = triangulate_rows(P, keypoints, confidence, method="normal")
     usable = np.isfinite(target).all(-1) & ((confidence > 0).sum(1) >= 2)
     if usable.sum() < MIN_ALIGNMENT_POINTS:
         raise DataFormatError(

@@ -33,10 +33,9 @@ import dataclasses
 import itertools
 import warnings
 
-import jax.numpy as jnp
 import numpy as np
 
-from jaxpose.triangulation import triangulate
+from jaxpose.rig.geometry import triangulate_rows
 
 MIN_CORRESPONDENCES = 50
 CLIP_PX = 20.0
@@ -211,8 +210,7 @@ def _camera_curve(
         _, rows, own = np.intersect1d(instants, tracks[v].frames + offsets[v], assume_unique=True, return_indices=True)
         points[rows, slot], weights[rows, slot] = tracks[v].keypoints[own], tracks[v].valid[own]
     seen = weights.sum(1) >= 2  # [n, J] triangulable without camera c
-    X = np.asarray(triangulate(jnp.asarray(projections[others], jnp.float32), jnp.asarray(points, jnp.float32),
-                               jnp.asarray(weights * seen[:, None], jnp.float32), method="svd"))  # fmt: skip
+    X = triangulate_rows(projections[others], points, weights * seen[:, None], method="svd")
     projected = np.concatenate([X, np.ones_like(X[..., :1])], -1) @ projections[c].T  # [n, J, 3]
     with np.errstate(invalid="ignore", divide="ignore"):
         pixels = projected[..., :2] / projected[..., 2:]

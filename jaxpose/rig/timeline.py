@@ -13,7 +13,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from jaxpose.camera import projection_matrices
-from jaxpose.rig.calibrations import undistorted
+from jaxpose.rig.geometry import undistort_views
 from jaxpose.rig.recordings import Recording, Views, one_person
 from jaxpose.rig.sync import SyncEstimate, estimate_offsets
 
@@ -46,7 +46,7 @@ def estimate_recording_offsets(recording: Recording, views: Views, camera_order:
         single_keypoints, single_confidence = one_person(camera_keypoints, camera_confidence)
         rows = np.flatnonzero((single_confidence > 0).any(-1))
         frames.append(camera_frames[rows])
-        keypoints.append(undistorted(recording.calibration, camera, single_keypoints[rows]))
+        keypoints.append(undistort_views(recording.calibration, camera, single_keypoints[rows]))
         confidence.append(single_confidence[rows])
     projections = None
     if recording.calibration is not None:
@@ -55,9 +55,14 @@ def estimate_recording_offsets(recording: Recording, views: Views, camera_order:
     return estimate_offsets(frames, keypoints, confidence, projections, max_offset)
 
 
-def align(views: Views, camera_order: Sequence[str], offsets: Mapping[str, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The cameras on one time axis: (instants [N], keypoints [N, C, P, J, 2], confidence [N, C, P, J])."""
-    instants = np.unique(np.concatenate([views[c][0] + offsets.get(c, 0) for c in camera_order if c in views]))
+def instants_of(views: Views, offsets: Mapping[str, int]) -> np.ndarray:
+    """int[N] the recording's instants: every camera's frames moved by its offset, sorted, unique."""
+    return np.unique(np.concatenate([frames + offsets.get(camera, 0) for camera, (frames, _, _) in views.items()]))
+
+
+def align(views: Views, camera_order: Sequence[str], offsets: Mapping[str, int], instants: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The cameras on one time axis at `instants` (sorted, some or all of `instants_of`): keypoints
+    [n, C, P, J, 2], confidence [n, C, P, J]."""
     people = max(views[c][1].shape[1] for c in views)
     J = next(iter(views.values()))[1].shape[2]
     keypoints = np.zeros((len(instants), len(camera_order), people, J, 2), np.float32)
@@ -66,8 +71,10 @@ def align(views: Views, camera_order: Sequence[str], offsets: Mapping[str, int])
         if camera not in views:
             continue  # a camera this recording lacks: confidence 0 throughout
         frames, camera_keypoints, camera_confidence = views[camera]
-        rows = np.searchsorted(instants, frames + offsets.get(camera, 0))
+        shown = frames + offsets.get(camera, 0)
+        rows = np.minimum(np.searchsorted(instants, shown), len(instants) - 1)
+        kept = np.flatnonzero(instants[rows] == shown)
         width = camera_keypoints.shape[1]
-        keypoints[rows, index, :width] = camera_keypoints
-        confidence[rows, index, :width] = camera_confidence
-    return instants, keypoints, confidence
+        keypoints[rows[kept], index, :width] = camera_keypoints[kept]
+        confidence[rows[kept], index, :width] = camera_confidence[kept]
+    return keypoints, confidence

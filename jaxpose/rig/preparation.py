@@ -1,0 +1,258 @@
+"""Preparing a rig project's recordings one at a time, in bounded memory and a fixed number of compilations.
+
+Each recording is read, its cameras put on one time axis at the instants kept (the strides are
+applied here, before anything costly: a thinned recording is read whole but aligned, undistorted and
+searched for its person only where it is kept), then undistorted and searched for the person the
+views agree on in chunks of `geometry.CHUNK` instants that run across recordings (`jaxpose.chunks`),
+so that a short recording does not pay for a chunk of its own and the compiled functions see one
+shape.  Each recording's result is appended to the prepared arrays (`jaxpose.rig.prepared.Assembly`)
+as soon as it is chosen, and let go.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import dataclasses
+import logging
+import time
+from collections.abc import Callable, Iterator
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from jaxpose.chunks import ChunkedMap
+from jaxpose.data.dataset import consecutive_spans
+from jaxpose.rig import geometry, people
+from jaxpose.rig.calibrations import check_unit_against_people
+from jaxpose.rig.prepared import Assembly
+from jaxpose.rig.recordings import Recording, ground_truth_on_instants
+from jaxpose.rig.recovered import ground_truth_into_recovered_world
+from jaxpose.skeleton import Skeleton
+
+log = logging.getLogger(__name__)
+
+UNIT_CHECK_INSTANTS = 256  # instants of a rig's people triangulated to check its unit
+BACKLOG = 8  # recordings done but waiting for an earlier one before that one's chunk is run part-full
+
+
+@dataclasses.dataclass
+class Aligned:
+    """One recording on one time axis, at the rows kept."""
+
+    recording: Recording
+    instants: np.ndarray
+    """int[N] every instant of the recording."""
+    rows: np.ndarray
+    """int[n] the positions in `instants` kept: the samples and the frames of their windows."""
+    sample: np.ndarray
+    """bool[n] rows that are samples (the others only frames of a sample's window)."""
+    held_out: np.ndarray
+    """bool[n] rows of the validation part."""
+    keypoints: np.ndarray
+    """f32[n, C, K, J, 2] pixels as detected, up to K people per view."""
+    confidence: np.ndarray
+    """f32[n, C, K, J]"""
+
+
+def kept_rows(held_out: np.ndarray, train_stride: int, validation_stride: int, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """(rows int[n], sample bool[n]): every `train_stride`-th instant of the training part and
+    `validation_stride`-th of the validation part (`held_out` bool[N]), with the `window` frames
+    centred on each."""
+    position = np.arange(len(held_out))
+    sample = np.where(held_out, position % validation_stride == 0, position % train_stride == 0)
+    near = np.convolve(sample, np.ones(window, bool), mode="same") > 0 if window > 1 else sample
+    rows = np.flatnonzero(near)
+    return rows, sample[rows]
+
+
+class Phases:
+    """The seconds spent in each phase of loading (they interleave: recordings stream through all of
+    them), a progress bar per phase, and one timed log line per phase at the end."""
+
+    def __init__(self, total: int, progress: bool):
+        self.total, self.progress = total, progress
+        self.seconds: dict[str, float] = collections.defaultdict(float)
+        self.counts: dict[str, int] = collections.defaultdict(int)
+        self.bars: dict[str, tqdm] = {}
+
+    @contextlib.contextmanager
+    def __call__(self, name: str) -> Iterator[None]:
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[name] += time.perf_counter() - start
+
+    def advance(self, name: str, instants: int = 0) -> None:
+        if name not in self.bars:
+            self.bars[name] = tqdm(total=self.total, desc=name, unit="recording", disable=not self.progress, position=len(self.bars), leave=False)
+        self.bars[name].update(1)
+        self.counts[name] += instants
+
+    def close(self) -> None:
+        for bar in self.bars.values():
+            bar.close()
+        for name, seconds in self.seconds.items():
+            log.info("%s: %d recordings%s in %.1f s", name, self.bars[name].n if name in self.bars else self.total,
+                     f", {self.counts[name]:,} instants" if self.counts[name] else "", seconds)  # fmt: skip
+
+
+@dataclasses.dataclass
+class Prepared:
+    """What `prepare` leaves besides the arrays: per recording what loading did, and about the ground truth."""
+
+    summaries: list[dict]
+    ground_truth_seen: bool = False
+    train_target_complete: bool = True
+
+
+def prepare(
+    parts: Iterator[Aligned],
+    rigs: geometry.Rigs,
+    rig_of: Callable[[Recording], int],
+    skeleton: Callable[[], Skeleton],
+    assembly: Assembly,
+    phases: Phases,
+    *,
+    threshold_px: float,
+    recovered: bool,
+    check_unit: bool,
+    context: bool,
+    labels: dict[str, np.dtype],
+) -> Prepared:
+    """Undistort every recording of `parts`, choose its person, attach its ground truth, check the
+    calibrations' unit (`check_unit`) and append it to `assembly`: "train" and "validation" rows, and
+    "context" rows (every frame prepared, for temporal windows) where `context`.  `labels`: the string
+    dtypes of the "subject" and "recording" labels (one width for every recording)."""
+
+    def propose(rig_rows, keypoints, confidence):
+        undistorted = geometry.undistort(rigs, rig_rows, keypoints)
+        found = people.proposals(rigs.P[rig_rows], undistorted, confidence, threshold_px)
+        return undistorted, dataclasses.astuple(found)
+
+    result = Prepared(summaries=[])
+    units = _UnitCheck(rigs, skeleton) if check_unit else None
+    mappers: dict[int, ChunkedMap] = {}
+    waiting: dict[int, tuple[Aligned, tuple]] = {}
+    group_of: dict[int, int] = {}
+    rows_written = {"context": 0}
+    added = 0
+
+    def finished(pairs):
+        for index, output in pairs:
+            waiting[index] = (waiting.pop(index)[0], output)
+
+    def drain(final: bool = False):
+        nonlocal added
+        while added in waiting and waiting[added][1] is not None:
+            part, (undistorted, found) = waiting.pop(added)
+            with phases("people chosen"):
+                _finish(part, undistorted, people.Proposals(*found), rig_of(part.recording), skeleton(), assembly, result,
+                        rows_written, units, recovered, context, rigs, labels)  # fmt: skip
+            phases.advance("people chosen", len(part.rows))
+            added += 1
+        blocked = sum(output is not None for _, output in waiting.values())
+        if not final and blocked > BACKLOG and added in waiting:  # the next one waits in another count's part-full chunk
+            with phases("people chosen"):
+                finished(mappers[group_of[added]].flush())
+            drain()
+
+    for index, part in enumerate(parts):
+        group = part.keypoints.shape[2]  # people per view: one compiled shape per count
+        mapper = mappers.setdefault(group, ChunkedMap(propose, geometry.CHUNK))
+        group_of[index] = group
+        waiting[index] = (part, None)
+        rig_rows = np.full(len(part.rows), rig_of(part.recording), np.int32)
+        with phases("people chosen"):
+            finished(mapper.add((rig_rows, part.keypoints, part.confidence), tag=index))
+        drain()
+    for mapper in mappers.values():
+        with phases("people chosen"):
+            finished(mapper.flush())
+    drain(final=True)
+    if units is not None:
+        units.finish()
+    return result
+
+
+def _finish(part: Aligned, undistorted, found, rig_index, skeleton, assembly, result, rows_written, units, recovered, context, rigs, labels) -> None:
+    """One recording's person chosen, its ground truth attached, its rows appended."""
+    recording = part.recording
+    choice = people.choose(found, undistorted, part.confidence, part.rows, len(part.instants))
+    instants = part.instants[part.rows]
+    target, truth_instants = ground_truth_on_instants(recording.folder, skeleton, recording.layout, instants)
+    if target is not None and recovered:
+        target = ground_truth_into_recovered_world(target, choice.keypoints, choice.confidence, rigs.calibrations[rig_index])
+    result.ground_truth_seen |= target is not None
+    if units is not None:
+        units.add(rig_index, choice.keypoints, choice.confidence)
+    offset = rows_written["context"]
+    spans = consecutive_spans({"frame": instants}) + offset
+    for name, rows in (("train", part.sample & ~part.held_out), ("validation", part.sample & part.held_out)):
+        rows = np.flatnonzero(rows)
+        if not len(rows):
+            continue
+        if name == "train" and (target is None or not np.isfinite(target[rows]).all()):
+            result.train_target_complete = False
+        arrays = {
+            "keypoints2d": choice.keypoints[rows],
+            "confidence": choice.confidence[rows],
+            "rig_index": np.full(len(rows), rig_index, np.int32),
+            "target3d": None if target is None else target[rows],
+            "subject": np.full(len(rows), f"rig{rig_index}", labels["subject"]),
+            "recording": np.full(len(rows), recording.name, labels["recording"]),
+            "frame": instants[rows].astype(np.int32),
+        }
+        if context:
+            arrays |= {"context_row": (offset + rows).astype(np.int32), "context_span": spans[rows]}
+        assembly.add(name, arrays)
+    if context:
+        assembly.add("context", {"keypoints2d": choice.keypoints, "confidence": choice.confidence})
+        rows_written["context"] += len(part.rows)
+    result.summaries.append(
+        {
+            "name": recording.name,
+            "instants": len(part.instants),
+            "calibration": recording.calibration.source,
+            "offsets": dict(recording.offsets),
+            "offsets_estimated": recording.sync is not None,
+            "sync_reliable": None if recording.sync is None else recording.sync.reliable,
+            "instants_with_choice": choice.instants_with_choice,
+            "views_without_match": choice.views_without_match,
+            "ground_truth_instants": truth_instants,
+        }
+    )
+
+
+class _UnitCheck:
+    """The people of each rig, triangulated on a few instants of its recordings, against its unit
+    (`jaxpose.rig.calibrations.check_unit_against_people`): checked once a rig has
+    `UNIT_CHECK_INSTANTS` instants, so a wrong unit stops the load early."""
+
+    def __init__(self, rigs: geometry.Rigs, skeleton: Callable[[], Skeleton]):
+        self.rigs, self.skeleton = rigs, skeleton
+        self.samples: dict[int, list[tuple[np.ndarray, np.ndarray]]] = collections.defaultdict(list)
+        self.checked: set[int] = set()
+
+    def add(self, rig: int, keypoints: np.ndarray, confidence: np.ndarray) -> None:
+        if rig in self.checked:
+            return
+        seen = np.flatnonzero(((confidence > 0).any(-1)).sum(-1) >= 2)
+        rows = seen[np.linspace(0, len(seen) - 1, min(len(seen), UNIT_CHECK_INSTANTS)).round().astype(int)] if len(seen) else seen
+        self.samples[rig].append((keypoints[rows], confidence[rows]))
+        if sum(len(k) for k, _ in self.samples[rig]) >= UNIT_CHECK_INSTANTS:
+            self._check(rig)
+
+    def finish(self) -> None:
+        for rig in list(self.samples):
+            if rig not in self.checked:
+                self._check(rig)
+
+    def _check(self, rig: int) -> None:
+        keypoints = np.concatenate([k for k, _ in self.samples[rig]])
+        confidence = np.concatenate([c for _, c in self.samples[rig]])
+        self.checked.add(rig)
+        if len(keypoints):
+            points = geometry.triangulate_rows(self.rigs.P[rig], keypoints, confidence, method="normal")
+            check_unit_against_people(self.rigs.calibrations[rig], points, (confidence > 0).sum(1) >= 2, self.skeleton())

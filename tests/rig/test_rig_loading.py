@@ -1,0 +1,138 @@
+"""Loading a rig project at scale (`jaxpose.rig.project`, `jaxpose.rig.prepared`): compilations that do
+not grow with the recordings, the prepared project cached and memory-mapped, a calibration's unit
+checked against the people in view, and one-line refusals of folder names and links that break loading."""
+
+import collections
+import contextlib
+import dataclasses
+import os
+import re
+import shutil
+
+import jax
+import numpy as np
+import pytest
+
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.rig.project import RigProjectConfig, load_rig_project
+from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
+
+TINY = ExampleProjectConfig(recordings=2, frames_per_recording=90)
+
+
+def _project(root, recordings: int, lengths) -> object:
+    """An example project whose recordings have the given numbers of frames (later frames deleted)."""
+    root = write_rig_project(root, dataclasses.replace(TINY, recordings=recordings, frames_per_recording=max(lengths)))
+    for recording, length in zip(sorted(p for p in root.iterdir() if p.is_dir()), lengths, strict=True):
+        for camera in (p for p in recording.iterdir() if p.is_dir()):
+            for frame in sorted(camera.glob("*.json"))[length:]:
+                frame.unlink()
+    return root
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    return _project(tmp_path_factory.mktemp("two") / "project", 2, (90, 70))
+
+
+# Programs lowered and compiled: lowering precedes every compilation, also one that JAX's persistent
+# cache then serves from disk.
+_COUNTED = {"/jax/core/compile/jaxpr_to_mlir_module_duration": "lowered", "/jax/core/compile/backend_compile_duration": "compiled"}
+_counts = collections.Counter()
+jax.monitoring.register_event_duration_secs_listener(lambda event, _, **__: _counts.update([_COUNTED[event]]) if event in _COUNTED else None)
+
+
+@contextlib.contextmanager
+def _compilations():
+    """{"lowered": n, "compiled": n} while the block runs."""
+    start, found = dict(_counts), {}
+    yield found
+    found.update({name: _counts[name] - start.get(name, 0) for name in _COUNTED.values()})
+
+
+def test_loading_compiles_no_more_for_more_and_longer_recordings(small, tmp_path):
+    """After a project of 2 recordings, one of 8 recordings of other lengths (and other counts of people
+    per frame) compiles at most 10 programs anew: loading (frame offsets estimated) compiles a fixed set
+    of programs, not one per recording and shape, so a fresh run of either compiles as much (within 10)."""
+    many = _project(tmp_path / "eight", 8, (40, 55, 66, 77, 88, 99, 110, 121))
+    with _compilations() as two:
+        load_rig_project(RigProjectConfig(root=small, sync="auto"), progress=False)
+    with _compilations() as eight:
+        data = load_rig_project(RigProjectConfig(root=many, sync="auto"), progress=False)
+    assert len(data.recordings) == 8
+    print(f"compilations of 2 recordings {two}, then of 8 recordings {eight}")
+    assert eight["lowered"] <= 10 and eight["compiled"] <= 10, (two, eight)
+
+
+def test_the_prepared_project_is_cached_and_memory_mapped(small, tmp_path):
+    root = tmp_path / "project"
+    shutil.copytree(small, root, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    config = RigProjectConfig(root=root, frame_offsets=("cam03=3",))
+    cold = load_rig_project(config, progress=False)
+    assert cold.prepared.startswith("prepared and written to the cache")
+    warm = load_rig_project(config, progress=False)
+    assert warm.prepared.startswith("read from the cache") and isinstance(warm.train.keypoints2d, np.memmap)
+    for part in ("train", "validation"):
+        for name in ("keypoints2d", "confidence", "rig_index", "target3d"):
+            np.testing.assert_array_equal(getattr(getattr(cold, part), name), getattr(getattr(warm, part), name))
+        assert {k: v.tolist() for k, v in getattr(cold, part).labels.items()} == {k: v.tolist() for k, v in getattr(warm, part).labels.items()}
+    assert cold.recordings == warm.recordings and cold.ground_truth_joints == warm.ground_truth_joints
+    # Another option, or one frame edited in place to the same size with its times put back: prepared again.
+    assert load_rig_project(dataclasses.replace(config, train_stride=2), progress=False).prepared.startswith("prepared")
+    frame = sorted((sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith("."))[0] / "cam01_json").glob("*.json"))[3]
+    times = frame.stat()
+    text = frame.read_text()
+    digit = re.search(r"[1-8]", text).start()
+    frame.write_text(text[:digit] + str(int(text[digit]) + 1) + text[digit + 1 :])
+    os.utime(frame, ns=(times.st_atime_ns, times.st_mtime_ns))
+    assert frame.stat().st_size == times.st_size
+    assert load_rig_project(config, progress=False).prepared.startswith("prepared and written")
+    kept = [p.name for p in (root / ".jaxpose_cache").iterdir() if p.name.startswith("prepared-")]
+    assert len(kept) == 2  # the two most recently used
+
+
+def test_a_calibration_in_centimetres_without_its_unit_is_refused(small, tmp_path):
+    """Issue 34 item 3: the example's calibration written in centimetres with no unit stated reads as
+    millimetres (its rig is then 1 m across: plausible); the people in view, 10 times too small, say otherwise."""
+    root = tmp_path / "project"
+    shutil.copytree(small, root, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    text = (root / "calibration.toml").read_text()
+
+    def in_centimetres(match):
+        return "translation = [ " + ", ".join(f"{100 * float(v):.6f}" for v in match.group(1).split(",")) + " ]"
+
+    text = re.sub(r"translation = \[ (.*) \]", in_centimetres, text)
+    (root / "calibration.toml").write_text(text.split("[metadata]")[0])
+    with pytest.raises(DataFormatError) as refused:
+        load_rig_project(RigProjectConfig(root=root, frame_offsets=("cam03=3",)), progress=False)
+    message = str(refused.value)
+    assert "\n" not in message and message.startswith(str(root / "calibration.toml"))
+    assert "likely in 'cm'" in message and "--data.calibration-unit" in message
+    # Said so, it is the example's rig: the same person chosen in every view and instant.
+    data = load_rig_project(RigProjectConfig(root=root, frame_offsets=("cam03=3",), calibration_unit="cm"), progress=False)
+    metres = load_rig_project(RigProjectConfig(root=small, frame_offsets=("cam03=3",)), progress=False)
+    np.testing.assert_array_equal(data.train.confidence, metres.train.confidence)
+
+
+def test_a_folder_name_that_is_not_utf8_is_refused_in_one_line(small, tmp_path):
+    root = tmp_path / "project"
+    shutil.copytree(small, root, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    first = sorted(p for p in root.iterdir() if p.is_dir())[0]
+    first.rename(os.fsdecode(os.fsencode(first) + b"\xff"))
+    with pytest.raises(DataFormatError, match=rf"^{re.escape(str(first))}\\xff: expected a recording name in UTF-8[^\n]*$"):
+        load_rig_project(RigProjectConfig(root=root), progress=False)
+
+
+@pytest.mark.parametrize("where", ["project", "frames"])
+def test_a_symbolic_link_that_loops_is_refused_in_one_line(small, tmp_path, where):
+    root = tmp_path / "project"
+    shutil.copytree(small, root, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    if where == "project":
+        link = root / "again"
+        link.symlink_to(root)  # the project inside itself
+    else:
+        link = sorted(p for p in root.iterdir() if p.is_dir())[0] / "cam02_json" / "x_000500.json"
+        link.symlink_to(link.parent / "y.json")
+        (link.parent / "y.json").symlink_to(link)
+    with pytest.raises(DataFormatError, match=rf"^{re.escape(str(link))}: expected .*a symbolic link that loops[^\n]*$"):
+        load_rig_project(RigProjectConfig(root=root), progress=False)
