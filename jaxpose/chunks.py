@@ -63,7 +63,7 @@ class ChunkedMap:
         count = len(arrays[0])
         if count == 0 or any(len(a) != count for a in arrays):
             raise ValueError(f"expected arrays of one non-zero length, got lengths {[len(a) for a in arrays]}")
-        part = {"arrays": arrays, "tag": tag, "count": count, "done": 0, "pieces": []}
+        part = {"arrays": arrays, "tag": tag, "count": count, "done": 0, "result": None}
         self._waiting.append(part)
         finished = []
         start = 0
@@ -91,7 +91,11 @@ class ChunkedMap:
         out = jax.tree.map(np.asarray, self.fn(*rows))
         offset = 0
         for part, _, n in self._queue:
-            part["pieces"].append(jax.tree.map(lambda x, offset=offset, n=n: x[offset : offset + n], out))
+            if part["result"] is None:  # filled in place, chunk by chunk: a part's results are held once
+                part["result"] = jax.tree.map(lambda x, count=part["count"]: np.empty((count, *x.shape[1:]), x.dtype), out)
+            done = part["done"]
+            jax.tree.map(lambda whole, x, offset=offset, n=n, done=done: whole.__setitem__(slice(done, done + n), x[offset : offset + n]),
+                         part["result"], out)  # fmt: skip
             part["done"] += n
             offset += n
         self._queue, self._queued = [], 0
@@ -100,9 +104,7 @@ class ChunkedMap:
         finished = []
         while self._waiting and self._waiting[0]["done"] == self._waiting[0]["count"]:
             part = self._waiting.pop(0)
-            pieces = part["pieces"]
-            result = pieces[0] if len(pieces) == 1 else jax.tree.map(lambda *p: np.concatenate(p), *pieces)
-            finished.append((part["tag"], result))
+            finished.append((part["tag"], part["result"]))
         return finished
 
 

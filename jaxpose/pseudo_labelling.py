@@ -75,13 +75,13 @@ def label(
 
     def solve_rows(rows, keypoints2d, confidence):
         P = projection_matrices(dataset.cameras_for(rows))
-        solved = _solve(P, jnp.asarray(keypoints2d), jnp.asarray(confidence), config=config)
+        points, weight, views = jax.device_get(_solve(P, jnp.asarray(keypoints2d), jnp.asarray(confidence), config=config))
         bar.update(min(len(rows), len(dataset) - bar.n))
-        return solved
+        # As stored, chunk by chunk: no second copy of the whole data set's labels.
+        weight = weight.astype(np.float32) * weight[:, :1]
+        return points, weight, None if views is None else views.astype(np.float32)
 
     with bar:
-        pseudo3d, weight, views = map_in_chunks(solve_rows, (np.arange(len(dataset)), dataset.keypoints2d, dataset.confidence), size)
-    agreeing = views.astype(np.float32) if config.method in robust.OUTLIER_REJECTING_METHODS else None
-    weight = weight.astype(np.float32) * weight[:, :1]
+        pseudo3d, weight, agreeing = map_in_chunks(solve_rows, (np.arange(len(dataset)), dataset.keypoints2d, dataset.confidence), size)
     log.info("pseudo-labels (%s) of %s instants in %.1f s", config.method, f"{len(dataset):,}", time.perf_counter() - started)
     return dataclasses.replace(dataset, pseudo3d=pseudo3d, pseudo3d_weight=weight, detection_weight=agreeing)

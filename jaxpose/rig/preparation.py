@@ -16,7 +16,7 @@ import contextlib
 import dataclasses
 import logging
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -99,130 +99,122 @@ class Phases:
 
 
 @dataclasses.dataclass
-class Prepared:
-    """What `prepare` leaves besides the arrays: per recording what loading did, and about the ground truth."""
+class Preparation:
+    """Undistort every recording, choose its person, attach its ground truth, check the calibrations'
+    unit (`check_unit`) and append it to `assembly`: "train" and "validation" rows, and "context" rows
+    (every frame prepared, for temporal windows) where `context`.  `labels`: the string dtypes of the
+    "subject" and "recording" labels (one width for every recording).  `run` takes the recordings as
+    they come; the attributes then say what loading did besides the arrays."""
 
-    summaries: list[dict]
+    rigs: geometry.Rigs
+    rig_of: Callable[[Recording], int]
+    skeleton: Callable[[], Skeleton]
+    assembly: Assembly
+    phases: Phases
+    threshold_px: float
+    recovered: bool
+    check_unit: bool
+    context: bool
+    labels: dict[str, np.dtype]
+    summaries: list[dict] = dataclasses.field(default_factory=list)
+    """Per recording (in order) what loading did, for `jaxpose.rig.project.RecordingSummary`."""
     ground_truth_seen: bool = False
     train_target_complete: bool = True
+    context_rows: int = 0
 
+    def run(self, parts: Iterable[Aligned]) -> None:
+        units = _UnitCheck(self.rigs, self.skeleton) if self.check_unit else None
+        mappers: dict[int, ChunkedMap] = {}
+        waiting: dict[int, tuple[Aligned, tuple | None]] = {}  # by index: the part, its proposals once through
+        group_of: dict[int, int] = {}
+        added = 0
 
-def prepare(
-    parts: Iterator[Aligned],
-    rigs: geometry.Rigs,
-    rig_of: Callable[[Recording], int],
-    skeleton: Callable[[], Skeleton],
-    assembly: Assembly,
-    phases: Phases,
-    *,
-    threshold_px: float,
-    recovered: bool,
-    check_unit: bool,
-    context: bool,
-    labels: dict[str, np.dtype],
-) -> Prepared:
-    """Undistort every recording of `parts`, choose its person, attach its ground truth, check the
-    calibrations' unit (`check_unit`) and append it to `assembly`: "train" and "validation" rows, and
-    "context" rows (every frame prepared, for temporal windows) where `context`.  `labels`: the string
-    dtypes of the "subject" and "recording" labels (one width for every recording)."""
+        def through(pairs):
+            for index, output in pairs:
+                waiting[index] = (waiting[index][0], output)
 
-    def propose(rig_rows, keypoints, confidence):
-        undistorted = geometry.undistort(rigs, rig_rows, keypoints)
-        found = people.proposals(rigs.P[rig_rows], undistorted, confidence, threshold_px)
+        def drain(final: bool = False):
+            nonlocal added
+            while added in waiting and waiting[added][1] is not None:
+                part, (undistorted, found) = waiting.pop(added)
+                with self.phases("people chosen"):
+                    self._finish(part, undistorted, people.Proposals(*found), units)
+                self.phases.advance("people chosen", len(part.rows))
+                added += 1
+            blocked = sum(output is not None for _, output in waiting.values())
+            if not final and blocked > BACKLOG and added in waiting:  # the next one waits in another count's part-full chunk
+                with self.phases("people chosen"):
+                    through(mappers[group_of[added]].flush())
+                drain()
+
+        for index, part in enumerate(parts):
+            group = part.keypoints.shape[2]  # people per view: one compiled shape per count
+            mapper = mappers.setdefault(group, ChunkedMap(self._propose, geometry.CHUNK))
+            group_of[index] = group
+            waiting[index] = (part, None)
+            rig_rows = np.full(len(part.rows), self.rig_of(part.recording), np.int32)
+            with self.phases("people chosen"):
+                through(mapper.add((rig_rows, part.keypoints, part.confidence), tag=index))
+            drain()
+        for mapper in mappers.values():
+            with self.phases("people chosen"):
+                through(mapper.flush())
+        drain(final=True)
+        if units is not None:
+            units.finish()
+
+    def _propose(self, rig_rows, keypoints, confidence):
+        """One chunk: undistorted keypoints and the person's proposals (`jaxpose.rig.people.proposals`)."""
+        undistorted = geometry.undistort(self.rigs, rig_rows, keypoints)
+        found = people.proposals(self.rigs.P[rig_rows], undistorted, confidence, self.threshold_px)
         return undistorted, dataclasses.astuple(found)
 
-    result = Prepared(summaries=[])
-    units = _UnitCheck(rigs, skeleton) if check_unit else None
-    mappers: dict[int, ChunkedMap] = {}
-    waiting: dict[int, tuple[Aligned, tuple]] = {}
-    group_of: dict[int, int] = {}
-    rows_written = {"context": 0}
-    added = 0
-
-    def finished(pairs):
-        for index, output in pairs:
-            waiting[index] = (waiting.pop(index)[0], output)
-
-    def drain(final: bool = False):
-        nonlocal added
-        while added in waiting and waiting[added][1] is not None:
-            part, (undistorted, found) = waiting.pop(added)
-            with phases("people chosen"):
-                _finish(part, undistorted, people.Proposals(*found), rig_of(part.recording), skeleton(), assembly, result,
-                        rows_written, units, recovered, context, rigs, labels)  # fmt: skip
-            phases.advance("people chosen", len(part.rows))
-            added += 1
-        blocked = sum(output is not None for _, output in waiting.values())
-        if not final and blocked > BACKLOG and added in waiting:  # the next one waits in another count's part-full chunk
-            with phases("people chosen"):
-                finished(mappers[group_of[added]].flush())
-            drain()
-
-    for index, part in enumerate(parts):
-        group = part.keypoints.shape[2]  # people per view: one compiled shape per count
-        mapper = mappers.setdefault(group, ChunkedMap(propose, geometry.CHUNK))
-        group_of[index] = group
-        waiting[index] = (part, None)
-        rig_rows = np.full(len(part.rows), rig_of(part.recording), np.int32)
-        with phases("people chosen"):
-            finished(mapper.add((rig_rows, part.keypoints, part.confidence), tag=index))
-        drain()
-    for mapper in mappers.values():
-        with phases("people chosen"):
-            finished(mapper.flush())
-    drain(final=True)
-    if units is not None:
-        units.finish()
-    return result
-
-
-def _finish(part: Aligned, undistorted, found, rig_index, skeleton, assembly, result, rows_written, units, recovered, context, rigs, labels) -> None:
-    """One recording's person chosen, its ground truth attached, its rows appended."""
-    recording = part.recording
-    choice = people.choose(found, undistorted, part.confidence, part.rows, len(part.instants))
-    instants = part.instants[part.rows]
-    target, truth_instants = ground_truth_on_instants(recording.folder, skeleton, recording.layout, instants)
-    if target is not None and recovered:
-        target = ground_truth_into_recovered_world(target, choice.keypoints, choice.confidence, rigs.calibrations[rig_index])
-    result.ground_truth_seen |= target is not None
-    if units is not None:
-        units.add(rig_index, choice.keypoints, choice.confidence)
-    offset = rows_written["context"]
-    spans = consecutive_spans({"frame": instants}) + offset
-    for name, rows in (("train", part.sample & ~part.held_out), ("validation", part.sample & part.held_out)):
-        rows = np.flatnonzero(rows)
-        if not len(rows):
-            continue
-        if name == "train" and (target is None or not np.isfinite(target[rows]).all()):
-            result.train_target_complete = False
-        arrays = {
-            "keypoints2d": choice.keypoints[rows],
-            "confidence": choice.confidence[rows],
-            "rig_index": np.full(len(rows), rig_index, np.int32),
-            "target3d": None if target is None else target[rows],
-            "subject": np.full(len(rows), f"rig{rig_index}", labels["subject"]),
-            "recording": np.full(len(rows), recording.name, labels["recording"]),
-            "frame": instants[rows].astype(np.int32),
-        }
-        if context:
-            arrays |= {"context_row": (offset + rows).astype(np.int32), "context_span": spans[rows]}
-        assembly.add(name, arrays)
-    if context:
-        assembly.add("context", {"keypoints2d": choice.keypoints, "confidence": choice.confidence})
-        rows_written["context"] += len(part.rows)
-    result.summaries.append(
-        {
-            "name": recording.name,
-            "instants": len(part.instants),
-            "calibration": recording.calibration.source,
-            "offsets": dict(recording.offsets),
-            "offsets_estimated": recording.sync is not None,
-            "sync_reliable": None if recording.sync is None else recording.sync.reliable,
-            "instants_with_choice": choice.instants_with_choice,
-            "views_without_match": choice.views_without_match,
-            "ground_truth_instants": truth_instants,
-        }
-    )
+    def _finish(self, part: Aligned, undistorted: np.ndarray, found: people.Proposals, units: "_UnitCheck | None") -> None:
+        """One recording's person chosen, its ground truth attached, its rows appended."""
+        recording, rig_index = part.recording, self.rig_of(part.recording)
+        choice = people.choose(found, undistorted, part.confidence, part.rows, len(part.instants))
+        instants = part.instants[part.rows]
+        target, truth_instants = ground_truth_on_instants(recording.folder, self.skeleton(), recording.layout, instants)
+        if target is not None and self.recovered:
+            target = ground_truth_into_recovered_world(target, choice.keypoints, choice.confidence, self.rigs.calibrations[rig_index])
+        self.ground_truth_seen |= target is not None
+        if units is not None:
+            units.add(rig_index, choice.keypoints, choice.confidence)
+        spans = consecutive_spans({"frame": instants}) + self.context_rows
+        for name, rows in (("train", part.sample & ~part.held_out), ("validation", part.sample & part.held_out)):
+            rows = np.flatnonzero(rows)
+            if not len(rows):
+                continue
+            if name == "train" and (target is None or not np.isfinite(target[rows]).all()):
+                self.train_target_complete = False
+            arrays = {
+                "keypoints2d": choice.keypoints[rows],
+                "confidence": choice.confidence[rows],
+                "rig_index": np.full(len(rows), rig_index, np.int32),
+                "target3d": None if target is None else target[rows],
+                "subject": np.full(len(rows), f"rig{rig_index}", self.labels["subject"]),
+                "recording": np.full(len(rows), recording.name, self.labels["recording"]),
+                "frame": instants[rows].astype(np.int32),
+            }
+            if self.context:
+                arrays |= {"context_row": (self.context_rows + rows).astype(np.int32), "context_span": spans[rows]}
+            self.assembly.add(name, arrays)
+        if self.context:
+            self.assembly.add("context", {"keypoints2d": choice.keypoints, "confidence": choice.confidence})
+            self.context_rows += len(part.rows)
+        self.summaries.append(
+            {
+                "name": recording.name,
+                "instants": len(part.instants),
+                "calibration": recording.calibration.source,
+                "offsets": dict(recording.offsets),
+                "offsets_estimated": recording.sync is not None,
+                "sync_reliable": None if recording.sync is None else recording.sync.reliable,
+                "instants_with_choice": choice.instants_with_choice,
+                "views_without_match": choice.views_without_match,
+                "ground_truth_instants": truth_instants,
+            }
+        )
 
 
 class _UnitCheck:
@@ -246,12 +238,11 @@ class _UnitCheck:
 
     def finish(self) -> None:
         for rig in list(self.samples):
-            if rig not in self.checked:
-                self._check(rig)
+            self._check(rig)
 
     def _check(self, rig: int) -> None:
         keypoints = np.concatenate([k for k, _ in self.samples[rig]])
-        confidence = np.concatenate([c for _, c in self.samples[rig]])
+        confidence = np.concatenate([c for _, c in self.samples.pop(rig)])
         self.checked.add(rig)
         if len(keypoints):
             points = geometry.triangulate_rows(self.rigs.P[rig], keypoints, confidence, method="normal")

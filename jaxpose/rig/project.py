@@ -66,7 +66,7 @@ from jaxpose.rig import prepared
 from jaxpose.rig.calibrations import attach_calibrations, in_view_order
 from jaxpose.rig.geometry import Rigs
 from jaxpose.rig.people import DEFAULT_THRESHOLD_PX
-from jaxpose.rig.preparation import Aligned, Phases, kept_rows, prepare
+from jaxpose.rig.preparation import Aligned, Phases, Preparation, kept_rows
 from jaxpose.rig.recordings import (
     Recording,
     find_recording,
@@ -225,6 +225,7 @@ def _input_files(config: RigProjectConfig, recordings: Sequence[Recording]) -> l
 
 def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bool, window: int, cache_key: str) -> RigProject:
     """The project prepared from its recordings (`jaxpose.rig.preparation`), and cached."""
+    started = time.perf_counter()
     project_calibration = attach_calibrations(recordings, config.root, config.calibration, config.calibration_unit)
     present = set().union(*(recording.cameras for recording in recordings))
     if project_calibration is not None:
@@ -257,37 +258,41 @@ def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bo
     distinct = {id(recording.calibration): recording.calibration for recording in recordings}
     rigs = Rigs.of([in_view_order(distinct[key], camera_order) for key in rig_index])
     temporary = prepared.start(config.root, cache_key)
-    assembly = prepared.Assembly(temporary)
+    preparation = Preparation(
+        rigs, lambda recording: rig_index[id(recording.calibration)], lambda: lifting_skeleton(next(iter(layouts.values()))),
+        prepared.Assembly(temporary), phases, threshold_px=config.person_threshold_px, recovered=recovered_calibration is not None,
+        check_unit=config.calibration_unit == "auto" and recovered_calibration is None, context=window > 1,
+        labels={"subject": np.dtype(f"<U{len(f'rig{len(rig_index) - 1}')}"),
+                "recording": np.dtype(f"<U{max(len(recording.name) for recording in recordings)}")},
+    )  # fmt: skip
     try:
-        done = prepare(
-            iter(parts), rigs, lambda recording: rig_index[id(recording.calibration)],
-            lambda: lifting_skeleton(next(iter(layouts.values()))), assembly, phases,
-            threshold_px=config.person_threshold_px, recovered=recovered_calibration is not None,
-            check_unit=config.calibration_unit == "auto" and recovered_calibration is None, context=window > 1,
-            labels={"subject": np.dtype(f"<U{len(f'rig{len(rig_index) - 1}')}"),
-                    "recording": np.dtype(f"<U{max(len(recording.name) for recording in recordings)}")},
-        )  # fmt: skip
-        arrays = assembly.close()
+        preparation.run(parts)
+        arrays = preparation.assembly.close() or prepared.read_arrays(temporary)
     except BaseException:
         if temporary is not None:
             shutil.rmtree(temporary, ignore_errors=True)
         raise
     finally:
         phases.close()
-    for summary, recording in zip(done.summaries, recordings):
+    for summary, recording in zip(preparation.summaries, recordings):
         summary["cameras"] = [camera for camera in camera_order if camera in recording.cameras]
     meta = {
         "camera_names": camera_order,
         "layout": next(iter(layouts.values())),
-        "recordings": done.summaries,
-        "ground_truth_seen": done.ground_truth_seen,
-        "train_target_complete": done.train_target_complete,
+        "recordings": preparation.summaries,
+        "ground_truth_seen": preparation.ground_truth_seen,
+        "train_target_complete": preparation.train_target_complete,
         "rigs": {field: np.stack([np.asarray(getattr(c.cameras, field), np.float32) for c in rigs.calibrations]).tolist() for field in ("K", "R", "t")},
     }
+    validation = _dataset(meta, arrays, "validation")
+    meta["ground_truth_joints"] = list(ground_truth.ground_truth_joint_names(validation)) if preparation.ground_truth_seen else []
     if temporary is None:
-        return _project(meta, arrays, recovered_calibration, "prepared in memory (the project folder cannot be written: not cached)")
-    final = prepared.commit(temporary, cache_key, meta, recovered_calibration)
-    return _project(meta, prepared.read_arrays(final), recovered_calibration, f"prepared and written to the cache {final}")
+        how = "prepared in memory (the project folder cannot be written: not cached)"
+    else:
+        final = prepared.commit(temporary, cache_key, meta, recovered_calibration)
+        arrays, how = prepared.read_arrays(final), f"prepared and written to the cache {final}"
+    log.info("%d recordings %s in %.1f s", len(recordings), how, time.perf_counter() - started)
+    return _project(meta, arrays, recovered_calibration, how)
 
 
 def _aligned(
@@ -329,42 +334,40 @@ def _aligned(
         yield Aligned(recording, instants, rows, sample, held_out[rows], keypoints, confidence)
 
 
-def _project(meta: dict, arrays: dict[str, dict[str, np.ndarray]], recovered: object | None, how: str) -> RigProject:
-    """The loaded project from the prepared arrays (memory-mapped from the cache, or in memory) and their metadata."""
+def _dataset(meta: dict, arrays: dict[str, dict[str, np.ndarray]], part: str) -> MultiViewDataset:
+    """One part ("train", "validation") of the prepared arrays as a data set; the training part keeps its
+    ground truth only where it covers every instant and joint (the supervised twin needs it all)."""
     skeleton = lifting_skeleton(meta["layout"])
     rigs = Cameras(**{field: np.asarray(values, np.float32) for field, values in meta["rigs"].items()})
     C, J = len(meta["camera_names"]), skeleton.num_joints
-    context = arrays.get("context")
-    seen = meta["ground_truth_seen"]
-    if seen and not meta["train_target_complete"]:
+    rows, context = arrays.get(part, {}), arrays.get("context")
+    empty = {"keypoints2d": ((C, J, 2), np.float32), "confidence": ((C, J), np.float32), "rig_index": ((), np.int32),
+             "frame": ((), np.int32), "subject": ((), "<U1"), "recording": ((), "<U1"), "context_row": ((), np.int32),
+             "context_span": ((2,), np.int32)}  # fmt: skip
+    get = {name: rows[name] if name in rows else np.zeros((0, *shape), dtype) for name, (shape, dtype) in empty.items()}
+    target = meta["ground_truth_seen"] and (part != "train" or meta["train_target_complete"])
+    return MultiViewDataset(
+        skeleton=skeleton, keypoints2d=get["keypoints2d"], confidence=get["confidence"], rigs=rigs, rig_index=get["rig_index"],
+        target3d=(rows["target3d"] if "target3d" in rows else np.full((len(get["frame"]), J, 3), np.nan, np.float32)) if target else None,
+        labels={"subject": get["subject"], "recording": get["recording"], "sequence": get["recording"], "frame": get["frame"]},
+        context=None if context is None else FrameContext(context["keypoints2d"], context["confidence"]),
+        context_row=None if context is None else get["context_row"],
+        context_span=None if context is None else get["context_span"],
+    )  # fmt: skip
+
+
+def _project(meta: dict, arrays: dict[str, dict[str, np.ndarray]], recovered: object | None, how: str) -> RigProject:
+    """The loaded project from the prepared arrays (memory-mapped from the cache, or in memory) and their metadata."""
+    if meta["ground_truth_seen"] and not meta["train_target_complete"]:
         # Ground truth for only some joints or recordings serves evaluation, not the supervised twin.
         log.info("the ground truth does not cover every training instant and joint: no --supervision full")
-
-    def dataset(part: str, target: bool) -> MultiViewDataset:
-        rows = arrays.get(part, {})
-        count = len(rows["frame"]) if rows else 0
-        empty = {"keypoints2d": ((C, J, 2), np.float32), "confidence": ((C, J), np.float32), "rig_index": ((), np.int32),
-                 "frame": ((), np.int32), "subject": ((), "<U1"), "recording": ((), "<U1"), "context_row": ((), np.int32),
-                 "context_span": ((2,), np.int32)}  # fmt: skip
-        get = {name: rows.get(name, np.zeros((0, *shape), dtype)) for name, (shape, dtype) in empty.items()}
-        target3d = rows.get("target3d", np.full((count, J, 3), np.nan, np.float32)) if target else None
-        return MultiViewDataset(
-            skeleton=skeleton, keypoints2d=get["keypoints2d"], confidence=get["confidence"], rigs=rigs, rig_index=get["rig_index"],
-            target3d=target3d,
-            labels={"subject": get["subject"], "recording": get["recording"], "sequence": get["recording"], "frame": get["frame"]},
-            context=None if context is None else FrameContext(context["keypoints2d"], context["confidence"]),
-            context_row=None if context is None else get["context_row"],
-            context_span=None if context is None else get["context_span"],
-        )  # fmt: skip
-
-    validation = dataset("validation", seen)
     return RigProject(
-        train=dataset("train", seen and meta["train_target_complete"]),
-        validation=validation,
+        train=_dataset(meta, arrays, "train"),
+        validation=_dataset(meta, arrays, "validation"),
         camera_names=tuple(meta["camera_names"]),
         layout=meta["layout"],
         recordings=tuple(RecordingSummary(**summary | {"cameras": tuple(summary["cameras"])}) for summary in meta["recordings"]),
-        ground_truth_joints=ground_truth.ground_truth_joint_names(validation) if seen else (),
+        ground_truth_joints=tuple(meta["ground_truth_joints"]),
         recovered_calibration=recovered,
         prepared=how,
     )
