@@ -73,7 +73,8 @@ class Phases:
     def __init__(self, total: int, progress: bool):
         self.total, self.progress = total, progress
         self.seconds: dict[str, float] = collections.defaultdict(float)
-        self.counts: dict[str, int] = collections.defaultdict(int)
+        self.recordings: dict[str, int] = collections.defaultdict(int)
+        self.instants: dict[str, int] = collections.defaultdict(int)
         self.bars: dict[str, tqdm] = {}
 
     @contextlib.contextmanager
@@ -88,14 +89,16 @@ class Phases:
         if name not in self.bars:
             self.bars[name] = tqdm(total=self.total, desc=name, unit="recording", disable=not self.progress, position=len(self.bars), leave=False)
         self.bars[name].update(1)
-        self.counts[name] += instants
+        self.recordings[name] += 1
+        self.instants[name] += instants
 
     def close(self) -> None:
         for bar in self.bars.values():
             bar.close()
         for name, seconds in self.seconds.items():
-            log.info("%s: %d recordings%s in %.1f s", name, self.bars[name].n if name in self.bars else self.total,
-                     f", {self.counts[name]:,} instants" if self.counts[name] else "", seconds)  # fmt: skip
+            counted = f"{self.recordings[name]} recordings" if name in self.recordings else f"{self.total} recordings"
+            counted += f", {self.instants[name]:,} instants" if self.instants[name] else ""
+            log.info("%s: %s in %.1f s", name, counted, seconds)
 
 
 @dataclasses.dataclass
