@@ -60,6 +60,7 @@ from jaxpose.camera import Cameras
 from jaxpose.data import ground_truth
 from jaxpose.data.dataset import FrameContext, MultiViewDataset
 from jaxpose.formats.calibrated_rig import CalibrationUnit
+from jaxpose.formats import keypoint_files
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.layouts import lifting_skeleton
 from jaxpose.rig import prepared
@@ -200,10 +201,11 @@ def load_rig_project(config: RigProjectConfig, progress: bool = True, window: in
 
 
 def _options(config: RigProjectConfig, window: int) -> dict:
-    """Every option that changes the prepared arrays (the project folder is where they are kept)."""
+    """Every option that changes the prepared arrays (the project folder is where they are kept), and the
+    version of the JSON parsing whose results they hold."""
     options = {field.name: getattr(config, field.name) for field in dataclasses.fields(config) if field.name != "root"}
     options["calibration"] = None if config.calibration is None else str(config.calibration.resolve())
-    return options | {"window": window}
+    return options | {"window": window, "parsed_frames": keypoint_files.CACHE_VERSION}
 
 
 def _input_files(config: RigProjectConfig, recordings: Sequence[Recording]) -> list[pathlib.Path]:
