@@ -94,7 +94,7 @@ def project_notes(project: RigProject, data: RigProjectConfig) -> tuple[str, ...
     )
     notes.append(
         f"Training: {len(project.train)} instants; validation ({held_out}): {len(project.validation)} instants. {truth}"
-        f" The prepared project was {project.prepared}."
+        f" Loading: {project.prepared}."
     )
     if project.recovered_calibration is not None:
         from jaxpose.calibrate import report as calibration_report
