@@ -13,7 +13,8 @@ Each measurement runs in a fresh process (peak RSS from `resource.getrusage`, so
   development protocol's thinning, `--data.train-stride 5 --data.validation-stride 5`);
 - rig warm: the same options again, read from the cache (memory-mapped);
 - warm + pseudo-labels: what a run does before its first training step besides compiling it
-  (`jaxpose.pseudo_labelling.label` of the training part, RANSAC as the rig presets);
+  (`jaxpose.pseudo_labelling.label` of the training part, RANSAC as the rig presets), computed and
+  cached beside the prepared project, then again (read from that cache);
 - h36m: `load_h36m` of the same tree, stride 1 and 5.
 
     python benchmarks/rig_loading.py [--ten-times] [--keep DIR] [--out runs/benchmarks/rig_loading.json]
@@ -166,6 +167,7 @@ def main() -> None:
                 run(f"{label} cold", "rig", folder, stride, 0)
                 run(f"{label} warm", "rig", folder, stride, 0)
             run(f"{label} warm + pseudo-labels", "rig", folder, 1, 1)
+            run(f"{label} warm + pseudo-labels again (cached)", "rig", folder, 1, 1)
         for stride in (1, 5):
             run("h36m", "h36m", h36m_dir, stride)
     cold = next(r for r in runs if r["name"] == "rig cold" and r["stride"] == 1)

@@ -6,13 +6,22 @@
 
 The geometry (DLT solvers, outlier rejection) is `jaxpose.robust`; this module applies it to every
 sample of a `MultiViewDataset` in fixed-size chunks and stores the result in the data set.
+
+A data set memory-mapped from .npy files (a rig project's prepared arrays, `jaxpose.rig.prepared`) has
+its labels kept beside them, in ``pseudo_labels/<part>-<key>/``, and memory-mapped from there by the
+next run: the key digests the method and its settings, the rigs, and the detections' files (path,
+size, modification and status-change times, inode: they are never rewritten in place).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import logging
+import os
+import shutil
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -70,6 +79,11 @@ def label(
     """
     started = time.perf_counter()
     dataset = dataset.undistorted()
+    cache = _cache_folder(dataset, config)
+    if cache is not None and cache.is_dir():
+        labels = {name: np.load(cache / f"{name}.npy", mmap_mode="r") for name in _STORED if (cache / f"{name}.npy").exists()}
+        log.info("pseudo-labels (%s) of %s instants read from %s", config.method, f"{len(dataset):,}", cache)
+        return dataclasses.replace(dataset, **({"detection_weight": None} | labels))
     size = chunk_rows(len(dataset), chunk_size)
     bar = tqdm(total=len(dataset), desc="pseudo-labels", unit="instant", unit_scale=True, disable=not progress, leave=False)
 
@@ -83,5 +97,46 @@ def label(
 
     with bar:
         pseudo3d, weight, agreeing = map_in_chunks(solve_rows, (np.arange(len(dataset)), dataset.keypoints2d, dataset.confidence), size)
+    labels = {"pseudo3d": pseudo3d, "pseudo3d_weight": weight, "detection_weight": agreeing}
     log.info("pseudo-labels (%s) of %s instants in %.1f s", config.method, f"{len(dataset):,}", time.perf_counter() - started)
-    return dataclasses.replace(dataset, pseudo3d=pseudo3d, pseudo3d_weight=weight, detection_weight=agreeing)
+    if cache is not None:
+        labels = _write(cache, labels)
+    return dataclasses.replace(dataset, **labels)
+
+
+_STORED = ("pseudo3d", "pseudo3d_weight", "detection_weight")
+_CACHE_VERSION = 1  # bump when the labels of one method and its settings change
+
+
+def _cache_folder(dataset: MultiViewDataset, config: PseudoLabelConfig) -> Path | None:
+    """Where the labels of a data set whose detections are memory-mapped .npy files are kept (None otherwise)."""
+    mapped = (dataset.keypoints2d, dataset.confidence, dataset.rig_index)
+    if not all(isinstance(array, np.memmap) and array.filename for array in mapped):
+        return None
+    key = hashlib.blake2b(repr((_CACHE_VERSION, dataclasses.asdict(config), len(dataset))).encode(), digest_size=16)
+    for field in (dataset.rigs.K, dataset.rigs.R, dataset.rigs.t):
+        key.update(np.ascontiguousarray(field, np.float32).tobytes())
+    for array in mapped:
+        status = os.stat(array.filename)
+        key.update(f"{array.filename}|{array.offset}|{array.shape}|{status.st_size}|{status.st_mtime_ns}|{status.st_ctime_ns}|{status.st_ino}".encode())
+    source = Path(dataset.keypoints2d.filename)
+    return source.parent / "pseudo_labels" / f"{source.name.split('.')[0]}-{key.hexdigest()}"
+
+
+def _write(folder: Path, labels: dict[str, np.ndarray | None]) -> dict[str, np.ndarray | None]:
+    """The labels written to `folder` (whole or not at all) and memory-mapped from it; as they are,
+    with a warning, where it cannot be written."""
+    temporary = folder.with_name(f"{folder.name}.tmp-{os.getpid()}")
+    try:
+        temporary.mkdir(parents=True, exist_ok=True)
+        for name, array in labels.items():
+            if array is not None:
+                np.save(temporary / f"{name}.npy", array)
+        os.rename(temporary, folder)
+    except OSError as error:
+        shutil.rmtree(temporary, ignore_errors=True)
+        if not folder.is_dir():
+            log.warning("the pseudo-labels are not cached (%s cannot be written: %s)", folder, error)
+            return labels
+    log.info("pseudo-labels written to %s", folder)
+    return {name: None if array is None else np.load(folder / f"{name}.npy", mmap_mode="r") for name, array in labels.items()}

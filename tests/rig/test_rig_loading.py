@@ -6,6 +6,7 @@ import collections
 import contextlib
 import dataclasses
 import os
+import pathlib
 import re
 import shutil
 
@@ -13,6 +14,8 @@ import jax
 import numpy as np
 import pytest
 
+from jaxpose import pseudo_labelling
+from jaxpose.config import PseudoLabelConfig
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.rig.project import RigProjectConfig, load_rig_project
 from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
@@ -89,6 +92,23 @@ def test_the_prepared_project_is_cached_and_memory_mapped(small, tmp_path):
     assert load_rig_project(config, progress=False).prepared.startswith("prepared and written")
     kept = [p.name for p in (root / ".jaxpose_cache").iterdir() if p.name.startswith("prepared-")]
     assert len(kept) == 2  # the two most recently used
+
+
+def test_the_pseudo_labels_of_a_prepared_project_are_cached_beside_it(small, tmp_path):
+    root = tmp_path / "project"
+    shutil.copytree(small, root, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    train = load_rig_project(RigProjectConfig(root=root, frame_offsets=("cam03=3",)), progress=False).train
+    ransac = PseudoLabelConfig(method="ransac")
+    computed = pseudo_labelling.label(train, ransac)
+    cached = pseudo_labelling.label(train, ransac)
+    in_memory = pseudo_labelling.label(dataclasses.replace(train, keypoints2d=np.array(train.keypoints2d)), ransac)
+    assert isinstance(cached.pseudo3d, np.memmap) and not isinstance(in_memory.pseudo3d, np.memmap)
+    for name in ("pseudo3d", "pseudo3d_weight", "detection_weight"):
+        np.testing.assert_array_equal(getattr(computed, name), getattr(cached, name))
+        np.testing.assert_array_equal(getattr(in_memory, name), getattr(cached, name))
+    svd = pseudo_labelling.label(train, PseudoLabelConfig(method="svd"))  # another method: its own labels
+    assert svd.detection_weight is None and not np.array_equal(svd.pseudo3d, cached.pseudo3d)
+    assert len(list(pathlib.Path(train.keypoints2d.filename).parent.glob("pseudo_labels/train-*"))) == 2
 
 
 def test_a_calibration_in_centimetres_without_its_unit_is_refused(small, tmp_path):
