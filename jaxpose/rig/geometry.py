@@ -19,8 +19,8 @@ from jaxpose.chunks import map_over_parts
 from jaxpose.formats.calibrated_rig import RigCalibration
 from jaxpose.triangulation import triangulate
 
-CHUNK = 4096  # instants per call: a chunk's person-choice intermediates stay near 100 MiB at 4 views, 2 people
-TRIANGULATION_CHUNK = 1024
+CHUNK = 2048  # instants per call: a chunk's person-choice intermediates stay near 50 MiB at 4 views, 2 people
+TRIANGULATION_CHUNK = 256  # rows per call: a short recording's sync curves pad little
 
 _triangulate = jax.jit(triangulate, static_argnames="method")
 
