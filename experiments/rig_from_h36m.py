@@ -34,7 +34,8 @@ from jaxpose.formats.anipose_toml import write_anipose_toml
 from jaxpose.formats.h36m_cameras import H36M_IMAGE_SIZES, opencv_rig_from_h36m
 from jaxpose.formats.rig_calibration import read_rig_calibration
 from jaxpose.datasets.h36m import CAMERA_NAMES, load_h36m
-from jaxpose.formats.rig_folder import DETECTIONS_NPZ, GROUND_TRUTH_NPZ
+from jaxpose.formats.outputs import atomic_output
+from jaxpose.formats.rig_folder import CALIBRATION_TOML, DETECTIONS_NPZ, GROUND_TRUTH_NPZ
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,10 +55,29 @@ class Args:
     shift: tuple[str, ...] = ()
     """CAMERA=N: that camera's frame f shows the other cameras' frame f + N (frames without a
     counterpart are dropped)."""
+    overwrite: bool = False
+    """Write into an --output folder that already holds a project (its calibration.toml and the
+    recordings' detections.npz / ground_truth.npz are replaced); without it such a folder stops the
+    command before any work.  --data-dir is never written."""
+
+
+def check_output(args: Args) -> None:
+    """Refuse, before any work, an --output that is a file, is the input, or holds a project (unless --overwrite)."""
+    if args.output.exists() and not args.output.is_dir():
+        raise SystemExit(f"--output {args.output}: is a file; give a folder for the project")
+    if args.output.resolve() == args.data_dir.resolve():
+        raise SystemExit(f"--output {args.output}: is this command's input --data-dir; choose another folder")
+    if args.output.is_dir() and not args.overwrite:
+        existing = sorted(
+            path for name in (CALIBRATION_TOML, DETECTIONS_NPZ, GROUND_TRUTH_NPZ) for path in args.output.rglob(name)
+        )
+        if existing:
+            raise SystemExit(f"--output {args.output}: holds a project already ({existing[0]}, ...); pass --overwrite to replace its files")
 
 
 def write_project(args: Args) -> list[str]:
     """Write the project; returns the recordings of the development protocol's test half."""
+    check_output(args)
     dataset = load_h36m(args.data_dir, detections=args.detections, subjects=(args.subject,), train_stride=1, test_stride=1)
     shifts = {}
     for value in args.shift:
@@ -70,7 +90,8 @@ def write_project(args: Args) -> list[str]:
         rig = read_rig_calibration(args.data_dir / "cameras.h5", subject=args.subject).select(CAMERA_NAMES, "Human3.6M cameras")
         rig = dataclasses.replace(rig, image_size=np.array([H36M_IMAGE_SIZES[name] for name in CAMERA_NAMES]))
         rig, error_px = opencv_rig_from_h36m(rig)
-        write_anipose_toml(args.output / "calibration.toml", rig, unit="m")
+        with atomic_output(args.output / CALIBRATION_TOML) as temporary:
+            write_anipose_toml(temporary, rig, unit="m")
         print(f"calibration.toml: Human3.6M's distortion as OpenCV's, largest difference {error_px:.3f} px")
     sequences = dataset.labels["sequence"]
     train = first_trials(dataset.labels["subject"], dataset.labels["action"], sequences)
@@ -89,15 +110,17 @@ def write_project(args: Args) -> list[str]:
             confidence[outside, c] = 0.0
         folder = args.output / sequence
         folder.mkdir(exist_ok=True)
-        np.savez(
-            folder / DETECTIONS_NPZ,
-            keypoints=keypoints, confidence=confidence, camera_names=np.array(CAMERA_NAMES), image_size=image_size,
-            skeleton=np.array(dataset.skeleton.name), frames=frames,
-        )  # fmt: skip
-        np.savez(
-            folder / GROUND_TRUTH_NPZ,
-            points3d=dataset.target3d[rows], frames=frames, joint_names=np.array(dataset.skeleton.joint_names),
-        )  # fmt: skip
+        with atomic_output(folder / DETECTIONS_NPZ) as temporary:
+            np.savez(
+                temporary,
+                keypoints=keypoints, confidence=confidence, camera_names=np.array(CAMERA_NAMES), image_size=image_size,
+                skeleton=np.array(dataset.skeleton.name), frames=frames,
+            )  # fmt: skip
+        with atomic_output(folder / GROUND_TRUTH_NPZ) as temporary:
+            np.savez(
+                temporary,
+                points3d=dataset.target3d[rows], frames=frames, joint_names=np.array(dataset.skeleton.joint_names),
+            )  # fmt: skip
     return sorted(set(sequences[~train].tolist()))
 
 

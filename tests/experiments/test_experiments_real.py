@@ -10,7 +10,7 @@ import pathlib
 import numpy as np
 import pytest
 
-from experiments import ablation, cli, h36m, humaneva, mpi_inf_3dhp, paper_tables
+from experiments import ablation, cli, h36m, humaneva, mpi_inf_3dhp, paper_tables, rig_from_h36m
 from experiments.config import mocap_calibration, other_training_calibration
 from help_text import assert_every_flag_documented, assert_help_documents_every_field
 from jaxpose.formats.camera_file import load_cameras, save_cameras
@@ -273,3 +273,18 @@ def test_h36m_trains_on_another_calibration_and_tests_on_the_reference(h36m_tree
     # The reference itself, however spelled, is no recalibration: the ground truth stays.
     same = dataclasses.replace(data, cameras_path=pathlib.Path(os.path.relpath(data_dir / "cameras.h5")))
     assert h36m.load_splits(same).train.target3d is not None
+
+
+def test_rig_from_h36m_never_writes_over_a_project_or_its_input(h36m_tree, tmp_path):
+    data_dir, output = h36m_tree / "martinez", tmp_path / "rig"
+    rig_from_h36m.main(["--data-dir", str(data_dir), "--output", str(output)])
+    assert (output / "calibration.toml").is_file() and list(output.glob("*/detections.npz"))
+    before = {path: path.read_bytes() for path in output.rglob("*") if path.is_file()}
+    with pytest.raises(SystemExit, match=r"holds a project already .*pass --overwrite"):
+        rig_from_h36m.main(["--data-dir", str(data_dir), "--output", str(output)])
+    with pytest.raises(SystemExit, match="is this command's input --data-dir"):
+        rig_from_h36m.main(["--data-dir", str(data_dir), "--output", str(data_dir), "--overwrite"])
+    assert {path: path.read_bytes() for path in output.rglob("*") if path.is_file()} == before
+    rig_from_h36m.main(["--data-dir", str(data_dir), "--output", str(output), "--overwrite"])
+    assert {path: path.read_bytes() for path in output.rglob("*") if path.is_file()} == before  # same input, same bytes
+    assert not list(output.rglob("*.partial*"))
