@@ -19,7 +19,7 @@ import paths
 LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("geometry and joints", (
         "jaxpose", "jaxpose.camera", "jaxpose.rotations", "jaxpose.triangulation", "jaxpose.robust", "jaxpose.skeleton",
-        "jaxpose.layouts", "jaxpose.metrics", "jaxpose.chunks", "jaxpose.logs", "jaxpose.compilation_cache",
+        "jaxpose.layouts", "jaxpose.metrics", "jaxpose.chunks", "jaxpose.logs", "jaxpose.compilation_cache", "jaxpose.flip",
     )),
     ("files users bring and take away", ("jaxpose.formats.",)),
     ("the data contract", ("jaxpose.data.",)),
