@@ -52,6 +52,10 @@ class TrainConfig:
     For watching a run only: nothing is selected on it, and the report is always the final checkpoint."""
     eval_samples: int = 1000
     """Test samples (with all their views) in each periodic evaluation: a fixed, evenly spaced subset."""
+    eval_flip: bool = False
+    """Evaluate the report with test-time flip augmentation (`jaxpose.flip`: each view's pose and its mirror
+    image lifted and averaged; the periodic evaluation stays plain).  Given to a finished run's command, it
+    evaluates the final checkpoint again and rewrites the report."""
     augment: InputAugmentation = InputAugmentation()
     """The detector's failure modes imposed on the lifter's input (jaxpose.config.InputAugmentation);
     all 0 by default."""

@@ -16,6 +16,7 @@ from experiments.training import training_budget
 from jaxpose import evaluation, pseudo_labelling, validation, viz
 from jaxpose.data import ground_truth
 from jaxpose.data.dataset import MultiViewDataset
+from jaxpose.flip import flip_averaged
 from jaxpose.losses import TERMS
 from jaxpose.train import GRADIENT_SHARE_PREFIX, TrainState, make_eval_step
 
@@ -29,11 +30,13 @@ def evaluate_and_report(
     method_name: str,
     wall_time: float,
 ) -> dict:
-    """Single-view evaluation on every test view: the ground-truth-free measures (`jaxpose.validation`)
-    always; where the test split has 3D ground truth, the metrics against it with the reference rows;
-    report.{json,md}, plots."""
+    """Single-view evaluation on every test view (with test-time flip where `train.eval_flip`): the
+    ground-truth-free measures (`jaxpose.validation`) always; where the test split has 3D ground truth,
+    the metrics against it with the reference rows; report.{json,md}, plots."""
     test = splits.test
     eval_step = make_eval_step(model, config.model)
+    if config.train.eval_flip:
+        eval_step = flip_averaged(eval_step, test.skeleton)
     pred = evaluation.lift_every_view(eval_step, state.variables, test, config.train.eval_batch_size, config.model.temporal_window)
     groups = test.labels.get(splits.group_label)
     test_triangulated = pseudo_labelling.label(test, config.pseudo_labels)
@@ -78,6 +81,7 @@ def evaluate_and_report(
         "final_gradient_shares": shares,
         "train_steps": int(state.step),
         "training_budget": {"steps": budget.total_steps, "steps_per_epoch": budget.steps_per_epoch, "capped": budget.capped},
+        "test_time_flip": config.train.eval_flip,
         "wall_time_s": wall_time,
         "devices": [str(d) for d in jax.devices()],
         "config": to_json_dict(config),
@@ -85,6 +89,8 @@ def evaluate_and_report(
     if jax.process_index() == 0:
         (run_dir / "report.json").write_text(json.dumps(report, indent=2))
         tables = [*splits.notes, *([f"Training budget: trained {budget.note()}."] if budget.capped else [])]
+        if config.train.eval_flip:
+            tables.append("Test-time flip (--train.eval-flip): every view's pose and its mirror image lifted and averaged.")
         if rows:
             tables += [
                 evaluation.markdown_table(rows, "p_mpjpe", f"P-MPJPE (mm) per {splits.group_label}"),

@@ -8,7 +8,8 @@ writes, for the newest readable checkpoint of the run:
                       onnxruntime alone; the skeleton and its joint names are in its metadata
   lifter.jax_export   the same function serialized with `jax.export` (JAX only, no jaxpose needed:
                       `jax.export.deserialize(data).call(keypoints, K, confidence)`)
-  lifter.json         the metadata of both: skeleton, joint names, inputs, output, units, step
+  lifter.json         the metadata of both: skeleton, joint names, inputs, output, units, step, and
+                      test_time_flip: whether the flip (`--flip`, `jaxpose.flip`) is inside the graph
 
 The model takes what `jaxpose.inference.Lifter3D.predict` takes, for any number B of poses:
 
@@ -22,6 +23,10 @@ takes windows instead, keypoints f32[B, T, J, 2] and confidence f32[B, T, J] (T 
 centred on the frame to lift; repeat the first / last frame beyond a sequence's ends, as
 `Lifter3D.predict` does), and returns the centre frame's pose; the window is in the metadata.  Distorted detections must be
 undistorted first (`Lifter3D.predict(distortion=...)` does it; the exported model does not).
+
+With --flip, both forms hold the test-time flip augmentation in their graph (the pose and its mirror image
+in normalised camera coordinates lifted and averaged, `jaxpose.flip`): they compute
+`Lifter3D.predict(..., flip=True)`, at twice the cost, and nothing is left for the user to do.
 
 None of the three files is written over without --overwrite, nor a file of the run directory ever
 (`jaxpose.formats.outputs`); each is written to a temporary name and renamed into place when complete.
@@ -50,23 +55,25 @@ OUTPUT_NAME = "pose3d_mm"
 JAX_SUFFIX = ".jax_export"
 
 
-def single_view_function(lifter: Lifter3D) -> Callable[[jax.Array, jax.Array, jax.Array], jax.Array]:
+def single_view_function(lifter: Lifter3D, flip: bool = False) -> Callable[[jax.Array, jax.Array, jax.Array], jax.Array]:
     """The lifter as one pure function (keypoints, K, confidence) -> pose3d_mm, its variables baked
-    in: what `Lifter3D.predict` computes for undistorted keypoints, missing joints and roots included."""
+    in: what `Lifter3D.predict(..., flip=flip)` computes for undistorted keypoints, missing joints and
+    roots included; with `flip` the mirror image's lift and the average are part of the function."""
 
     centre = lifter.model_config.temporal_window // 2
+    eval_step = lifter.flipped_eval_step if flip else lifter.eval_step
 
     def lift(keypoints: jax.Array, K: jax.Array, confidence: jax.Array) -> jax.Array:
         detected = confidence > 0
         keypoints = jnp.where(detected[..., None], keypoints, 0.0)  # NaN in a missing joint stays out
-        poses = lifter.eval_step(lifter.variables, keypoints, K, confidence)
+        poses = eval_step(lifter.variables, keypoints, K, confidence)
         root = detected[:, ROOT] if detected.ndim == 2 else detected[:, centre, ROOT]
         return jnp.where(root[:, None, None], poses, jnp.nan)
 
     return lift
 
 
-def metadata(lifter: Lifter3D) -> dict[str, Any]:
+def metadata(lifter: Lifter3D, flip: bool = False) -> dict[str, Any]:
     """What a user of the exported model needs to know, without jaxpose."""
     J, T = lifter.num_joints, lifter.model_config.temporal_window
     frames = "" if T == 1 else f"{T}, "
@@ -81,6 +88,7 @@ def metadata(lifter: Lifter3D) -> dict[str, Any]:
             "confidence": f"f32[B, {frames}{J}] > 0 detected, 0 missing",
         },
         "output": {OUTPUT_NAME: f"f32[B, {J}, 3] root-relative mm in the camera frame (x right, y down, z forward); NaN rows where the root is missing"},
+        "test_time_flip": flip,
         "step": lifter.step,
         "model": dataclasses.asdict(lifter.model_config),
     }
@@ -95,17 +103,17 @@ def _input_shapes(lifter: Lifter3D, batch) -> list[jax.ShapeDtypeStruct]:
     ]
 
 
-def export_jax(lifter: Lifter3D, path: str | pathlib.Path) -> pathlib.Path:
+def export_jax(lifter: Lifter3D, path: str | pathlib.Path, flip: bool = False) -> pathlib.Path:
     """Write the `jax.export` serialization of `single_view_function`, for any batch size."""
     (batch,) = jax.export.symbolic_shape("B")
-    exported = jax.export.export(jax.jit(single_view_function(lifter)))(*_input_shapes(lifter, batch))
+    exported = jax.export.export(jax.jit(single_view_function(lifter, flip)))(*_input_shapes(lifter, batch))
     path = pathlib.Path(path)
     with atomic_output(path) as temporary:
         temporary.write_bytes(exported.serialize())
     return path
 
 
-def export_onnx(lifter: Lifter3D, path: str | pathlib.Path) -> pathlib.Path:
+def export_onnx(lifter: Lifter3D, path: str | pathlib.Path, flip: bool = False) -> pathlib.Path:
     """Write `single_view_function` as an ONNX model with a dynamic batch axis and the metadata.
 
     Raises ImportError without the `export` extra (jax2onnx, onnx), and whatever jax2onnx raises for
@@ -118,10 +126,10 @@ def export_onnx(lifter: Lifter3D, path: str | pathlib.Path) -> pathlib.Path:
     logging.getLogger("onnx_ir.serde").setLevel(logging.ERROR)
     shapes = [("B", *s.shape[1:]) for s in _input_shapes(lifter, 1)]
     model = to_onnx(
-        single_view_function(lifter), shapes, model_name="jaxpose_lifter",
+        single_view_function(lifter, flip), shapes, model_name="jaxpose_lifter",
         input_names=list(INPUT_NAMES), output_names=[OUTPUT_NAME],
     )  # fmt: skip
-    onnx.helper.set_model_props(model, {key: json.dumps(value) for key, value in metadata(lifter).items()})
+    onnx.helper.set_model_props(model, {key: json.dumps(value) for key, value in metadata(lifter, flip).items()})
     path = pathlib.Path(path)
     with atomic_output(path) as temporary:
         onnx.save(model, temporary)
@@ -138,6 +146,9 @@ class ExportArgs:
     """The ONNX file to write; the JAX form (suffix .jax_export) and the metadata (.json) go beside it."""
     onnx: bool = True
     """Write the ONNX model (needs `pip install 'jaxpose[export]'`); --no-onnx writes the JAX form only."""
+    flip: bool = False
+    """Test-time flip augmentation inside both exported forms (`jaxpose.flip`): each pose and its mirror
+    image are lifted and averaged, at twice the cost; the metadata's test_time_flip says which."""
     overwrite: bool = False
     """Replace existing output files; without it the command stops before any work.  A file of the run
     directory is never replaced."""
@@ -171,12 +182,12 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit(f"error: {error}") from None
     output = args.output.with_suffix(".onnx")
     with atomic_output(output.with_suffix(".json")) as temporary:
-        temporary.write_text(json.dumps(metadata(lifter), indent=2) + "\n")
-    print(f"wrote {export_jax(lifter, output.with_suffix(JAX_SUFFIX))} and {output.with_suffix('.json')}")
+        temporary.write_text(json.dumps(metadata(lifter, args.flip), indent=2) + "\n")
+    print(f"wrote {export_jax(lifter, output.with_suffix(JAX_SUFFIX), args.flip)} and {output.with_suffix('.json')}")
     if not args.onnx:
         return
     try:
-        print(f"wrote {export_onnx(lifter, output)}")
+        print(f"wrote {export_onnx(lifter, output, args.flip)}")
     except ImportError as error:
         raise SystemExit(f"error: the ONNX export needs jax2onnx and onnx ({error}); pip install 'jaxpose[export]'") from None
     except Exception as error:  # noqa: BLE001 - a conversion failure: report it, the JAX form is written

@@ -34,6 +34,7 @@ from jaxpose.camera import Cameras, masked_median, normalize_keypoints, undistor
 from jaxpose.config import ModelConfig
 from jaxpose.chunks import map_in_chunks
 from jaxpose.data.dataset import window_rows
+from jaxpose.flip import flip_averaged
 from jaxpose.skeleton import ROOT, Skeleton
 from jaxpose.train import make_eval_step
 
@@ -185,6 +186,11 @@ class Lifter3D:
     batch_size: int = DEFAULT_BATCH_SIZE
     """The most poses per jitted call."""
 
+    @functools.cached_property
+    def flipped_eval_step(self) -> Callable[..., jax.Array]:
+        """`eval_step` averaged with the lift of the mirror image (`jaxpose.flip.flip_averaged`)."""
+        return flip_averaged(self.eval_step, self.skeleton)
+
     @property
     def num_joints(self) -> int:
         return self.skeleton.num_joints
@@ -203,6 +209,7 @@ class Lifter3D:
         min_confidence: float = 0.0,
         outside_margin: float | None = None,
         reject_inconsistent: float | None = None,
+        flip: bool = False,
     ) -> np.ndarray:
         """Root-relative 3D poses f32[N, J, 3] in mm, in each camera's frame (x right, y down, z forward).
 
@@ -221,6 +228,8 @@ class Lifter3D:
         reject_inconsistent: a residual (e.g. `DEFAULT_INCONSISTENT_RESIDUAL`): in each pose, the joint that
                      fits the rest of the pose worst is lifted as missing if its residual is larger
                      (`inconsistent_joints`; None = no check).  Frame lifters only.
+        flip:        test-time flip augmentation (`jaxpose.flip`): each pose and its mirror image are lifted
+                     and averaged, at twice the cost.  The rejection's test still uses the plain lift.
         Rows whose root (joint 0) is missing are NaN.  Non-finite keypoints with confidence > 0 are an
         error here (`jaxpose.predict` reports them and lifts them as missing).
         """
@@ -236,7 +245,7 @@ class Lifter3D:
         poses = np.full((count, self.num_joints, 3), np.nan, np.float32)
         liftable = np.flatnonzero(confidence[:, ROOT] > 0)
         if len(liftable):
-            lift = functools.partial(self.eval_step, self.variables)
+            lift = functools.partial(self.flipped_eval_step if flip else self.eval_step, self.variables)
             window = self.model_config.temporal_window
             if window > 1:  # [N, T, J, 2]: each frame's window in the sequence
                 frames = window_rows(liftable, np.array([[0, count]]).repeat(len(liftable), 0), window)

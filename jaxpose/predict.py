@@ -37,6 +37,8 @@ worst can be lifted as missing where it lies more than --reject-inconsistent (2 
 puts it (frame lifters; `jaxpose.inference.inconsistent_joints`), and the command says how many.  One
 wild keypoint would otherwise move the whole lifted pose (docs/robust_input.md).
 
+--flip lifts each pose and its mirror image and averages the two (test-time flip augmentation, `jaxpose.flip`).
+
 A pose whose root (the pelvis; for COCO/OpenPose both hips) was not detected cannot be lifted: it is null,
 NaN or empty in the output.
 
@@ -134,6 +136,10 @@ class PredictArgs:
     `jaxpose.inference.leave_one_out_residuals`).  2 is the measured choice for a lifter trained with
     --train.augment.drop 0.1; off by default, as it costs a lifter trained without it accuracy
     (docs/robust_input.md)."""
+    flip: bool = False
+    """Test-time flip augmentation (`jaxpose.flip`): each pose and its mirror image (x -> -x in normalised
+    camera coordinates, left and right swapped) are lifted and the two poses averaged, at twice the lifting
+    time (docs/lifting.md, "Test-time flip")."""
 
 
 def run(args: PredictArgs) -> np.ndarray:
@@ -164,9 +170,9 @@ def run(args: PredictArgs) -> np.ndarray:
     if lifter.model_config.temporal_window > 1:
         if args.reject_inconsistent is not None:
             print("--reject-inconsistent: frame lifters only, not applied to this temporal lifter", file=sys.stderr)
-        poses, not_followed = lift_sequence(lifter, keypoints, confidence, camera, detections)
+        poses, not_followed = lift_sequence(lifter, keypoints, confidence, camera, detections, args.flip)
     else:
-        poses, rejected = lift_frames(lifter, keypoints, confidence, camera, args.reject_inconsistent)
+        poses, rejected = lift_frames(lifter, keypoints, confidence, camera, args.reject_inconsistent, args.flip)
         if args.reject_inconsistent is not None:
             print(rejection_report(rejected, keypoints, lifter.joint_names, args.reject_inconsistent), file=sys.stderr)
             confidence = np.where(rejected, 0.0, confidence).astype(np.float32)  # the plots show them as missing
@@ -183,7 +189,8 @@ def run(args: PredictArgs) -> np.ndarray:
     unliftable = f"; {rootless} without a detected root are null" if rootless else ""
     unliftable += f"; {not_followed} other people, not followed, are null" if not_followed else ""
     print(
-        f"lifted {lifted} of {count} poses with the {lifter.skeleton.name} lifter (step {lifter.step}) of"
+        f"lifted {lifted} of {count} poses with the {lifter.skeleton.name} lifter (step {lifter.step}"
+        f"{', test-time flip' if args.flip else ''}) of"
         f" {lifter.source} -> {'the .trc files above' if args.output.suffix == '.trc' else args.output}{unliftable}",
         file=sys.stderr,
     )
@@ -272,10 +279,10 @@ def input_joint_names(layout: str | None, lifter_joints: Sequence[str], count: i
 
 
 def lift_frames(
-    lifter, keypoints, confidence, camera: intrinsics.CameraIntrinsics, reject: float | None
+    lifter, keypoints, confidence, camera: intrinsics.CameraIntrinsics, reject: float | None, flip: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
     """A frame lifter's poses f32[N, J, 3], in blocks of `LIFT_BLOCK` (a progress bar for more), and the
-    joints bool[N, J] that `reject` (--reject-inconsistent; None: off) lifted as missing."""
+    joints bool[N, J] that `reject` (--reject-inconsistent; None: off) lifted as missing; `flip`: --flip."""
     count = len(keypoints)
     poses = np.empty((count, lifter.num_joints, 3), np.float32)
     rejected = np.zeros(confidence.shape, bool)
@@ -288,13 +295,13 @@ def lift_frames(
                     keypoints[rows], K, confidence[rows], camera.dist, camera.image_size, threshold=reject
                 )
             kept = np.where(rejected[rows], 0.0, confidence[rows]).astype(np.float32)
-            poses[rows] = lifter.predict(keypoints[rows], K, kept, camera.dist, camera.image_size)
+            poses[rows] = lifter.predict(keypoints[rows], K, kept, camera.dist, camera.image_size, flip=flip)
             bar.update(rows.stop - rows.start)
     return poses, rejected
 
 
 def lift_sequence(
-    lifter, keypoints, confidence, camera: intrinsics.CameraIntrinsics, detections: detection_file.DetectionFile
+    lifter, keypoints, confidence, camera: intrinsics.CameraIntrinsics, detections: detection_file.DetectionFile, flip: bool = False
 ) -> tuple[np.ndarray, int]:
     """A temporal lifter's poses f32[N, J, 3] and how many of them were not followed: the input's frames
     in sequence order (`lifting_figures.animation_frames`: OpenPose frames in frame-number order, image ids in numerical
@@ -308,7 +315,7 @@ def lift_sequence(
     blank_keypoints = np.concatenate([keypoints, np.zeros((1, *keypoints.shape[1:]), np.float32)])
     blank_confidence = np.concatenate([confidence, np.zeros((1, confidence.shape[1]), np.float32)])
     K = camera.of_poses(np.minimum(rows, count - 1))  # a blank frame's camera is never used: it has no root
-    lifted = lifter.predict(blank_keypoints[rows], K, blank_confidence[rows], camera.dist, camera.image_size)
+    lifted = lifter.predict(blank_keypoints[rows], K, blank_confidence[rows], camera.dist, camera.image_size, flip=flip)
     poses = np.full((count, lifter.num_joints, 3), np.nan, np.float32)
     followed = rows < count
     poses[rows[followed]] = lifted[followed]
