@@ -16,6 +16,7 @@ capture projected into one camera each (undistorted pixels, image 1000 x 1000 px
    Each run is measured three times: as `predict` lifted before the missing-keypoint policy (every
    keypoint as given), with it (`outside_margin`: a keypoint beyond the margin is missing), and with it
    and the rejection of the joint that fits the rest of its pose worst (`reject_inconsistent`, --reject).
+   With --flip, every lift is made with test-time flip (`predict(..., flip=True)`).
 2. Wild joints on real detections.  The run's own development-split test set with Stacked Hourglass
    detections (16-joint runs only): P-MPJPE over the view-poses that have a joint more than 100 px from
    the projected ground truth, and over those that have none; lifted as given, with the rejection, and
@@ -100,11 +101,11 @@ def displaced(point: np.ndarray, condition, margin: float, rng: np.random.Genera
 PASSES = ("as_given", "policy", "rejecting")
 
 
-def sensitivity(lifter, keypoints, K, conditions, margin_fraction, lifting: str, reject: float, rng) -> dict:
+def sensitivity(lifter, keypoints, K, conditions, margin_fraction, lifting: str, reject: float, rng, flip: bool = False) -> dict:
     """{condition: {"median_mm", "p95_mm", "cases"}} for one of `PASSES`, see the module docstring."""
     M, J, _ = keypoints.shape
     margin = margin_fraction * max(IMAGE_SIZE)
-    options = dict(image_size=IMAGE_SIZE, outside_margin=None if lifting == "as_given" else margin_fraction)
+    options = dict(image_size=IMAGE_SIZE, outside_margin=None if lifting == "as_given" else margin_fraction, flip=flip)
     if lifting == "rejecting":
         options["reject_inconsistent"] = reject
     base = lifter.predict(keypoints, K, **options)
@@ -134,7 +135,7 @@ def sensitivity(lifter, keypoints, K, conditions, margin_fraction, lifting: str,
     return results
 
 
-def wild_joint_errors(lifter, data_dir: pathlib.Path, reject: float) -> dict | None:
+def wild_joint_errors(lifter, data_dir: pathlib.Path, reject: float, flip: bool = False) -> dict | None:
     """P-MPJPE (mm) of the lifter on the dev split's SH test set, over the view-poses with / without a
     joint more than WILD_PX from the projected ground truth: lifted as given, with `predict`'s
     reject_inconsistent=`reject` (and the share of view-poses it rejects a joint of), and, as the bound
@@ -165,7 +166,7 @@ def wild_joint_errors(lifter, data_dir: pathlib.Path, reject: float) -> dict | N
     result = {"share_wild": float((wild & valid).sum() / valid.sum()), "reject": reject}
     kept = offset <= WILD_PX
     for lifting, scores in lifts.items():
-        pred = lifter.predict(keypoints, K, scores.astype(np.float32))
+        pred = lifter.predict(keypoints, K, scores.astype(np.float32), flip=flip)
         errors = np.asarray(p_mpjpe(pred, target))
         entry = result[lifting] = {}
         for name, mask in (("wild", wild & valid), ("clean", ~wild & valid)):
@@ -190,11 +191,12 @@ def main(argv=None) -> dict:
     parser.add_argument(
         "--reject", type=float, default=inference.DEFAULT_INCONSISTENT_RESIDUAL, help="--reject-inconsistent of predict"
     )
+    parser.add_argument("--flip", action="store_true", help="lift with test-time flip (predict's --flip) in every pass")
     parser.add_argument("--out", type=pathlib.Path, default=pathlib.Path("runs/benchmarks/sensitivity.json"))
     args = parser.parse_args(argv)
     gt = dev_split(args.data_dir, "gt")
     conditions = (*DISPLACEMENTS_PX, "corner+500", "outside")
-    report = {"image_size": IMAGE_SIZE, "margin": args.margin, "runs": {}}
+    report = {"image_size": IMAGE_SIZE, "margin": args.margin, "flip": args.flip, "runs": {}}
     for run in args.run:
         start = time.perf_counter()
         lifter = inference.load(run)
@@ -204,11 +206,11 @@ def main(argv=None) -> dict:
         entry = {"normalization": lifter.model_config.input_normalization, "poses": len(keypoints)}
         for lifting in PASSES:
             rng = np.random.default_rng(args.seed + 1)  # the same displacements for all
-            entry[lifting] = sensitivity(lifter, keypoints, K, conditions, args.margin, lifting, args.reject, rng)
-        entry["wild"] = wild_joint_errors(lifter, args.data_dir, args.reject)
+            entry[lifting] = sensitivity(lifter, keypoints, K, conditions, args.margin, lifting, args.reject, rng, args.flip)
+        entry["wild"] = wild_joint_errors(lifter, args.data_dir, args.reject, args.flip)
         entry["seconds"] = time.perf_counter() - start
         report["runs"][str(run)] = entry
-        print(f"\n### {run} ({entry['normalization']}, {entry['poses']} poses)\n")
+        print(f"\n### {run} ({entry['normalization']}, {entry['poses']} poses{', test-time flip' if args.flip else ''})\n")
         print(
             "| one joint moved | as given: median / p95 (mm) | missing-keypoint policy: median / p95 (mm) |"
             f" policy + rejection (residual > {args.reject:g}): median / p95 (mm) |"
