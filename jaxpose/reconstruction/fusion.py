@@ -27,10 +27,14 @@ Cauchy weight of its Mahalanobis residual (in standard deviations); the last sol
 detections within `agree_px` (as `robust.refine_on_inliers` does) and the lifted joints within
 `lift_agree_sigmas`: a Cauchy weight alone still lets a swapped limb's lift, a metre off, bend a
 joint that two exact views see by millimetres (median 2.9 mm, up to 19 mm on 67 random rigs; with the
-cut, < 0.001 mm).  The first solve weighs the evidence by confidence alone; a wrong detection pulls
-a joint only in proportion to its weight there, and the lifted poses, placed by all the other
-joints, hold a joint that just two disagreeing views see until the Cauchy weights let go of the
-wrong one.
+cut, < 0.001 mm).  The detections are solved alone first (the same re-weighting, no lifts): a robust
+triangulation, by which each view's lift is judged once.  Placed on the joints that two agreeing views
+fix there, a lift gets a trust, the Cauchy weight of its median residual, that scales all its joints'
+weights from then on: an untrained lifter's poses (a third of the body's size, 340 mm off) then move
+the example project's joints by 4 mm on average instead of by 300 (their pull drew the joints off the
+rays, whose Cauchy weights then let go).  A lift that fits keeps its full weight, and the lifted poses,
+placed by all the other joints, hold a joint that just two disagreeing views see (or two views that
+agree on a wrong point along their epipolar line) until the Cauchy weights let go of the wrong view.
 
 Provenance, from the final estimate: TRIANGULATED where at least two views agree (within `agree_px`),
 FUSED where one does (its ray fixes two directions, the lifts the depth), LIFTED where none does
@@ -63,8 +67,9 @@ from jaxpose.robust import BEHIND_CAMERA_PX, DEFAULT_IRLS_SCALE_PX, DEFAULT_THRE
 PRIOR_PRECISION = 1e-15  # 1 / mm^2: the N(0, (30 km)^2) on every position
 UNOBSERVABLE_MM = 1e4  # a joint the evidence does not fix within 10 m is missing
 START_DEPTH_MM = 4000.0  # the depth that weighs the rays of the first solve, before any is known
+MIN_FITTED_JOINTS = 2  # a lift's root and scale (4 unknowns) are fitted to the triangulated joints from 2 on
 MIN_DEPTH_MM = 1.0  # nearer than this (or behind) a camera, a point is no projection of what it saw
-CHUNK = 256  # instants per batched solve: cache-sized (20,000 instants, C = 4: 3.1 s of CPU, 4.3 s with 4096)
+CHUNK = 256  # instants per batched solve: cache-sized (20,000 instants, C = 4: 6.6 s of CPU with the detections-alone stage)
 
 
 class Provenance(enum.IntEnum):
@@ -74,6 +79,7 @@ class Provenance(enum.IntEnum):
     LIFTED = 1
     FUSED = 2
     TRIANGULATED = 3
+    INTERPOLATED = 4  # never from `fuse`: a gap bridged by `jaxpose.reconstruction.gaps.fill_gaps`
 
 
 @dataclasses.dataclass(frozen=True)
@@ -243,6 +249,34 @@ def _lift_weights(ev: _Evidence, points, placement, config: FusionConfig, agreei
     return np.where(usable, cauchy_weights(mahalanobis, config.lift_robust_sigmas), 0.0)
 
 
+def _lift_trust(ev: _Evidence, points: np.ndarray, fixed: np.ndarray, config: FusionConfig) -> np.ndarray:
+    """[n, C]: how much each view's lift counts, a factor on all its joints' weights.  A lift with at least
+    `MIN_FITTED_JOINTS` joints that the detections alone fix (bool `fixed` [n, J], at `points` [n, J, 3])
+    is placed on them (T_c, s_c, with the scale prior) by least squares: its trust is the Cauchy weight
+    of the median Mahalanobis residual of those joints.  A lift that does not fit the triangulated body
+    (an untrained lifter's poses are a third of the body's size) then cannot pull the joints off the
+    rays, whose Cauchy weights would let go of them; one that fits counts fully, even where two views
+    agree on a wrong point (along their epipolar line).  Other lifts: 1 (the detections fix too little
+    to judge them, and the lift is the evidence there)."""
+    weight = (ev.lifted & fixed[:, None]).astype(np.float64)  # [n, C, J]
+    A = np.zeros((*weight.shape[:2], 4, 4))
+    A[..., :3, :3] = weight.sum(-1)[..., None, None] * ev.precision + PRIOR_PRECISION * np.eye(3)
+    A[..., :3, 3] = A[..., 3, :3] = np.sum(weight[..., None] * ev.precision_lift, 2)
+    A[..., 3, 3] = np.sum(weight * ev.lift_energy, -1) + 1.0 / config.scale_sigma**2
+    b = np.zeros((*weight.shape[:2], 4))
+    b[..., :3] = (ev.precision @ (weight @ points)[..., None])[..., 0]
+    b[..., 3] = np.sum(weight * np.sum(ev.precision_lift * points[:, None], -1), -1) + 1.0 / config.scale_sigma**2
+    placement = np.linalg.solve(A, b[..., None])[..., 0]
+    residual = points[:, None] - placement[:, :, None, :3] - placement[:, :, None, 3:] * ev.lift
+    mahalanobis = np.sqrt(np.sum((residual @ ev.precision) * residual, -1))
+    count = weight.sum(-1).astype(np.int64)  # [n, C]
+    order = np.sort(np.where(weight > 0, mahalanobis, np.inf), -1)  # the fixed joints' residuals first
+    lower = np.take_along_axis(order, (np.maximum(count, 1) - 1)[..., None] // 2, -1)[..., 0]
+    upper = np.take_along_axis(order, np.maximum(count, 1)[..., None] // 2, -1)[..., 0]
+    median = np.where(count >= MIN_FITTED_JOINTS, 0.5 * (lower + upper), 0.0)
+    return cauchy_weights(median, config.lift_robust_sigmas)
+
+
 def _solve(ev: _Evidence, rays: np.ndarray, lifts: np.ndarray, config: FusionConfig, covariance: bool = False):
     """The weighted least squares (module docstring) -> (points [n, J, 3], placement [n, C, 4], and
     with `covariance` the joints' covariances [n, J, 3, 3]), the joints eliminated first (Schur complement).
@@ -288,11 +322,20 @@ def _solve(ev: _Evidence, rays: np.ndarray, lifts: np.ndarray, config: FusionCon
 def _fuse_rows(K, R, t, keypoints, confidence, lifted, *, config: FusionConfig):
     """`fuse` on one chunk of instants: the tuple of `Fusion`'s fields."""
     ev = _evidence(K, R, t, keypoints, confidence, lifted, config)
-    points, placement = _solve(ev, ev.ray_scale / START_DEPTH_MM**2, ev.lifted.astype(np.float64), config)
+    # The detections alone first (their robust triangulation), by which each lift is judged (`_lift_trust`).
+    no_lifts = np.zeros(ev.lifted.shape)
+    rays = ev.ray_scale / START_DEPTH_MM**2
+    for _ in range(config.iterations):
+        points, _ = _solve(ev, rays, no_lifts, config)
+        rays = _ray_weights(ev, points, config, agreeing_only=False)
+    error, _ = _reproject(ev, points)
+    fixed = (ev.seen & (error <= config.agree_px)).sum(1) >= 2  # [n, J]: joints the detections fix alone
+    trust = _lift_trust(ev, points, fixed, config)[..., None]
+    points, placement = _solve(ev, rays, ev.lifted * trust, config)
     for iteration in range(1, config.iterations + 1):
         last = iteration == config.iterations
         rays = _ray_weights(ev, points, config, agreeing_only=last)
-        lifts = _lift_weights(ev, points, placement, config, agreeing_only=last)
+        lifts = _lift_weights(ev, points, placement, config, agreeing_only=last) * trust
         points, placement, *covariance = _solve(ev, rays, lifts, config, covariance=last)
     error, _ = _reproject(ev, points)
     views = (ev.seen & (error <= config.agree_px)).sum(1)

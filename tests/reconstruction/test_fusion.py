@@ -296,3 +296,21 @@ def test_fusion_beats_its_alternatives_on_simulated_detections_and_lifts(capsys)
     with capsys.disabled():
         print("\n" + "\n".join(lines))
     assert not worse, "\n".join(worse)
+
+
+@pytest.mark.parametrize("seed", range(8))
+@pytest.mark.parametrize("num_views", [3, 4])
+def test_an_untrained_lifters_poses_leave_the_triangulated_joints(seed, num_views):
+    """Lifts at a third of the body's size, each joint 50 mm off besides (an untrained lifter's): the
+    joints that three or four noisy views see stay at the detections' own robust triangulation, none
+    lost (median 0.1-0.6 mm away over these 16 cases; the fusion before the lifts were judged drew them
+    4-50 mm away at the median, 16-372 mm at the 90th percentile, and lost some), instead of being
+    drawn off the rays by every lift's pull."""
+    scene = exact_scene(seed, num_views, instants=4)
+    rng = np.random.default_rng(seed)
+    pixels = scene.pixels + rng.normal(0.0, 3.0, scene.pixels.shape)
+    lifted = scene.lifted / 3.0 + rng.normal(0.0, 50.0, scene.lifted.shape)
+    lifted[..., 0, :] = 0.0
+    alone = fuse(scene.cameras, pixels, scene.confidence(), None)
+    moved = np.linalg.norm(fuse(scene.cameras, pixels, scene.confidence(), lifted).points - alone.points, axis=-1)
+    assert np.isfinite(moved).all() and np.median(moved) < 1.0

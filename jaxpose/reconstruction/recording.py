@@ -1,0 +1,203 @@
+"""A rig project's recordings as 3D motion: every instant, each view lifted, all fused, gaps bridged.
+
+    from jaxpose import inference
+    from jaxpose.reconstruction import recording
+    project = recording.load_every_instant(RigProjectConfig(root=PROJECT), run_dir=RUN)
+    lifter = inference.load(RUN)
+    for inputs in recording.recording_inputs(project.validation):
+        motion = recording.reconstruct(inputs, recording.lift_views(lifter, inputs))
+
+The project is loaded as `experiments.rig` loads it (`jaxpose.rig.project`), with every recording in
+one part at every instant: no stride, nothing held out.  Its world frame is the calibration's; a
+project without one was trained on the rig recovered in the run (`experiments.rig` writes it to
+RUN/recovered_cameras.json), and that rig is read, never recovered again: another recovery would give
+another world frame.
+
+Per recording, on its whole frame axis (first to last instant; an instant no camera saw has every
+confidence 0): each camera's detections lifted by the trained lifter (`jaxpose.inference.Lifter3D`,
+root-relative in the camera's axes; its chunks of fixed sizes keep the compilations bounded whatever
+the recordings), fused with the detections (`jaxpose.reconstruction.fusion.fuse`, world mm), then the
+instants nothing fixes bridged up to `max_gap` frames and the rest split off
+(`jaxpose.reconstruction.gaps.fill_gaps`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import pathlib
+from collections.abc import Iterator
+
+import numpy as np
+
+from jaxpose.camera import Cameras
+from jaxpose.data.dataset import MultiViewDataset
+from jaxpose.formats.rig_calibration import find_calibration
+from jaxpose.inference import Lifter3D
+from jaxpose.reconstruction.fusion import Fusion, FusionConfig, Provenance, fuse
+from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, fill_gaps
+from jaxpose.rig.project import RigProject, RigProjectConfig, load_rig_project
+from jaxpose.rig.recordings import recording_folders
+
+log = logging.getLogger(__name__)
+
+RECOVERED_CAMERAS = "recovered_cameras.json"  # what experiments.rig writes into a run trained on a recovered rig
+SPLIT_FIELDS = ("validation_recordings", "validation_fraction", "train_stride", "validation_stride")
+"""RigProjectConfig's fields of a training split: a reconstruction takes every instant of every recording."""
+
+
+def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: bool = True) -> RigProject:
+    """The project with every instant of every recording (of --data.recordings) in its `validation` part.
+
+    The calibration: --data.calibration where given; else RUN/recovered_cameras.json where the run was
+    trained on a recovered rig; else the project's own.  A project with none of these is refused, as are
+    the split flags (`SPLIT_FIELDS`) set to anything but their defaults."""
+    defaults = RigProjectConfig()
+    changed = [field for field in SPLIT_FIELDS if getattr(data, field) != getattr(defaults, field)]
+    if changed:
+        flags = ", ".join("--data." + field.replace("_", "-") for field in changed)
+        raise ValueError(f"{flags}: a reconstruction takes every instant of every recording; leave the split flags out")
+    names = tuple(folder.name for folder in recording_folders(data.root, data.recordings))
+    calibration = data.calibration
+    recovered = pathlib.Path(run_dir) / RECOVERED_CAMERAS
+    if calibration is None and recovered.is_file():
+        log.info("the run was trained on the rig recovered from the recordings: its world frame, %s", recovered)
+        calibration = recovered
+    elif calibration is None and find_calibration(data.root) is None:
+        if not all(find_calibration(data.root / name) for name in names):
+            raise ValueError(
+                f"{data.root}: no calibration file, and the run {run_dir} has no {RECOVERED_CAMERAS} (it was trained on"
+                " a calibrated project): pass --data.calibration; a rig recovered again would have another world frame"
+            )
+    config = dataclasses.replace(data, calibration=calibration, validation_recordings=names)
+    return load_rig_project(config, progress=progress)
+
+
+@dataclasses.dataclass(frozen=True)
+class RecordingInput:
+    """One recording's detections on its whole frame axis (F frames, C views, J joints).
+
+    frames:     i64[F] the instants, consecutive, first to last (the rig project's frame numbers).
+    cameras:    the recording's pinhole rig, fields [C, ...] (x_cam = R x_world + t, mm).
+    keypoints:  f32[F, C, J, 2] undistorted pixels; 0 where not seen.
+    confidence: f32[F, C, J]; 0 where not seen (and at every instant the project lacks).
+    target3d:   f32[F, J, 3] world mm, the ground truth (NaN where none), or None.
+    """
+
+    name: str
+    frames: np.ndarray
+    cameras: Cameras
+    keypoints: np.ndarray
+    confidence: np.ndarray
+    target3d: np.ndarray | None
+
+    @property
+    def seen(self) -> np.ndarray:
+        """bool[F]: some camera sees the person (detects a joint of it)."""
+        return (self.confidence > 0).any((1, 2))
+
+
+def recording_inputs(dataset: MultiViewDataset) -> Iterator[RecordingInput]:
+    """The recordings of a data set (labels "recording" and "frame", e.g. `load_every_instant`'s
+    validation part), each undistorted and on its whole frame axis, in the order they appear."""
+    dataset = dataset.undistorted()
+    names = dataset.labels["recording"]
+    _, first = np.unique(names, return_index=True)
+    for name in names[np.sort(first)]:
+        rows = np.flatnonzero(names == name)
+        rows = rows[np.argsort(dataset.labels["frame"][rows], kind="stable")]
+        rigs = np.unique(dataset.rig_index[rows])
+        if len(rigs) != 1:
+            raise ValueError(f"recording {name}: its instants have {len(rigs)} rigs; expected one")
+        frame = dataset.labels["frame"][rows].astype(np.int64)
+        index = frame - frame[0]
+        F = int(index[-1]) + 1
+        keypoints = np.zeros((F, *dataset.keypoints2d.shape[1:]), np.float32)
+        confidence = np.zeros((F, *dataset.confidence.shape[1:]), np.float32)
+        keypoints[index], confidence[index] = dataset.keypoints2d[rows], dataset.confidence[rows]
+        target = None
+        if dataset.target3d is not None:
+            target = np.full((F, *dataset.target3d.shape[1:]), np.nan, np.float32)
+            target[index] = dataset.target3d[rows]
+        cameras = dataset.rigs[int(rigs[0])]
+        yield RecordingInput(str(name), frame[0] + np.arange(F), cameras, keypoints, confidence, target)
+
+
+def lift_views(lifter: Lifter3D, inputs: RecordingInput) -> np.ndarray:
+    """f32[F, C, J, 3]: each camera's detections lifted (mm, root-relative, that camera's axes; NaN where
+    the view's root is not detected), camera by camera as a sequence, so a temporal lifter reads its
+    windows of frames."""
+    names = tuple(lifter.joint_names)
+    F, C, J, _ = inputs.keypoints.shape
+    if J != lifter.num_joints:
+        raise ValueError(f"recording {inputs.name}: {J} joints per view, but the lifter of {lifter.source} lifts {names}")
+    lifted = np.full((F, C, J, 3), np.nan, np.float32)
+    for view in range(C):
+        if (inputs.confidence[:, view, 0] > 0).any():
+            K = np.asarray(inputs.cameras.K[view], np.float32)
+            lifted[:, view] = lifter.predict(inputs.keypoints[:, view], intrinsics=K, confidence=inputs.confidence[:, view])
+    return lifted
+
+
+@dataclasses.dataclass(frozen=True)
+class RecordingMotion:
+    """One recording's 3D motion on its frame axis (F frames, J joints), world frame of the rig, mm.
+
+    points:      f32[F, J, 3]; gaps of at most max_gap frames interpolated, NaN where still missing.
+    provenance:  i8[F, J] `Provenance` (INTERPOLATED where the gap filling filled the cell).
+    uncertainty: f32[F, J] mm, the fusion's posterior RMS error; NaN where not fused (interpolated or missing).
+    views:       i8[F, J] detections that agree with the joint.
+    segments:    i64[S, 2] (start, stop) frame indices, half-open, of the complete runs: one output file each.
+    fusion:      the fusion before gap filling (with each view's placement).
+    """
+
+    name: str
+    frames: np.ndarray
+    points: np.ndarray
+    provenance: np.ndarray
+    uncertainty: np.ndarray
+    views: np.ndarray
+    segments: np.ndarray
+    seen: np.ndarray
+    fusion: Fusion
+
+    @property
+    def interpolated_frames(self) -> int:
+        return int((self.provenance == Provenance.INTERPOLATED).any(-1).sum())
+
+    @property
+    def dropped_frames(self) -> int:
+        """Frames in no segment (some joint missing there even after the gap filling)."""
+        return len(self.frames) - int(np.sum(self.segments[:, 1] - self.segments[:, 0]))
+
+    @property
+    def unseen_frames(self) -> int:
+        """Frames at which no camera detects the person."""
+        return int((~self.seen).sum())
+
+
+def reconstruct(
+    inputs: RecordingInput, lifted: np.ndarray | None, config: FusionConfig = FusionConfig(), max_gap: int = DEFAULT_MAX_GAP
+) -> RecordingMotion:
+    """The recording's motion: `fuse` at every frame some camera sees the person, then `fill_gaps`.
+    `lifted`: `lift_views`' output, or None to fuse the detections alone."""
+    seen = inputs.seen
+    F, C, J, _ = inputs.keypoints.shape
+    rows = np.flatnonzero(seen)
+    fused = fuse(
+        inputs.cameras, inputs.keypoints[rows], inputs.confidence[rows], None if lifted is None else lifted[rows], config
+    )
+    # On the whole frame axis: a frame no camera sees has nothing (NONE, NaN).
+    shapes = {"points": (J, 3), "provenance": (J,), "uncertainty": (J,), "views": (J,), "placement": (C, 4)}
+    whole = {}
+    for name, shape in shapes.items():
+        values = getattr(fused, name)
+        full = np.zeros((F, *shape), values.dtype) if values.dtype.kind == "i" else np.full((F, *shape), np.nan, values.dtype)
+        full[rows] = values
+        whole[name] = full
+    fusion = Fusion(**whole)
+    filling = fill_gaps(fusion.points, max_gap)
+    provenance = np.where(filling.filled, np.int8(Provenance.INTERPOLATED), fusion.provenance).astype(np.int8)
+    return RecordingMotion(
+        inputs.name, inputs.frames, filling.values, provenance, fusion.uncertainty, fusion.views, filling.segments, seen, fusion
+    )
