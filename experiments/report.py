@@ -69,7 +69,7 @@ def evaluate_and_report(
     history = read_jsonl(run_dir / "metrics.jsonl")
     last_train = next((r for r in reversed(history) if "loss" in r), {})
     shares = {k.removeprefix(GRADIENT_SHARE_PREFIX): v for k, v in last_train.items() if k.startswith(GRADIENT_SHARE_PREFIX)}
-    budget = training_budget(len(splits.train), config.train)
+    budget = training_budget(splits.train_count, config.train)
     report = {
         "method": method_name,
         "results": rows,

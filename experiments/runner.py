@@ -38,6 +38,8 @@ from jaxpose.logs import show_logs
 
 log = logging.getLogger("jaxpose")
 
+VALIDATION_ROWS = 65536  # training samples checked at a time (`validate_batch`), so the check's memory is bounded
+
 
 def run(
     config: ExperimentConfig,
@@ -68,22 +70,27 @@ def _run_holding_the_directory(
     # --run.overwrite start does not delete the previous run before the data are known to load).
     splits = load_data(config.data)
     log.info("data: %d train / %d test samples, %d views, %d joints", len(splits.train), len(splits.test), splits.train.num_views, splits.train.skeleton.num_joints)
+    # The samples trained on are rows of the whole training set, which stays as loaded (a rig
+    # project's is memory-mapped: a copy of its usable rows could exceed the memory).
     usable = splits.train.usable_view_count() >= config.pseudo_labels.min_views
+    samples = None
     if not usable.all():
-        log.warning("dropping %d training samples with fewer than %d usable views", int((~usable).sum()), config.pseudo_labels.min_views)
-    train_set = splits.train.subset(np.flatnonzero(usable))
-    training_budget(len(train_set), config.train)  # a batch larger than the data stops here, before the run directory is written
-    train_set = pseudo_labelling.label(train_set, config.pseudo_labels)
+        log.warning("leaving out %d training samples with fewer than %d usable views", int((~usable).sum()), config.pseudo_labels.min_views)
+        samples = np.flatnonzero(usable)
+    training_budget(len(usable) if samples is None else len(samples), config.train)  # a batch larger than the data stops here, before the run directory is written
+    train_set = pseudo_labelling.label(splits.train, config.pseudo_labels, progress=config.run.progress)
     if replace_labels is not None:
         train_set = replace_labels(train_set)
-    validate_batch(train_set.batch(np.arange(len(train_set)), config.model.temporal_window))
-    splits = dataclasses.replace(splits, train=train_set)
+    trained = np.arange(len(train_set)) if samples is None else samples
+    for start in range(0, len(trained), VALIDATION_ROWS):
+        validate_batch(train_set.batch(trained[start : start + VALIDATION_ROWS], config.model.temporal_window))
+    splits = dataclasses.replace(splits, train=train_set, train_samples=samples)
     run_dir = prepare_run_dir(config)
     if jax.process_index() == 0:
         for name, write in splits.artifacts.items():
             write(run_dir / name)
     try:
-        state, model = train(config, train_set, run_dir, splits.test)
+        state, model = train(config, train_set, run_dir, splits.test, samples)
     except Interrupted as stop:
         log.warning("%s", stop)
         raise SystemExit(130) from None

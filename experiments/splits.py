@@ -31,6 +31,14 @@ class Splits:
     artifacts: Mapping[str, Callable[[pathlib.Path], None]] = dataclasses.field(default_factory=dict)
     """Files the loader made for the run directory: file name -> a function writing it to a path
     (e.g. the rig `jaxpose.calibrate` recovered)."""
+    train_samples: np.ndarray | None = None
+    """The rows of `train` trained on (None: all of them).  The runner leaves out the samples with too
+    few usable views this way, so a memory-mapped training set is never copied."""
+
+    @property
+    def train_count(self) -> int:
+        """Training samples trained on."""
+        return len(self.train) if self.train_samples is None else len(self.train_samples)
 
     def view_names(self) -> tuple[str, ...]:
         return self.camera_names or tuple(f"view {c}" for c in range(self.test.num_views))

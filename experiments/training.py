@@ -91,19 +91,20 @@ def training_budget(num_samples: int, train: TrainConfig) -> Budget:
 
 
 def budget_batches(
-    dataset: MultiViewDataset, budget: Budget, seed: int, mesh: Mesh, start_step: int, window: int
+    dataset: MultiViewDataset, budget: Budget, seed: int, mesh: Mesh, start_step: int, window: int, samples: np.ndarray | None = None
 ) -> Iterator[tuple[int, MultiViewBatch]]:
     """Endless (step, global batch) stream of `budget` from `start_step` on: `parallel.process_batches`
     itself where the budget is not capped; else each epoch's first `budget.steps_per_epoch` batches of
-    that stream, so a step's batch still depends only on (seed, step) and a resume replays it."""
+    that stream, so a step's batch still depends only on (seed, step) and a resume replays it.
+    `samples`: the rows of `dataset` trained on (`parallel.process_batches`)."""
     if not budget.capped:
-        yield from parallel.process_batches(dataset, budget.batch_size, seed, mesh, start_step, window)
+        yield from parallel.process_batches(dataset, budget.batch_size, seed, mesh, start_step, window, samples)
         return
     step = start_step
     while True:
         epoch, offset = divmod(step, budget.steps_per_epoch)
         full_step = epoch * budget.full_steps_per_epoch + offset
-        for _, batch in parallel.process_batches(dataset, budget.batch_size, seed, mesh, full_step, window):
+        for _, batch in parallel.process_batches(dataset, budget.batch_size, seed, mesh, full_step, window, samples):
             yield step, batch
             step += 1
             if step % budget.steps_per_epoch == 0:
@@ -164,16 +165,22 @@ def periodic_evaluation(config: ExperimentConfig, test: MultiViewDataset, model)
 
 
 def train(
-    config: ExperimentConfig, train_set: MultiViewDataset, run_dir: pathlib.Path, test_set: MultiViewDataset | None = None
+    config: ExperimentConfig,
+    train_set: MultiViewDataset,
+    run_dir: pathlib.Path,
+    test_set: MultiViewDataset | None = None,
+    samples: np.ndarray | None = None,
 ) -> tuple[TrainState, Any]:
-    """Train (or resume) on `train_set`, which must carry pseudo-labels.  Returns (state, model).
+    """Train (or resume) on `train_set`, which must carry pseudo-labels, or on its rows `samples`
+    (drawn without copying a memory-mapped data set).  Returns (state, model).
     With `train.eval_every`, a subset of `test_set` is evaluated every so many steps (monitoring only).
 
     Data parallel over `config.parallel.data` devices of all processes (`jaxpose.parallel`); the
     returned state is this process's copy, on one local device.
     """
     cfg = config.train
-    budget = training_budget(len(train_set), cfg)
+    count = len(train_set) if samples is None else len(samples)
+    budget = training_budget(count, cfg)
     per_epoch, total_steps = budget.steps_per_epoch, budget.total_steps
     stop_step = min(total_steps, cfg.max_steps) if cfg.max_steps > 0 else total_steps
     model = config.model.build(train_set.skeleton.num_joints)
@@ -201,14 +208,14 @@ def train(
     log.info(
         "training: %d samples x %d views, batch %d over %d devices (%d processes), %d steps/epoch,"
         " %d epochs (%d steps), from step %d",
-        len(train_set), views, cfg.batch_size, mesh.size, jax.process_count(), per_epoch, cfg.epochs, total_steps, start,
+        count, views, cfg.batch_size, mesh.size, jax.process_count(), per_epoch, cfg.epochs, total_steps, start,
     )
     if budget.capped:
         log.info("training %s", budget.note())
     bar = tqdm(total=stop_step, initial=start, desc="train", unit="step", disable=not config.run.progress or jax.process_index() != 0)
     last_time, last_step = time.perf_counter(), start
     with _SignalFlag() as interrupt:
-        batches = budget_batches(train_set, budget, cfg.seed, mesh, start, config.model.temporal_window)
+        batches = budget_batches(train_set, budget, cfg.seed, mesh, start, config.model.temporal_window, samples)
         for step, batch in batches:
             if step >= stop_step:
                 break

@@ -209,13 +209,18 @@ def evaluate_poses(
     return summary
 
 
-def mean_pose_prediction(train: MultiViewDataset) -> np.ndarray:
+def mean_pose_prediction(train: MultiViewDataset, chunk_size: int = 65536) -> np.ndarray:
     """The mean-pose baseline: the average training pseudo-label in camera frames [J, 3], over the
-    samples whose root has one (without it the label is meaningless)."""
+    samples whose root has one (without it the label is meaningless).  Summed `chunk_size` samples at
+    a time: a large (memory-mapped) training set is never held in every view at once."""
     if train.pseudo3d is None:
         raise ValueError("mean_pose_prediction needs the training pseudo-labels")
-    labelled = train.subset(np.flatnonzero(train.pseudo3d_weight[:, ROOT] > 0))
-    return poses_in_views(labelled, labelled.pseudo3d).mean((0, 1))
+    labelled = np.flatnonzero(train.pseudo3d_weight[:, ROOT] > 0)
+    total = np.zeros((train.skeleton.num_joints, 3))
+    for start in range(0, len(labelled), chunk_size):
+        part = train.subset(labelled[start : start + chunk_size])
+        total += poses_in_views(part, part.pseudo3d).sum((0, 1), dtype=np.float64)
+    return (total / (len(labelled) * train.num_views)).astype(np.float32)
 
 
 def per_joint_table(rows: Mapping[str, Mapping], metric: str, joint_names: tuple[str, ...], title: str | None = None) -> str:

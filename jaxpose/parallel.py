@@ -125,17 +125,27 @@ def global_batch(local: MultiViewBatch, mesh: Mesh, batch_size: int) -> MultiVie
 
 
 def process_batches(
-    dataset: MultiViewDataset, batch_size: int, seed: int, mesh: Mesh, start_step: int = 0, window: int = 1
+    dataset: MultiViewDataset,
+    batch_size: int,
+    seed: int,
+    mesh: Mesh,
+    start_step: int = 0,
+    window: int = 1,
+    samples: np.ndarray | None = None,
 ) -> Iterator[tuple[int, MultiViewBatch]]:
     """Endless (step, global batch) stream from `start_step` on, gathering only this process's samples
     (with the lifter's input windows of `window` frames where it is > 1).
 
     The global batches are those of `jaxpose.data.dataset.training_indices` (the same epoch order
     of (seed, epoch) on every process), so a run's data do not depend on its device count.
+    `samples`: the rows of `dataset` trained on (default: all), drawn without copying the data set,
+    which may be memory-mapped.
     """
     rows = local_rows(mesh, batch_size)
-    for step, indices in training_indices(len(dataset), batch_size, seed, start_step):
-        yield step, global_batch(dataset.batch(indices[rows], window), mesh, batch_size)
+    count = len(dataset) if samples is None else len(samples)
+    for step, indices in training_indices(count, batch_size, seed, start_step):
+        picked = indices[rows] if samples is None else samples[indices[rows]]
+        yield step, global_batch(dataset.batch(picked, window), mesh, batch_size)
 
 
 def local_replica(tree: Tree) -> Tree:

@@ -77,6 +77,22 @@ def test_the_capped_stream_is_each_epochs_first_batches_and_resumes_anywhere(lab
         np.testing.assert_array_equal(np.asarray(batch.keypoints2d), labelled.batch(full[epoch * 12 + position]).keypoints2d)
 
 
+def test_training_on_some_rows_draws_the_batches_of_their_copy(labelled):
+    # The runner leaves out samples with too few usable views as `samples` rows instead of a copy
+    # (a memory-mapped training set stays on disk): the batches must be those of the copy.
+    samples = np.flatnonzero(np.arange(len(labelled)) % 7 != 3)
+    copy = labelled.subset(samples)
+    budget = training_budget(len(samples), TrainConfig(batch_size=32, epochs=2, max_samples=32 * 2 * 4))
+    mesh = parallel.data_mesh(1)
+    from_rows = budget_batches(labelled, budget, 0, mesh, 2, 1, samples)
+    from_copy = budget_batches(copy, budget, 0, mesh, 2, 1)
+    for _ in range(budget.total_steps - 2):
+        (step, batch), (copy_step, copy_batch) = next(from_rows), next(from_copy)
+        assert step == copy_step
+        for field in ("keypoints2d", "confidence", "pseudo3d", "pseudo3d_weight"):
+            np.testing.assert_array_equal(np.asarray(getattr(batch, field)), np.asarray(getattr(copy_batch, field)))
+
+
 def _metrics(run_dir) -> list[dict]:
     records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
     return [{k: v for k, v in r.items() if k != "samples_per_s"} for r in records]
