@@ -30,7 +30,7 @@ from tqdm.auto import tqdm
 
 from jaxpose import robust
 from jaxpose.camera import projection_matrices
-from jaxpose.chunks import chunk_rows, map_in_chunks
+from jaxpose.chunks import chunk_rows, map_over_parts
 from jaxpose.config import PseudoLabelConfig
 from jaxpose.data.dataset import MultiViewDataset
 
@@ -91,16 +91,25 @@ def label(
         P = projection_matrices(dataset.cameras_for(rows))
         points, weight, views = jax.device_get(_solve(P, jnp.asarray(keypoints2d), jnp.asarray(confidence), config=config))
         bar.update(min(len(rows), len(dataset) - bar.n))
-        # As stored, chunk by chunk: no second copy of the whole data set's labels.
         weight = weight.astype(np.float32) * weight[:, :1]
-        return points, weight, None if views is None else views.astype(np.float32)
+        return {"pseudo3d": points, "pseudo3d_weight": weight, "detection_weight": None if views is None else views.astype(np.float32)}
 
+    # One chunk per part, each written into the labels as it comes: only a chunk of them is ever in
+    # memory where they go to the cache (memory-mapped files), a large data set's labels never twice.
+    starts = range(0, len(dataset), size)
+    parts = ((np.arange(start, min(start + size, len(dataset))), dataset.keypoints2d[start : start + size], dataset.confidence[start : start + size]) for start in starts)
+    temporary = None if cache is None else _temporary_folder(cache)
+    labels: dict[str, np.ndarray | None] = {}
     with bar:
-        pseudo3d, weight, agreeing = map_in_chunks(solve_rows, (np.arange(len(dataset)), dataset.keypoints2d, dataset.confidence), size)
-    labels = {"pseudo3d": pseudo3d, "pseudo3d_weight": weight, "detection_weight": agreeing}
+        for start, chunk in zip(starts, map_over_parts(solve_rows, parts, size)):
+            if not labels:
+                labels = {name: None if rows is None else _allocate(temporary, name, (len(dataset), *rows.shape[1:])) for name, rows in chunk.items()}
+            for name, rows in chunk.items():
+                if rows is not None:
+                    labels[name][start : start + len(rows)] = rows
     log.info("pseudo-labels (%s) of %s instants in %.1f s", config.method, f"{len(dataset):,}", time.perf_counter() - started)
-    if cache is not None:
-        labels = _write(cache, labels)
+    if temporary is not None:
+        labels = _commit(temporary, cache, labels)
     return dataclasses.replace(dataset, **labels)
 
 
@@ -123,20 +132,35 @@ def _cache_folder(dataset: MultiViewDataset, config: PseudoLabelConfig) -> Path 
     return source.parent / "pseudo_labels" / f"{source.name.split('.')[0]}-{key.hexdigest()}"
 
 
-def _write(folder: Path, labels: dict[str, np.ndarray | None]) -> dict[str, np.ndarray | None]:
-    """The labels written to `folder` (whole or not at all) and memory-mapped from it; as they are,
-    with a warning, where it cannot be written."""
+def _temporary_folder(folder: Path) -> Path | None:
+    """Where the labels are written before they become `folder` (None, with a warning, if it cannot be made)."""
     temporary = folder.with_name(f"{folder.name}.tmp-{os.getpid()}")
     try:
         temporary.mkdir(parents=True, exist_ok=True)
-        for name, array in labels.items():
-            if array is not None:
-                np.save(temporary / f"{name}.npy", array)
-        os.rename(temporary, folder)
     except OSError as error:
+        log.warning("the pseudo-labels are not cached (%s cannot be written: %s)", folder, error)
+        return None
+    return temporary
+
+
+def _allocate(temporary: Path | None, name: str, shape: tuple[int, ...]) -> np.ndarray:
+    """The float32 array of one label: a memory-mapped .npy file in `temporary`, or in memory."""
+    if temporary is None:
+        return np.empty(shape, np.float32)
+    return np.lib.format.open_memmap(temporary / f"{name}.npy", mode="w+", dtype=np.float32, shape=shape)
+
+
+def _commit(temporary: Path, folder: Path, labels: dict[str, np.ndarray | None]) -> dict[str, np.ndarray | None]:
+    """The labels written in `temporary` made `folder` (whole or not at all) and memory-mapped read-only
+    from it; another process that finished first leaves its own."""
+    for array in labels.values():
+        if array is not None:
+            array.flush()
+    try:
+        os.rename(temporary, folder)
+        log.info("pseudo-labels written to %s", folder)
+    except OSError:
         shutil.rmtree(temporary, ignore_errors=True)
         if not folder.is_dir():
-            log.warning("the pseudo-labels are not cached (%s cannot be written: %s)", folder, error)
-            return labels
-    log.info("pseudo-labels written to %s", folder)
+            raise
     return {name: None if array is None else np.load(folder / f"{name}.npy", mmap_mode="r") for name, array in labels.items()}
