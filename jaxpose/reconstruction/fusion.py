@@ -84,28 +84,26 @@ class Provenance(enum.IntEnum):
 
 @dataclasses.dataclass(frozen=True)
 class FusionConfig:
-    """The model's standard deviations and the robust loss (module docstring).
-
-    pixel_sigma:        a detection's error per image coordinate (px) at confidence 1.
-    lift_lateral_mm:    the lifter's error per coordinate across its camera's optical axis (mm).
-    lift_depth_mm:      its error along the optical axis (mm).
-    scale_sigma:        the spread of the lifter's body size, relative (0.05 = 5%).
-    robust_scale_px:    the Cauchy scale of the reprojection errors (px).
-    lift_robust_sigmas: the Cauchy scale of the lifted joints' residuals (standard deviations).
-    lift_agree_sigmas:  a lifted joint agrees with the estimate within this Mahalanobis residual.
-    agree_px:           a view agrees with a joint within this reprojection error (px).
-    iterations:         re-weighted solves after the first (the last keeps only agreeing views).
-    """
+    """The model's standard deviations and the robust loss (module docstring)."""
 
     pixel_sigma: float = 4.0
+    """A detection's error per image coordinate (px) at confidence 1."""
     lift_lateral_mm: float = 20.0
+    """The lifter's error per coordinate across its camera's optical axis (mm)."""
     lift_depth_mm: float = 50.0
+    """The lifter's error along its camera's optical axis (mm)."""
     scale_sigma: float = 0.05
+    """The spread of the lifter's body size, relative (0.05 = 5%)."""
     robust_scale_px: float = DEFAULT_IRLS_SCALE_PX
+    """The Cauchy scale of the reprojection errors (px)."""
     lift_robust_sigmas: float = 3.0
+    """The Cauchy scale of the lifted joints' residuals (standard deviations)."""
     lift_agree_sigmas: float = 5.0
+    """A lifted joint agrees with the estimate within this Mahalanobis residual (standard deviations)."""
     agree_px: float = DEFAULT_THRESHOLD_PX
+    """A view agrees with a joint within this reprojection error (px)."""
     iterations: int = 5
+    """Re-weighted solves after the first (the last keeps only the agreeing evidence)."""
 
     def __post_init__(self):
         for field in dataclasses.fields(self):

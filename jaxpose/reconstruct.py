@@ -1,0 +1,198 @@
+"""3D motion of a rig project's recordings, in the files biomechanics uses: the triangulation and the
+trained lifter fused, no gap where a camera sees the person.
+
+    python -m jaxpose.reconstruct --checkpoint RUN --data.root PROJECT --output DIR --fps 50
+
+RUN is a run of `experiments.rig` on the project (its lifter lifts every camera's view); PROJECT any
+project `experiments.rig` reads, with the same --data.* flags (the split flags aside: every instant of
+every recording is reconstructed).  The world frame is the calibration's; a project without one is
+taken in the rig recovered in RUN (RUN/recovered_cameras.json), never recovered again.
+
+Per recording and instant: each camera's detection and lifted pose, fused in one robust weighted least
+squares (`jaxpose.reconstruction.fusion`); each joint gets its provenance (triangulated: two or more
+views agree; fused: one view, the lifts give the depth; lifted: no view, the lifts alone) and an
+uncertainty.  Instants no camera sees are interpolated up to --max-gap frames; a longer gap splits the
+recording into segments (`jaxpose.reconstruction.gaps`).  Files per recording in DIR
+(`jaxpose.reconstruction.motion_files`): <recording>.trc (OpenSim, Pose2Sim's layout, metres, Y up; a
+later segment <recording>.seg<S>.trc), <recording>.csv and <recording>.npz (calibration's world, mm, with
+provenance, uncertainty and views per joint), and report.md / report.json, what was done per recording.
+docs/reconstruction.md: the workflow, the measured accuracy, when to trust a lifted-only joint.
+
+No file is written over without --overwrite, all checked before any work; each is written to a
+temporary name renamed into place (`jaxpose.formats.outputs`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+import sys
+from collections.abc import Sequence
+from typing import Annotated, Literal
+
+import numpy as np
+import tyro
+from tqdm.auto import tqdm
+
+from jaxpose import inference
+from jaxpose.checkpoint import CheckpointError
+from jaxpose.compilation_cache import enable_compilation_cache
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats.outputs import OutputError, atomic_output, check_output
+from jaxpose.logs import show_logs
+from jaxpose.reconstruction import motion_files, recording
+from jaxpose.reconstruction.fusion import FusionConfig, Provenance
+from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP
+from jaxpose.rig.project import RigProjectConfig
+from jaxpose.rig.recordings import recording_folders
+
+REPORT_FILES = ("report.md", "report.json")
+
+
+@dataclasses.dataclass(frozen=True)
+class ReconstructArgs:
+    """The command's flags."""
+
+    checkpoint: Annotated[pathlib.Path, tyro.conf.arg(metavar="RUN")]
+    """Run directory of `experiments.rig` on the project (or its checkpoints/); its lifter lifts every view."""
+    output: Annotated[pathlib.Path, tyro.conf.arg(metavar="DIR")]
+    """Folder for the files of every recording and report.md / report.json (created if absent)."""
+    fps: float
+    """Frames per second of the recordings (rig projects store none): the files' Time = frame / fps."""
+    data: RigProjectConfig = RigProjectConfig()
+    """The rig project, as `experiments.rig` reads it (the split flags --data.validation-* and the strides
+    do not apply: every instant of every recording is reconstructed)."""
+    max_gap: int = DEFAULT_MAX_GAP
+    """Up to this many frames in a row where a joint is missing (no camera sees the person) are filled by
+    linear interpolation (Pose2Sim's default, 10); a longer gap splits the recording into segments."""
+    up_axis: Literal[motion_files.UP_AXES] = "auto"  # type: ignore[valid-type]
+    """The calibration's up axis (Human3.6M: +z); the .trc turns it to OpenSim's Y.  auto: the world axis
+    the cameras' image up points along on average (refused if none is within 30 degrees); printed and
+    stated in every .trc's first line."""
+    fusion: FusionConfig = FusionConfig()
+    """The fusion's model: its standard deviations and robust loss (`jaxpose.reconstruction.fusion`)."""
+    overwrite: bool = False
+    """Replace existing files of these recordings and the report in --output; without it the command stops
+    before any work."""
+    progress: bool = True
+    """A progress bar over the recordings."""
+
+
+def run(args: ReconstructArgs) -> dict:
+    """The whole command; returns the report (as report.json holds it)."""
+    if not args.fps > 0:
+        raise ValueError(f"--fps must be positive, got {args.fps}")
+    if args.max_gap < 0:
+        raise ValueError(f"--max-gap must be >= 0 frames, got {args.max_gap}")
+    names = [folder.name for folder in recording_folders(args.data.root, args.data.recordings)]
+    earlier = check_outputs(args, names)
+    lifter = inference.load(args.checkpoint)
+    project = recording.load_every_instant(args.data, args.checkpoint, progress=args.progress)
+    dataset = project.validation
+    if tuple(dataset.skeleton.joint_names) != tuple(lifter.joint_names):
+        raise ValueError(
+            f"the lifter of {lifter.source} lifts the joints {lifter.joint_names}, the project {args.data.root} has"
+            f" {dataset.skeleton.joint_names}: reconstruct with a run trained on this project's layout"
+        )
+    up_axis = args.up_axis
+    if up_axis == "auto":
+        up_axis = motion_files.camera_up_axis(dataset.rigs)
+        print(f"up axis {up_axis}, from the cameras (--up-axis to name it)", file=sys.stderr)
+    rows, files = [], []
+    bar = tqdm(recording.recording_inputs(dataset), total=len(project.recordings), desc="recordings", unit="recording",
+               disable=not args.progress)  # fmt: skip
+    for inputs in bar:
+        bar.set_postfix_str(inputs.name)
+        motion = recording.reconstruct(inputs, recording.lift_views(lifter, inputs), args.fusion, args.max_gap)
+        written = motion_files.write_motion(args.output, motion, lifter.joint_names, args.fps, up_axis)
+        files += [str(path) for path in written]
+        rows.append(recording_summary(motion) | {"files": [path.name for path in written]})
+    for path in set(earlier) - {pathlib.Path(file) for file in files}:  # an earlier run's segment this one has not
+        path.unlink()
+    report = {
+        "checkpoint": str(args.checkpoint),
+        "project": str(args.data.root),
+        "calibration": project.recordings[0].calibration if project.recordings else "",
+        "fps": args.fps,
+        "max_gap": args.max_gap,
+        "up_axis": up_axis,
+        "trc_axes": motion_files.rotation_note(motion_files.opensim_rotation(up_axis), up_axis),
+        "joint_names": list(lifter.joint_names),
+        "fusion": dataclasses.asdict(args.fusion),
+        "recordings": rows,
+    }
+    markdown = report_markdown(report)
+    with atomic_output(args.output / "report.json") as temporary:
+        temporary.write_text(json.dumps(report, indent=2))
+    with atomic_output(args.output / "report.md") as temporary:
+        temporary.write_text(markdown)
+    print(markdown, file=sys.stderr)
+    return report
+
+
+def check_outputs(args: ReconstructArgs, names: Sequence[str]) -> list[pathlib.Path]:
+    """Refuse, before any work, to write over an earlier run's files without --overwrite; returns them
+    (with --overwrite, those this run does not write again are removed after it)."""
+    for name in REPORT_FILES:
+        check_output(args.output / name, args.overwrite, flag="--output")
+    earlier = [path for name in names for path in motion_files.existing_outputs(args.output, name)]
+    if earlier and not args.overwrite:
+        listed = ", ".join(path.name for path in earlier[:4]) + (f" and {len(earlier) - 4} more" if len(earlier) > 4 else "")
+        raise OutputError(f"--output {args.output}: holds {listed} of these recordings; pass --overwrite to replace them")
+    return earlier
+
+
+def recording_summary(motion: recording.RecordingMotion) -> dict:
+    """One recording's counts for the report."""
+    cells = np.bincount(motion.provenance.ravel(), minlength=len(Provenance))
+    return {
+        "recording": motion.name,
+        "frames": len(motion.frames),
+        "first_frame": int(motion.frames[0]),
+        "instants_seen": int(motion.seen.sum()),
+        "joints_by_provenance": {name: int(count) for name, count in zip(motion_files.PROVENANCE_NAMES, cells)},
+        "interpolated_frames": motion.interpolated_frames,
+        "segments": len(motion.segments),
+        "dropped_frames": motion.dropped_frames,
+    }
+
+
+def report_markdown(report: dict) -> str:
+    """report.md: the settings and a table of the recordings."""
+    names = ("triangulated", "fused", "lifted", "interpolated", "none")
+    lines = [
+        "# Reconstruction",
+        "",
+        f"Lifter {report['checkpoint']}; project {report['project']} in the world of {report['calibration']};"
+        f" {report['fps']:g} fps; gaps up to {report['max_gap']} frames interpolated; .trc axes {report['trc_axes']}.",
+        "",
+        "Joints (cells of frame x joint) by provenance: triangulated (2+ views agree), fused (1 view, the lifts"
+        " give the depth), lifted (no view: the lifts alone), interpolated (a gap up to --max-gap), none (missing:"
+        " outside every segment).",
+        "",
+        "| recording | frames | instants seen | " + " | ".join(names) + " | interpolated frames | segments | dropped frames |",
+        "|---" * (6 + len(names)) + "|",
+    ]
+    for row in report["recordings"]:
+        counts = " | ".join(str(row["joints_by_provenance"][name]) for name in names)
+        lines.append(
+            f"| {row['recording']} | {row['frames']} | {row['instants_seen']} | {counts} | {row['interpolated_frames']}"
+            f" | {row['segments']} | {row['dropped_frames']} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: Sequence[str] | None = None) -> dict:
+    """Entry point; data, checkpoint and output errors end the process with a one-line message."""
+    args = tyro.cli(ReconstructArgs, args=argv, description=__doc__, prog="python -m jaxpose.reconstruct")
+    show_logs()
+    enable_compilation_cache()  # the lifter's programs from disk on the next run
+    try:
+        return run(args)
+    except (ValueError, FileNotFoundError, CheckpointError, DataFormatError) as error:
+        raise SystemExit(f"jaxpose.reconstruct: error: {error}") from None
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,149 @@
+"""`python -m jaxpose.reconstruct` on the embedded example project (which has ground truth), with a tiny
+lifter trained on it: gap-free motion where a camera sees the person, long gaps split into segments,
+files that read back as they were written, no overwriting, and the recovered rig read from the run."""
+
+import dataclasses
+import shutil
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from experiments import rig as rig_job
+from jaxpose import reconstruct
+from jaxpose.formats.camera_file import save_cameras
+from jaxpose.formats.rig_calibration import read_rig_calibration
+from jaxpose.formats.trc import read_trc
+from jaxpose.reconstruction.fusion import Provenance
+from jaxpose.reconstruction.motion_files import UP_AXES, camera_up_axis, opensim_rotation
+from jaxpose.reconstruction.recording import RECOVERED_CAMERAS
+from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
+
+PROJECT = ExampleProjectConfig(recordings=2, frames_per_recording=160, desync_camera=-1)
+GAP = range(60, 90)  # frames no camera has in the first recording: longer than --max-gap
+FPS = 50.0
+
+
+@pytest.fixture(scope="module")
+def project(tmp_path_factory):
+    root = write_rig_project(tmp_path_factory.mktemp("reconstruct") / "project", PROJECT)
+    first = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith("."))[0]
+    for frame in GAP:
+        for path in first.glob(f"*_json/*_{frame:012d}_keypoints.json"):
+            path.unlink()
+    return root
+
+
+@pytest.fixture(scope="module")
+def run_dir(project, tmp_path_factory):
+    """A lifter of a few steps: enough to lift (the fusion judges a lift by the triangulated body)."""
+    run = tmp_path_factory.mktemp("reconstruct_run") / "run"
+    rig_job.main([
+        "--data.root", str(project), "--run.run-dir", str(run), "--model.width", "64", "--train.batch-size", "64",
+        "--train.epochs", "1", "--train.max-steps", "10", "--train.eval-every", "10", "--train.eval-samples", "20",
+        "--run.no-progress", "--run.plot-samples", "0", "--run.no-tensorboard",
+    ])  # fmt: skip
+    return run
+
+
+def _reconstruct(run_dir, root, output, *flags):
+    return reconstruct.main(["--checkpoint", str(run_dir), "--data.root", str(root), "--output", str(output),
+                             "--fps", str(FPS), "--no-progress", *flags])  # fmt: skip
+
+
+@pytest.mark.trains
+def test_every_seen_instant_is_reconstructed_and_the_files_agree(project, run_dir, tmp_path):
+    out = tmp_path / "out"
+    report = _reconstruct(run_dir, project, out)
+    assert report["up_axis"] == "+z"  # the simulated room's cameras stand upright in a Z-up world
+    rotation = opensim_rotation("+z")
+    first, second = report["recordings"]
+    assert (first["segments"], second["segments"]) == (2, 1)  # the gap of 30 frames splits the first
+    assert first["dropped_frames"] >= len(GAP)
+    for row in report["recordings"]:
+        saved = np.load(out / f"{row['recording']}.npz")
+        points, provenance, seen = saved["points_mm"], saved["provenance"], saved["seen"]
+        # No gap where a camera sees the person; nothing invented where none does, beyond --max-gap.
+        assert np.isfinite(points[seen]).all()
+        assert (provenance[~np.isfinite(points).any(-1)] == Provenance.NONE).all()
+        assert np.isnan(saved["uncertainty_mm"][provenance == Provenance.INTERPOLATED]).all()
+        # Near the ground truth (the detections alone triangulate to ~19 mm on this project).
+        truth = np.load(project / row["recording"] / "ground_truth.npz")
+        names = [str(name) for name in saved["joint_names"]]
+        common = [name for name in truth["joint_names"].tolist() if name in names]
+        at = np.searchsorted(saved["frame"], truth["frames"])
+        error = np.linalg.norm(points[at][:, [names.index(n) for n in common]] - truth["points3d"][:, [truth["joint_names"].tolist().index(n) for n in common]], axis=-1)
+        assert np.nanmean(error) < 40.0
+        # Each segment's .trc: Pose2Sim's layout, metres in OpenSim's axes, frames and times as the npz.
+        for index, (start, stop) in enumerate(saved["segment_frames"]):
+            name = row["recording"] + (f".seg{index}" if index else "") + ".trc"
+            assert name in row["files"]
+            trc = read_trc(out / name)
+            rows = np.flatnonzero(saved["segment"] == index)
+            assert trc.units == "m" and trc.rate == FPS and trc.marker_names == tuple(names)
+            assert "X=y Y=z Z=x of the calibration's world, +z up" in trc.path_line
+            np.testing.assert_array_equal(trc.frame_numbers, np.arange(start, stop))
+            np.testing.assert_allclose(trc.times, trc.frame_numbers / FPS, atol=1e-6)
+            np.testing.assert_allclose(trc.markers, points[rows] @ rotation.T / 1000.0, atol=1e-6)
+            assert np.isfinite(trc.markers).all()
+    assert "| triangulated | fused | lifted | interpolated | none |" in (out / "report.md").read_text()
+
+    # A second run refuses before any work and changes nothing; --overwrite replaces.
+    before = {path: path.read_bytes() for path in out.iterdir()}
+    with pytest.raises(SystemExit, match="--overwrite"):
+        _reconstruct(run_dir, project, out)
+    assert {path: path.read_bytes() for path in out.iterdir()} == before
+    _reconstruct(run_dir, project, out, "--overwrite", "--max-gap", "40")  # the gap is bridged now
+    assert not any(path.name.endswith(".seg1.trc") for path in out.iterdir())  # the earlier segment is gone
+
+
+@pytest.mark.trains
+def test_an_uncalibrated_project_is_taken_in_the_runs_recovered_rig(project, run_dir, tmp_path):
+    """Without a calibration, the rig recovered in the run (recovered_cameras.json) is read; without one
+    either, the command refuses rather than recover another world frame."""
+    root = tmp_path / "uncalibrated"
+    shutil.copytree(project, root, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    calibration = read_rig_calibration(root / "calibration.toml")
+    (root / "calibration.toml").unlink()
+    with pytest.raises(SystemExit, match=RECOVERED_CAMERAS):
+        _reconstruct(run_dir, root, tmp_path / "refused", "--up-axis", "+z")
+    recovered_run = tmp_path / "recovered_run"
+    shutil.copytree(run_dir, recovered_run)
+    # The "recovered" rig: the calibration's cameras turned and moved into another world frame.
+    turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    cameras = calibration.cameras
+    moved = dataclasses.replace(cameras, R=np.asarray(cameras.R) @ turn.T, t=np.asarray(cameras.t) + np.asarray(cameras.R) @ [0.0, 0.0, 100.0])
+    save_cameras(recovered_run / RECOVERED_CAMERAS, {"rig": (list(calibration.camera_names), moved)})
+    report = _reconstruct(recovered_run, root, tmp_path / "out", "--up-axis", "+z")
+    assert report["calibration"].endswith(RECOVERED_CAMERAS)
+    calibrated = _reconstruct(run_dir, project, tmp_path / "calibrated", "--up-axis", "+z")
+    for row in calibrated["recordings"]:
+        in_calibration = np.load(tmp_path / "calibrated" / f"{row['recording']}.npz")["points_mm"]
+        in_recovered = np.load(tmp_path / "out" / f"{row['recording']}.npz")["points_mm"]
+        # X_recovered = turn (X - (0, 0, 100)): the same motion in the recovered rig's world.
+        np.testing.assert_allclose(in_recovered, (in_calibration - [0.0, 0.0, 100.0]) @ turn.T, atol=0.5)
+
+
+def test_opensim_rotation_puts_every_up_axis_on_y():
+    for axis in UP_AXES[1:]:
+        rotation = opensim_rotation(axis)
+        up = np.zeros(3)
+        up["xyz".index(axis[1])] = 1.0 if axis[0] == "+" else -1.0
+        np.testing.assert_allclose(rotation @ up, [0.0, 1.0, 0.0])
+        np.testing.assert_allclose(rotation @ rotation.T, np.eye(3))
+        assert np.linalg.det(rotation) == pytest.approx(1.0)
+    # Pose2Sim's Z-up to Y-up: (X, Y, Z) = (y, z, x).
+    np.testing.assert_array_equal(opensim_rotation("+z") @ [1.0, 2.0, 3.0], [2.0, 3.0, 1.0])
+
+
+def test_the_up_axis_of_upright_cameras():
+    """A camera's image up (-y of its axes) in world axes is -R[1]: level or tilted 20 degrees, cameras of a
+    Y-up world say +y; cameras whose ups differ by 90 degrees say nothing, and the flag is asked for."""
+    tilt = np.radians(20.0)
+    level = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])  # looking along -Z, image y = -Y
+    tilted = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(tilt), -np.sin(tilt)], [0.0, np.sin(tilt), np.cos(tilt)]]) @ level
+    assert camera_up_axis(SimpleNamespace(R=np.stack([level, tilted]))) == "+y"
+    assert camera_up_axis(SimpleNamespace(R=(level @ opensim_rotation("+z"))[None])) == "+z"
+    rolled = level @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # its up along world X
+    with pytest.raises(ValueError, match="--up-axis"):
+        camera_up_axis(SimpleNamespace(R=np.stack([level, rolled])))
