@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import pathlib
 import sys
 from collections.abc import Callable, Mapping, Sequence
@@ -61,8 +62,11 @@ class Experiment:
     """Complete configurations by name: `--preset NAME` picks one."""
     preset_notes: Mapping[str, str]
     """One line per preset for `--help`."""
-    load_splits: Callable[[Any], Splits]
-    """The data config -> train and test splits."""
+    load_splits: Callable[..., Splits]
+    """The data config -> train and test splits; with `loads_with_run_settings`, also given the
+    keywords `progress` (--run.progress) and `window` (--model.temporal-window)."""
+    loads_with_run_settings: bool = False
+    """Whether loading prepares the data for the run: its progress bars and the lifter's input windows."""
     expected_files: Callable[[Any], str] | None = None
     """Real data: the files a data config reads, for the message when one is missing or malformed."""
     paper_table: paper_tables.PaperTable | None = None
@@ -77,11 +81,15 @@ class Experiment:
         """`ExperimentConfig[<this experiment's data config>]`, the type tyro parses."""
         return ExperimentConfig[type(next(iter(self.presets.values())).data)]
 
-    def loader(self) -> Callable[[Any], Splits]:
-        """`load_splits`; for real data, its data errors end the program with one message and exit status 1."""
+    def loader(self, config: ExperimentConfig | None = None) -> Callable[[Any], Splits]:
+        """`load_splits` for the run `config` (None: loading's own defaults); for real data, its data
+        errors end the program with one message and exit status 1."""
+        load_splits = self.load_splits
+        if self.loads_with_run_settings and config is not None:
+            load_splits = functools.partial(load_splits, progress=config.run.progress, window=config.model.temporal_window)
         if self.expected_files is None:
-            return self.load_splits
-        load_splits, expected_files = self.load_splits, self.expected_files
+            return load_splits
+        expected_files = self.expected_files
 
         def guarded_load(data) -> Splits:
             try:
@@ -151,7 +159,7 @@ def main(experiment: Experiment, argv: Sequence[str] | None, description: str) -
     """An entry point's whole command: parse, `experiments.runner.run`, then the paper-layout table
     (when the experiment has one) written into, and printed from, the run directory."""
     config = parse(experiment, argv, description)
-    report = run(config, experiment.loader())
+    report = run(config, experiment.loader(config))
     if experiment.paper_table is not None and jax.process_index() == 0:
         path = paper_tables.write(experiment.paper_table, report["results"], config.run.run_dir)
         print(path.read_text())

@@ -22,7 +22,6 @@ directory is used by `jaxpose.predict` and `jaxpose.export` like any other.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import logging
 import pathlib
 
@@ -140,6 +139,7 @@ EXPERIMENT = cli.Experiment(
     presets=PRESETS,
     preset_notes=PRESET_NOTES,
     load_splits=load_splits,
+    loads_with_run_settings=True,
     expected_files=lambda data: (
         f"This run reads the rig project {data.root}: see `python -m experiments.rig --help` and"
         " docs/rig.md for its layout."
@@ -148,10 +148,7 @@ EXPERIMENT = cli.Experiment(
 
 
 def main(argv: list[str] | None = None) -> dict:
-    # Parsed first for the two flags loading needs: the progress bars and the temporal window.
-    config = cli.parse(EXPERIMENT, argv, __doc__)
-    loading = functools.partial(load_splits, progress=config.run.progress, window=config.model.temporal_window)
-    return cli.main(dataclasses.replace(EXPERIMENT, load_splits=loading), argv, __doc__)
+    return cli.main(EXPERIMENT, argv, __doc__)
 
 
 if __name__ == "__main__":

@@ -365,3 +365,18 @@ def test_a_lost_marker_costs_its_instant_not_the_report(project):
     np.testing.assert_array_equal(valid[2:], valid_before[2:])  # and nothing else
     summary = evaluation.evaluate_poses(truth, truth, None, valid)["overall"]
     assert summary["mpjpe"] == 0.0 and summary["count"] == valid.sum()
+
+
+def test_the_rig_loader_is_given_the_runs_progress_bars_and_window():
+    # The rig loader prepares each sample's input window and shows progress: the run's settings
+    # reach it (every entry point that takes an Experiment's loader: cli.main, ablations, searches).
+    calls = []
+    experiment = dataclasses.replace(rig_job.EXPERIMENT, load_splits=lambda data, **settings: calls.append((data, settings)))
+    config = dataclasses.replace(
+        rig_job.CPU,
+        model=dataclasses.replace(rig_job.CPU.model, temporal_window=9),
+        run=dataclasses.replace(rig_job.CPU.run, progress=False),
+    )
+    experiment.loader(config)(config.data)
+    experiment.loader()(config.data)
+    assert calls == [(config.data, {"progress": False, "window": 9}), (config.data, {})]
