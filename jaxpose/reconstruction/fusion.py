@@ -88,9 +88,9 @@ class FusionConfig:
 
     pixel_sigma: float = 4.0
     """A detection's error per image coordinate (px) at confidence 1."""
-    lift_lateral_mm: float = 20.0
+    lift_lateral_mm: float = 40.0
     """The lifter's error per coordinate across its camera's optical axis (mm)."""
-    lift_depth_mm: float = 50.0
+    lift_depth_mm: float = 70.0
     """The lifter's error along its camera's optical axis (mm)."""
     scale_sigma: float = 0.05
     """The spread of the lifter's body size, relative (0.05 = 5%)."""
@@ -250,13 +250,25 @@ def _lift_weights(ev: _Evidence, points, placement, config: FusionConfig, agreei
 def _lift_trust(ev: _Evidence, points: np.ndarray, fixed: np.ndarray, config: FusionConfig) -> np.ndarray:
     """[n, C]: how much each view's lift counts, a factor on all its joints' weights.  A lift with at least
     `MIN_FITTED_JOINTS` joints that the detections alone fix (bool `fixed` [n, J], at `points` [n, J, 3])
-    is placed on them (T_c, s_c, with the scale prior) by least squares: its trust is the Cauchy weight
-    of the median Mahalanobis residual of those joints.  A lift that does not fit the triangulated body
-    (an untrained lifter's poses are a third of the body's size) then cannot pull the joints off the
-    rays, whose Cauchy weights would let go of them; one that fits counts fully, even where two views
-    agree on a wrong point (along their epipolar line).  Other lifts: 1 (the detections fix too little
-    to judge them, and the lift is the evidence there)."""
-    weight = (ev.lifted & fixed[:, None]).astype(np.float64)  # [n, C, J]
+    is placed on them (T_c, s_c, with the scale prior) by least squares, then again on the better half of
+    them (a joint two views put metres off, where they happen to agree, must not move the placement): its
+    trust is the Cauchy weight of the median Mahalanobis residual.  A lift that does not fit the
+    triangulated body (an untrained lifter's poses are a third of the body's size) then cannot pull the
+    joints off the rays, whose Cauchy weights would let go of them; one that fits counts fully, even where
+    two views agree on a wrong point (along their epipolar line).  Other lifts: 1 (the detections fix too
+    little to judge them, and the lift is the evidence there)."""
+    fitted = (ev.lifted & fixed[:, None]).astype(np.float64)  # [n, C, J]
+    count = fitted.sum(-1).astype(np.int64)  # [n, C]
+    weight = fitted
+    for _ in range(2):
+        median, mahalanobis = _fitted_residuals(ev, points, weight, fitted, count, config)
+        weight = fitted * (mahalanobis <= median[..., None])
+    return cauchy_weights(np.where(count >= MIN_FITTED_JOINTS, median, 0.0), config.lift_robust_sigmas)
+
+
+def _fitted_residuals(ev: _Evidence, points, weight, fitted, count, config: FusionConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Each lift placed on `points` [n, J, 3] by least squares over the joints of `weight` [n, C, J] ->
+    (the median Mahalanobis residual of the joints of `fitted` [n, C], the residuals [n, C, J])."""
     A = np.zeros((*weight.shape[:2], 4, 4))
     A[..., :3, :3] = weight.sum(-1)[..., None, None] * ev.precision + PRIOR_PRECISION * np.eye(3)
     A[..., :3, 3] = A[..., 3, :3] = np.sum(weight[..., None] * ev.precision_lift, 2)
@@ -267,12 +279,10 @@ def _lift_trust(ev: _Evidence, points: np.ndarray, fixed: np.ndarray, config: Fu
     placement = np.linalg.solve(A, b[..., None])[..., 0]
     residual = points[:, None] - placement[:, :, None, :3] - placement[:, :, None, 3:] * ev.lift
     mahalanobis = np.sqrt(np.sum((residual @ ev.precision) * residual, -1))
-    count = weight.sum(-1).astype(np.int64)  # [n, C]
-    order = np.sort(np.where(weight > 0, mahalanobis, np.inf), -1)  # the fixed joints' residuals first
+    order = np.sort(np.where(fitted > 0, mahalanobis, np.inf), -1)  # the fitted joints' residuals first
     lower = np.take_along_axis(order, (np.maximum(count, 1) - 1)[..., None] // 2, -1)[..., 0]
     upper = np.take_along_axis(order, np.maximum(count, 1)[..., None] // 2, -1)[..., 0]
-    median = np.where(count >= MIN_FITTED_JOINTS, 0.5 * (lower + upper), 0.0)
-    return cauchy_weights(median, config.lift_robust_sigmas)
+    return 0.5 * (lower + upper), mahalanobis
 
 
 def _solve(ev: _Evidence, rays: np.ndarray, lifts: np.ndarray, config: FusionConfig, covariance: bool = False):
@@ -329,7 +339,8 @@ def _fuse_rows(K, R, t, keypoints, confidence, lifted, *, config: FusionConfig):
     error, _ = _reproject(ev, points)
     fixed = (ev.seen & (error <= config.agree_px)).sum(1) >= 2  # [n, J]: joints the detections fix alone
     trust = _lift_trust(ev, points, fixed, config)[..., None]
-    points, placement = _solve(ev, rays, ev.lifted * trust, config)
+    # Then the first solve of all the evidence as if nothing were known (confidence alone; the lifts by trust).
+    points, placement = _solve(ev, ev.ray_scale / START_DEPTH_MM**2, ev.lifted * trust, config)
     for iteration in range(1, config.iterations + 1):
         last = iteration == config.iterations
         rays = _ray_weights(ev, points, config, agreeing_only=last)
