@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import functools
 import itertools
 import json
 import pathlib
@@ -106,10 +105,7 @@ def trained_report(experiment: cli.Experiment, config: ExperimentConfig) -> dict
         report = json.loads(path.read_text())
         if report.get("test_time_flip", False) == config.train.eval_flip:
             return report
-    load_splits = experiment.load_splits
-    if experiment is rig.EXPERIMENT:  # as experiments.rig's main: its progress bars, each variant's window
-        load_splits = functools.partial(rig.load_splits, progress=config.run.progress, window=config.model.temporal_window)
-    return run(config, dataclasses.replace(experiment, load_splits=load_splits).loader())
+    return run(config, experiment.loader(config))  # the run's progress bars and temporal window, for a rig project
 
 
 def summary(report: dict, run_dir: pathlib.Path) -> dict:
