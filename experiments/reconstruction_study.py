@@ -7,7 +7,8 @@ ground truth, split by the number of views that detected each joint (0, 1, 2, 3+
 
 Methods, on the same detections (each recording on its whole frame axis, every instant of the held-out
 part: keep --data.validation-stride 1):
-- fused: `jaxpose.reconstruction` as `jaxpose.reconstruct` runs it (gaps up to --max-gap interpolated);
+- fused: `jaxpose.reconstruction` as `jaxpose.reconstruct` runs it (gaps up to --max-gap interpolated, and
+  joints no view detects for that long);
 - triangulation: the confidence-weighted DLT of the views scored at least --threshold, where two or more
   are (Pose2Sim's likelihood threshold 0.3); gaps left;
 - triangulation, gaps filled: the same, gaps up to --max-gap interpolated linearly, then the last value
@@ -92,6 +93,8 @@ class StudyArgs:
     """Gaps up to this many frames are interpolated (fused; triangulation, gaps filled)."""
     fusion: FusionConfig = FusionConfig()
     """The fusion's model (`jaxpose.reconstruction.fusion`)."""
+    bridge_lifted: bool = True
+    """Fused: a joint no view detects for at most --max-gap frames is interpolated (`jaxpose.reconstruct`'s flag)."""
     occlusion: Occlusion = Occlusion()
     """The simulated occlusion of the second condition."""
     overwrite: bool = False
@@ -238,7 +241,7 @@ def evaluate(args: StudyArgs, lifter: inference.Lifter3D, dataset, occluded: boo
         if occluded:
             inputs = occlude(inputs, args.occlusion, args.fps, (index,))
         lifted = lift_views(lifter, inputs)
-        motion = reconstruct(inputs, lifted, args.fusion, args.max_gap)
+        motion = reconstruct(inputs, lifted, args.fusion, args.max_gap, args.bridge_lifted)
         results = {"fused": motion.points, **triangulations(inputs, args.threshold, args.max_gap)}
         results["most confident view"] = most_confident_view(inputs, lifted, motion.fusion.placement)
         tally.add({m: results[m] for m in METHODS}, inputs.target3d, (inputs.confidence > 0).sum(1), inputs.seen)
@@ -254,7 +257,9 @@ def report_markdown(report: dict) -> str:
         for method, row in result["methods"].items():
             cells = []
             for bucket in row["buckets"].values():
-                if bucket["mpjpe_on_common_cells_mm"] is None:
+                if not bucket["cells"]:
+                    cells.append("no cells")
+                elif bucket["mpjpe_on_common_cells_mm"] is None:
                     cells.append(f"{bucket['covered_pct']:.0f}%, -")
                 else:
                     paired = f"{bucket['mpjpe_on_common_cells_mm']:.1f} / {bucket['fused_on_common_cells_mm']:.1f}"
@@ -285,7 +290,8 @@ def run(args: StudyArgs) -> dict:
         f"Lifter {args.checkpoint} (step {lifter.step}); project {args.data.root}, held-out part ({held_out}), every"
         f" {args.data.validation_stride} instant(s), {len(dataset)} instants; world-frame MPJPE (mm, no alignment) over the"
         f" joints with ground truth ({', '.join(project.ground_truth_joints)}); views = detections with confidence > 0;"
-        f" triangulation threshold {args.threshold}; gaps up to {args.max_gap} frames interpolated; fusion"
+        f" triangulation threshold {args.threshold}; gaps up to {args.max_gap} frames interpolated (lifted-only joints"
+        f" {'too' if args.bridge_lifted else 'not'}); fusion"
         f" {dataclasses.asdict(args.fusion)}; occlusion {dataclasses.asdict(args.occlusion)} at {args.fps:g} fps."
     )
     conditions = {"As it is": evaluate(args, lifter, dataset, False), "Occluded": evaluate(args, lifter, dataset, True)}

@@ -11,8 +11,9 @@ taken in the rig recovered in RUN (RUN/recovered_cameras.json), never recovered 
 Per recording and instant: each camera's detection and lifted pose, fused in one robust weighted least
 squares (`jaxpose.reconstruction.fusion`); each joint gets its provenance (triangulated: two or more
 views agree; fused: one view, the lifts give the depth; lifted: no view, the lifts alone) and an
-uncertainty.  Instants no camera sees are interpolated up to --max-gap frames; a longer gap splits the
-recording into segments (`jaxpose.reconstruction.gaps`).  Files per recording in DIR
+uncertainty.  Instants no camera sees are interpolated up to --max-gap frames, and so is a joint no
+camera detects for that long (--no-bridge-lifted keeps its lifts); a longer gap splits the recording
+into segments (`jaxpose.reconstruction.gaps`).  Files per recording in DIR
 (`jaxpose.reconstruction.motion_files`): <recording>.trc (OpenSim, Pose2Sim's layout, metres, Y up; a
 later segment <recording>.seg<S>.trc), <recording>.csv and <recording>.npz (calibration's world, mm, with
 provenance, uncertainty and views per joint), and report.md / report.json, what was done per recording.
@@ -66,6 +67,10 @@ class ReconstructArgs:
     max_gap: int = DEFAULT_MAX_GAP
     """Up to this many frames in a row where a joint is missing (no camera sees the person) are filled by
     linear interpolation (Pose2Sim's default, 10); a longer gap splits the recording into segments."""
+    bridge_lifted: bool = True
+    """A joint no camera detects for at most --max-gap frames, between frames where cameras fix it, is
+    interpolated between them rather than taken from the lifts alone (measured better on Human3.6M:
+    docs/reconstruction.md); --no-bridge-lifted keeps the lifts."""
     up_axis: Literal[motion_files.UP_AXES] = "auto"  # type: ignore[valid-type]
     """The calibration's up axis (Human3.6M: +z); the .trc turns it to OpenSim's Y.  auto: the world axis
     the cameras' image up points along on average (refused if none is within 30 degrees); printed and
@@ -104,7 +109,9 @@ def run(args: ReconstructArgs) -> dict:
                disable=not args.progress)  # fmt: skip
     for inputs in bar:
         bar.set_postfix_str(inputs.name)
-        motion = recording.reconstruct(inputs, recording.lift_views(lifter, inputs), args.fusion, args.max_gap)
+        motion = recording.reconstruct(
+            inputs, recording.lift_views(lifter, inputs), args.fusion, args.max_gap, args.bridge_lifted
+        )
         written = motion_files.write_motion(args.output, motion, lifter.joint_names, args.fps, up_axis)
         files += [str(path) for path in written]
         rows.append(recording_summary(motion) | {"files": [path.name for path in written]})
@@ -116,6 +123,7 @@ def run(args: ReconstructArgs) -> dict:
         "calibration": project.recordings[0].calibration if project.recordings else "",
         "fps": args.fps,
         "max_gap": args.max_gap,
+        "bridge_lifted": args.bridge_lifted,
         "up_axis": up_axis,
         "trc_axes": motion_files.rotation_note(motion_files.opensim_rotation(up_axis), up_axis),
         "joint_names": list(lifter.joint_names),

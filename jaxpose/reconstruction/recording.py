@@ -38,6 +38,7 @@ from jaxpose.reconstruction.fusion import Fusion, FusionConfig, Provenance, fuse
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, fill_gaps
 from jaxpose.rig.project import RigProject, RigProjectConfig, load_rig_project
 from jaxpose.rig.recordings import recording_folders
+from jaxpose.skeleton import ROOT, Skeleton
 
 log = logging.getLogger(__name__)
 
@@ -125,18 +126,35 @@ def recording_inputs(dataset: MultiViewDataset) -> Iterator[RecordingInput]:
 
 def lift_views(lifter: Lifter3D, inputs: RecordingInput) -> np.ndarray:
     """f32[F, C, J, 3]: each camera's detections lifted (mm, root-relative, that camera's axes; NaN where
-    the view's root is not detected), camera by camera as a sequence, so a temporal lifter reads its
-    windows of frames."""
+    the view's root is neither detected nor derived from the hips, `root_from_hips`), camera by camera as
+    a sequence, so a temporal lifter reads its windows of frames."""
     names = tuple(lifter.joint_names)
     F, C, J, _ = inputs.keypoints.shape
     if J != lifter.num_joints:
         raise ValueError(f"recording {inputs.name}: {J} joints per view, but the lifter of {lifter.source} lifts {names}")
+    keypoints, confidence = root_from_hips(lifter.skeleton, inputs.keypoints, inputs.confidence)
     lifted = np.full((F, C, J, 3), np.nan, np.float32)
     for view in range(C):
-        if (inputs.confidence[:, view, 0] > 0).any():
+        if (confidence[:, view, ROOT] > 0).any():
             K = np.asarray(inputs.cameras.K[view], np.float32)
-            lifted[:, view] = lifter.predict(inputs.keypoints[:, view], intrinsics=K, confidence=inputs.confidence[:, view])
+            lifted[:, view] = lifter.predict(keypoints[:, view], intrinsics=K, confidence=confidence[:, view])
     return lifted
+
+
+def root_from_hips(skeleton: Skeleton, keypoints: np.ndarray, confidence: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The detections with a missing root (the pelvis) put midway between the hips where both are seen
+    (confidence: the lower of theirs), as the detector layouts without a pelvis derive it: a view whose
+    pelvis is occluded can still be lifted.  The hips: the root's children that are a left/right pair."""
+    children = {j for j, parent in enumerate(skeleton.parents) if parent == ROOT}
+    hips = [pair for pair in skeleton.left_right_pairs if set(pair) <= children]
+    if not hips:
+        return keypoints, confidence
+    left, right = hips[0]
+    derive = (confidence[..., ROOT] <= 0) & (confidence[..., left] > 0) & (confidence[..., right] > 0)
+    keypoints, confidence = keypoints.copy(), confidence.copy()
+    keypoints[..., ROOT, :] = np.where(derive[..., None], 0.5 * (keypoints[..., left, :] + keypoints[..., right, :]), keypoints[..., ROOT, :])
+    confidence[..., ROOT] = np.where(derive, np.minimum(confidence[..., left], confidence[..., right]), confidence[..., ROOT])
+    return keypoints, confidence
 
 
 @dataclasses.dataclass(frozen=True)
@@ -177,10 +195,19 @@ class RecordingMotion:
 
 
 def reconstruct(
-    inputs: RecordingInput, lifted: np.ndarray | None, config: FusionConfig = FusionConfig(), max_gap: int = DEFAULT_MAX_GAP
+    inputs: RecordingInput,
+    lifted: np.ndarray | None,
+    config: FusionConfig = FusionConfig(),
+    max_gap: int = DEFAULT_MAX_GAP,
+    bridge_lifted: bool = True,
 ) -> RecordingMotion:
     """The recording's motion: `fuse` at every frame some camera sees the person, then `fill_gaps`.
-    `lifted`: `lift_views`' output, or None to fuse the detections alone."""
+    `lifted`: `lift_views`' output, or None to fuse the detections alone.
+
+    `bridge_lifted`: a joint no view detects (LIFTED: the lifts alone) for at most `max_gap` frames
+    between frames where views fix it is interpolated between them instead: on the Human3.6M training
+    recordings with simulated occlusion, 148 mm from the truth against the lifts' 175 (a lifter guesses
+    a joint missing from its input; the joint moves little in 0.2 s).  Longer runs keep the lifts."""
     seen = inputs.seen
     F, C, J, _ = inputs.keypoints.shape
     rows = np.flatnonzero(seen)
@@ -196,8 +223,13 @@ def reconstruct(
         full[rows] = values
         whole[name] = full
     fusion = Fusion(**whole)
-    filling = fill_gaps(fusion.points, max_gap)
-    provenance = np.where(filling.filled, np.int8(Provenance.INTERPOLATED), fusion.provenance).astype(np.int8)
-    return RecordingMotion(
-        inputs.name, inputs.frames, filling.values, provenance, fusion.uncertainty, fusion.views, filling.segments, seen, fusion
-    )
+    points, bridged = fusion.points, np.zeros((F, J), bool)
+    if bridge_lifted:
+        lifted_only = fusion.provenance == Provenance.LIFTED
+        bridging = fill_gaps(np.where(lifted_only[..., None], np.nan, points), max_gap)
+        bridged = bridging.filled & lifted_only
+        points = np.where(bridged[..., None], bridging.values, points)
+    filling = fill_gaps(points, max_gap)
+    provenance = np.where(filling.filled | bridged, np.int8(Provenance.INTERPOLATED), fusion.provenance).astype(np.int8)
+    uncertainty = np.where(bridged, np.nan, fusion.uncertainty).astype(np.float32)
+    return RecordingMotion(inputs.name, inputs.frames, filling.values, provenance, uncertainty, fusion.views, filling.segments, seen, fusion)
