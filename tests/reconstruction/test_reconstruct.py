@@ -147,3 +147,25 @@ def test_the_up_axis_of_upright_cameras():
     rolled = level @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # its up along world X
     with pytest.raises(ValueError, match="--up-axis"):
         camera_up_axis(SimpleNamespace(R=np.stack([level, rolled])))
+
+
+@pytest.mark.trains
+def test_opensims_reader_takes_the_trc_files(project, run_dir, tmp_path):
+    """OpenSim 4.6's own readers (where the package is installed; it is no dependency) read every segment's
+    .trc with its markers, rate, unit and times."""
+    opensim = pytest.importorskip("opensim")
+    first = sorted(p.name for p in project.iterdir() if p.is_dir() and not p.name.startswith("."))[0]
+    report = _reconstruct(run_dir, project, tmp_path, "--data.recordings", first)
+    names = [name for name in report["recordings"][0]["files"] if name.endswith(".trc")]
+    assert len(names) == 2
+    for name in names:
+        ours = read_trc(tmp_path / name)
+        table = opensim.TimeSeriesTableVec3(str(tmp_path / name))
+        assert list(table.getColumnLabels()) == list(ours.marker_names)
+        assert table.getTableMetaDataAsString("Units") == "m" and float(table.getTableMetaDataAsString("DataRate")) == FPS
+        np.testing.assert_allclose(np.asarray(table.getIndependentColumn()), ours.times)
+        rows = [table.getRowAtIndex(i) for i in range(table.getNumRows())]
+        markers = np.array([[[row[m][k] for k in range(3)] for m in range(row.size())] for row in rows])
+        np.testing.assert_allclose(markers, ours.markers, atol=1e-9)
+        data = opensim.MarkerData(str(tmp_path / name))
+        assert data.getNumFrames() == len(ours.times) and data.getStartFrameTime() == pytest.approx(ours.times[0])
