@@ -115,8 +115,9 @@ def run(args: ReconstructArgs) -> dict:
         written = motion_files.write_motion(args.output, motion, lifter.joint_names, args.fps, up_axis)
         files += [str(path) for path in written]
         rows.append(recording_summary(motion) | {"files": [path.name for path in written]})
-    for path in set(earlier) - {pathlib.Path(file) for file in files}:  # an earlier run's segment this one has not
-        path.unlink()
+    left = sorted(str(path) for path in set(earlier) - {pathlib.Path(file) for file in files})
+    if left:  # as jaxpose.predict does: an earlier run's segments that this run has not
+        print(f"files of an earlier run not written now, left as they were: {', '.join(left)}", file=sys.stderr)
     report = {
         "checkpoint": str(args.checkpoint),
         "project": str(args.data.root),
@@ -129,6 +130,7 @@ def run(args: ReconstructArgs) -> dict:
         "joint_names": list(lifter.joint_names),
         "fusion": dataclasses.asdict(args.fusion),
         "recordings": rows,
+        "earlier_files_left": left,
     }
     markdown = report_markdown(report)
     with atomic_output(args.output / "report.json") as temporary:
@@ -141,7 +143,7 @@ def run(args: ReconstructArgs) -> dict:
 
 def check_outputs(args: ReconstructArgs, names: Sequence[str]) -> list[pathlib.Path]:
     """Refuse, before any work, to write over an earlier run's files without --overwrite; returns them
-    (with --overwrite, those this run does not write again are removed after it)."""
+    (with --overwrite, those this run does not write again are named after it, and left as they were)."""
     for name in REPORT_FILES:
         check_output(args.output / name, args.overwrite, flag="--output")
     earlier = [path for name in names for path in motion_files.existing_outputs(args.output, name)]
