@@ -50,7 +50,12 @@ from jaxpose.formats.outputs import atomic_output, check_output
 from jaxpose.logs import show_logs
 from jaxpose.reconstruction.fusion import FusionConfig
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, fill_gaps
-from jaxpose.reconstruction.recording import RecordingInput, lift_views, reconstruct, recording_inputs
+from jaxpose.reconstruction.recording import (
+    RecordingInput,
+    lift_views,
+    reconstruct,
+    recording_inputs,
+)
 from jaxpose.rig.project import RigProjectConfig, load_rig_project
 from jaxpose.triangulation import triangulate
 

@@ -144,6 +144,11 @@ def run(args: ReconstructArgs) -> dict:
 def check_outputs(args: ReconstructArgs, names: Sequence[str]) -> list[pathlib.Path]:
     """Refuse, before any work, to write over an earlier run's files without --overwrite; returns them
     (with --overwrite, those this run does not write again are named after it, and left as they were)."""
+    if args.output.resolve().is_relative_to(args.data.root.resolve()):
+        raise OutputError(
+            f"--output {args.output}: lies in the project {args.data.root}, whose files it would join (and change the"
+            " prepared project's key); choose a folder outside it"
+        )
     for name in REPORT_FILES:
         check_output(args.output / name, args.overwrite, flag="--output")
     earlier = [path for name in names for path in motion_files.existing_outputs(args.output, name)]

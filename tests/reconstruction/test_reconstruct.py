@@ -8,6 +8,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from help_text import assert_every_flag_documented
 
 from experiments import rig as rig_job
 from jaxpose import reconstruct
@@ -15,7 +16,11 @@ from jaxpose.formats.camera_file import save_cameras
 from jaxpose.formats.rig_calibration import read_rig_calibration
 from jaxpose.formats.trc import read_trc
 from jaxpose.reconstruction.fusion import Provenance
-from jaxpose.reconstruction.motion_files import UP_AXES, camera_up_axis, opensim_rotation
+from jaxpose.reconstruction.motion_files import (
+    UP_AXES,
+    camera_up_axis,
+    opensim_rotation,
+)
 from jaxpose.reconstruction.recording import RECOVERED_CAMERAS
 from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
 
@@ -93,6 +98,8 @@ def test_every_seen_instant_is_reconstructed_and_the_files_agree(project, run_di
     with pytest.raises(SystemExit, match="--overwrite"):
         _reconstruct(run_dir, project, out)
     assert {path: path.read_bytes() for path in out.iterdir()} == before
+    with pytest.raises(SystemExit, match="lies in the project"):
+        _reconstruct(run_dir, project, project / "motion")
     again = _reconstruct(run_dir, project, out, "--overwrite", "--max-gap", "40")  # the gap is bridged now
     assert again["recordings"][0]["segments"] == 1 and again["recordings"][0]["dropped_frames"] < first["dropped_frames"]
     assert again["earlier_files_left"] == [str(out / f"{first['recording']}.seg1.trc")]  # named, as predict does
@@ -170,3 +177,16 @@ def test_opensims_reader_takes_the_trc_files(project, run_dir, tmp_path):
         np.testing.assert_allclose(markers, ours.markers, atol=1e-9)
         data = opensim.MarkerData(str(tmp_path / name))
         assert data.getNumFrames() == len(ours.times) and data.getStartFrameTime() == pytest.approx(ours.times[0])
+
+
+def test_help_documents_every_flag(capsys):
+    from experiments import reconstruction_study
+    from jaxpose.reconstruction.fusion import FusionConfig
+
+    for main, args_type in ((reconstruct.main, reconstruct.ReconstructArgs), (reconstruction_study.main, reconstruction_study.StudyArgs)):
+        with pytest.raises(SystemExit) as stop:
+            main(["--help"])
+        assert stop.value.code == 0
+        flags = [f"--{f.name.replace('_', '-')}" for f in dataclasses.fields(args_type) if f.name not in ("data", "fusion", "occlusion")]
+        flags += ["--fusion." + f.name.replace("_", "-") for f in dataclasses.fields(FusionConfig)]
+        assert_every_flag_documented(capsys.readouterr().out, flags)
