@@ -36,6 +36,10 @@ def exact_scene(seed: int, num_views: int, instants: int = 1) -> Scene:
     rng = np.random.default_rng(seed)
     rig = random_rig(rng, num_views)
     K, R, t = (np.asarray(field, np.float64) for field in (rig.K, rig.R, rig.t))
+    # The rig's float32 rotations are orthonormal to 1e-7 only: exactly (in float64), or a camera centre
+    # -R^T t is off by ~1e-3 mm at 6 m, and two nearly opposite views' intersection by 2e-3 mm.
+    u, _, vt = np.linalg.svd(R)
+    R = u @ vt
     truth = random_poses(rng, instants, J).astype(np.float64)
     in_camera = np.einsum("cab,njb->ncja", R, truth) + t[None, :, None]
     homogeneous = np.einsum("cab,ncjb->ncja", K, in_camera)
