@@ -52,6 +52,11 @@ class TrainConfig:
     For watching a run only: nothing is selected on it, and the report is always the final checkpoint."""
     eval_samples: int = 1000
     """Test samples (with all their views) in each periodic evaluation: a fixed, evenly spaced subset."""
+    eval_max_samples: int = 200_000
+    """The report evaluates at most this many held-out samples (0 = all): a larger test split is thinned
+    to every k-th sample, evenly through its recordings, and the report says so.  Evaluation holds
+    every view's prediction, triangulation and target at once (about 1 KB per sample and view), so
+    this bounds its memory: a million held-out instants would need over 4 GB."""
     eval_flip: bool = False
     """Evaluate the report with test-time flip augmentation (`jaxpose.flip`: each view's pose and its mirror
     image lifted and averaged; the periodic evaluation stays plain).  Given to a finished run's command, it

@@ -70,6 +70,7 @@ def _run_holding_the_directory(
     # --run.overwrite start does not delete the previous run before the data are known to load).
     splits = load_data(config.data)
     log.info("data: %d train / %d test samples, %d views, %d joints", len(splits.train), len(splits.test), splits.train.num_views, splits.train.skeleton.num_joints)
+    splits = bounded_test_split(splits, config.train.eval_max_samples)
     # The samples trained on are rows of the whole training set, which stays as loaded (a rig
     # project's is memory-mapped: a copy of its usable rows could exceed the memory).
     usable = splits.train.usable_view_count() >= config.pseudo_labels.min_views
@@ -100,3 +101,18 @@ def _run_holding_the_directory(
         print((run_dir / "report.md").read_text())
         print(f"run directory: {run_dir}  (wall time {time.perf_counter() - begin:.0f} s)")
     return report
+
+
+def bounded_test_split(splits: Splits, max_samples: int) -> Splits:
+    """The test split thinned to every k-th sample where it holds more than `max_samples` (0: never)."""
+    count = len(splits.test)
+    if not 0 < max_samples < count:
+        return splits
+    step = -(-count // max_samples)
+    test = splits.test.subset(np.arange(0, count, step))
+    note = (
+        f"The test split holds {count:,} samples, more than --train.eval-max-samples {max_samples:,}: the report"
+        f" evaluates one in {step} of them ({len(test):,}, evenly through the recordings)."
+    )
+    log.info("%s", note)
+    return dataclasses.replace(splits, test=test, notes=(*splits.notes, note))

@@ -158,3 +158,18 @@ def test_a_start_that_left_no_checkpoint_does_not_block_another_config(tmp_path)
     (tmp_path / "run" / "checkpoints" / "3").mkdir(parents=True)  # a committed checkpoint: a run to resume
     with pytest.raises(SystemExit, match="different config"):
         check_resumable(config)
+
+
+def test_a_test_split_larger_than_the_evaluation_cap_is_thinned_evenly_and_said(labelled):
+    from experiments.runner import bounded_test_split
+    from experiments.splits import Splits
+
+    splits = Splits(train=labelled, test=labelled, group_label="action", notes=("loaded",))
+    assert bounded_test_split(splits, 0) is splits and bounded_test_split(splits, len(labelled)) is splits
+    cap = len(labelled) // 3 - 1  # one in 4 samples kept
+    thinned = bounded_test_split(splits, cap)
+    kept = np.arange(0, len(labelled), 4)
+    assert len(thinned.test) == len(kept) <= cap
+    np.testing.assert_array_equal(thinned.test.keypoints2d, labelled.keypoints2d[kept])
+    assert thinned.train is labelled and thinned.notes[0] == "loaded"
+    assert f"evaluates one in 4 of them ({len(kept):,}" in thinned.notes[1]
