@@ -15,9 +15,9 @@ uncertainty.  Instants no camera sees are interpolated up to --max-gap frames, a
 camera detects for that long (--no-bridge-lifted keeps its lifts); a longer gap splits the recording
 into segments (`jaxpose.reconstruction.gaps`).  Files per recording in DIR
 (`jaxpose.reconstruction.motion_files`): <recording>.trc (OpenSim, Pose2Sim's layout, metres, Y up; a
-later segment <recording>.seg<S>.trc), <recording>.csv and <recording>.npz (calibration's world, mm, with
-provenance, uncertainty and views per joint), and report.md / report.json, what was done per recording.
-docs/reconstruction.md: the workflow, the measured accuracy, when to trust a lifted-only joint.
+later segment <recording>.seg<S>.trc; with --c3d a .c3d beside each), <recording>.csv and
+<recording>.npz (calibration's world, mm, with provenance, uncertainty and views per joint), and
+report.md / report.json, what was done per recording.  docs/reconstruction.md: the workflow, the measured accuracy, when to trust a lifted-only joint.
 
 No file is written over without --overwrite, all checked before any work; each is written to a
 temporary name renamed into place (`jaxpose.formats.outputs`).
@@ -75,6 +75,9 @@ class ReconstructArgs:
     """The calibration's up axis (Human3.6M: +z); the .trc turns it to OpenSim's Y.  auto: the world axis
     the cameras' image up points along on average (refused if none is within 30 degrees); printed and
     stated in every .trc's first line."""
+    c3d: bool = False
+    """Also write a .c3d beside each .trc (the same markers and axes, in mm): needs ezc3d, pip install
+    'jaxpose[reconstruct]'."""
     fusion: FusionConfig = FusionConfig()
     """The fusion's model: its standard deviations and robust loss (`jaxpose.reconstruction.fusion`)."""
     overwrite: bool = False
@@ -90,6 +93,11 @@ def run(args: ReconstructArgs) -> dict:
         raise ValueError(f"--fps must be positive, got {args.fps}")
     if args.max_gap < 0:
         raise ValueError(f"--max-gap must be >= 0 frames, got {args.max_gap}")
+    if args.c3d:
+        try:
+            import ezc3d  # noqa: F401 - missing, refused before any work
+        except ImportError:
+            raise ImportError("--c3d needs ezc3d: pip install 'jaxpose[reconstruct]' (or pip install ezc3d)") from None
     names = [folder.name for folder in recording_folders(args.data.root, args.data.recordings)]
     earlier = check_outputs(args, names)
     lifter = inference.load(args.checkpoint)
@@ -112,7 +120,7 @@ def run(args: ReconstructArgs) -> dict:
         motion = recording.reconstruct(
             inputs, recording.lift_views(lifter, inputs), args.fusion, args.max_gap, args.bridge_lifted
         )
-        written = motion_files.write_motion(args.output, motion, lifter.joint_names, args.fps, up_axis)
+        written = motion_files.write_motion(args.output, motion, lifter.joint_names, args.fps, up_axis, args.c3d)
         files += [str(path) for path in written]
         rows.append(recording_summary(motion) | {"files": [path.name for path in written]})
     left = sorted(str(path) for path in set(earlier) - {pathlib.Path(file) for file in files})
@@ -205,7 +213,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     enable_compilation_cache()  # the lifter's programs from disk on the next run
     try:
         return run(args)
-    except (ValueError, FileNotFoundError, CheckpointError, DataFormatError) as error:
+    except (ValueError, FileNotFoundError, ImportError, CheckpointError, DataFormatError) as error:
         raise SystemExit(f"jaxpose.reconstruct: error: {error}") from None
 
 

@@ -6,7 +6,8 @@ Per recording (RecordingMotion, `jaxpose.reconstruction.recording`), in the outp
   the --up-axis, stated in line 1.  Frame# is the project's frame number and Time = frame / fps (as
   Pose2Sim writes Time = Frame# / rate), so the segments of one recording keep their times.  One file
   per segment, the maximal runs of complete frames (no empty cell: OpenSim cannot read one): the
-  first ``<recording>.trc``, the later ``<recording>.seg<S>.trc``.
+  first ``<recording>.trc``, the later ``<recording>.seg<S>.trc``.  With ``c3d``, a ``.c3d`` beside each
+  (`jaxpose.formats.c3d`, the optional ezc3d): the same markers and axes in millimetres, C3D's usual unit.
 - ``<recording>.csv`` and ``<recording>.npz``: every frame of the recording, in the calibration's world
   frame in millimetres, with each joint's provenance (triangulated / fused / lifted / interpolated /
   none), uncertainty (the fusion's posterior RMS error, mm; empty where not fused) and agreeing views.
@@ -23,6 +24,7 @@ import numpy as np
 
 from jaxpose.camera import Cameras
 from jaxpose.formats import trc
+from jaxpose.formats.c3d import write_c3d
 from jaxpose.formats.outputs import atomic_output
 from jaxpose.reconstruction.fusion import Provenance
 from jaxpose.reconstruction.recording import RecordingMotion
@@ -77,12 +79,13 @@ def segment_paths(folder: pathlib.Path, name: str, count: int, suffix: str) -> l
 
 def existing_outputs(folder: pathlib.Path, name: str) -> list[pathlib.Path]:
     """The files of recording `name` already in `folder`: what this command would write, or did."""
-    found = [folder / f"{name}{suffix}" for suffix in (".csv", ".npz", ".trc")]
-    return [path for path in found if path.exists()] + sorted(folder.glob(f"{glob.escape(name)}.seg*.trc"))
+    found = [folder / f"{name}{suffix}" for suffix in (".csv", ".npz", ".trc", ".c3d")]
+    segments = [path for suffix in (".trc", ".c3d") for path in sorted(folder.glob(f"{glob.escape(name)}.seg*{suffix}"))]
+    return [path for path in found if path.exists()] + segments
 
 
 def write_motion(
-    folder: pathlib.Path, motion: RecordingMotion, joint_names: Sequence[str], fps: float, up_axis: str
+    folder: pathlib.Path, motion: RecordingMotion, joint_names: Sequence[str], fps: float, up_axis: str, c3d: bool = False
 ) -> list[pathlib.Path]:
     """The recording's files (the module docstring); returns their paths, the .csv and .npz first."""
     rotation = opensim_rotation(up_axis)
@@ -97,6 +100,9 @@ def write_motion(
         written.append(
             trc.write_trc(path, metres[start:stop], joint_names, fps, units="m", path_note=note, first_frame=frame, time_zero_frame=0)
         )
+    if c3d:
+        for path, (start, stop) in zip(segment_paths(folder, motion.name, len(motion.segments), ".c3d"), motion.segments):
+            written.append(write_c3d(path, metres[start:stop] * 1000.0, joint_names, fps, "mm", int(motion.frames[start])))
     return written
 
 

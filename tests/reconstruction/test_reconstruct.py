@@ -190,3 +190,19 @@ def test_help_documents_every_flag(capsys):
         flags = [f"--{f.name.replace('_', '-')}" for f in dataclasses.fields(args_type) if f.name not in ("data", "fusion", "occlusion")]
         flags += ["--fusion." + f.name.replace("_", "-") for f in dataclasses.fields(FusionConfig)]
         assert_every_flag_documented(capsys.readouterr().out, flags)
+
+
+@pytest.mark.trains
+def test_c3d_files_hold_the_trc_markers(project, run_dir, tmp_path):
+    """--c3d: a .c3d beside each .trc (ezc3d, the optional extra), the same markers in mm, rate, labels
+    and first frame."""
+    ezc3d = pytest.importorskip("ezc3d")
+    second = sorted(p.name for p in project.iterdir() if p.is_dir() and not p.name.startswith("."))[1]
+    report = _reconstruct(run_dir, project, tmp_path, "--data.recordings", second, "--c3d")
+    assert f"{second}.c3d" in report["recordings"][0]["files"]
+    ours = read_trc(tmp_path / f"{second}.trc")
+    c3d = ezc3d.c3d(str(tmp_path / f"{second}.c3d"))
+    assert list(c3d["parameters"]["POINT"]["LABELS"]["value"]) == list(ours.marker_names)
+    assert c3d["parameters"]["POINT"]["UNITS"]["value"] == ["mm"] and c3d["parameters"]["POINT"]["RATE"]["value"][0] == FPS
+    assert c3d["header"]["points"]["first_frame"] == ours.frame_numbers[0]
+    np.testing.assert_allclose(c3d["data"]["points"][:3].transpose(2, 1, 0), ours.markers * 1000.0, atol=1e-3)
