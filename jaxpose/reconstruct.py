@@ -17,7 +17,8 @@ into segments (`jaxpose.reconstruction.gaps`).  Files per recording in DIR
 (`jaxpose.reconstruction.motion_files`): <recording>.trc (OpenSim, Pose2Sim's layout, metres, Y up; a
 later segment <recording>.seg<S>.trc; with --c3d a .c3d beside each), <recording>.csv and
 <recording>.npz (calibration's world, mm, with provenance, uncertainty and views per joint), and
-report.md / report.json, what was done per recording.  docs/reconstruction.md: the workflow, the measured accuracy, when to trust a lifted-only joint.
+report.md / report.json, what was done per recording.  docs/reconstruction.md: the workflow, the
+measured accuracy, when to trust a lifted-only joint.
 
 No file is written over without --overwrite, all checked before any work; each is written to a
 temporary name renamed into place (`jaxpose.formats.outputs`).
