@@ -200,7 +200,7 @@ def train(
     train_step = make_train_step(
         model, config.model, optimizer, config.loss, total_steps,
         share_every=cfg.log_every, last_step=stop_step,
-        augmentation=cfg.augment, left_right_pairs=train_set.skeleton.left_right_pairs,
+        augmentation=cfg.augment, skeleton=train_set.skeleton,
     )  # fmt: skip
     step_fn = jit_train_step(train_step, mesh)
     start = int(state.step)

@@ -70,8 +70,9 @@ class InputAugmentation:
     the batch as given), so that a missing or wild joint changes little else of the prediction.
 
     Each view-pose gets at most one of them, with these probabilities (their sum must be <= 1); the
-    joint (never the root) or the left/right pair is drawn uniformly.  Drawn inside the jitted train
-    step from the step's key (`jaxpose.train.augment_inputs`), so a resumed run draws what an
+    joint (never the root) or the left/right pair is drawn uniformly.  Besides, a view may be seen in a
+    mirror (`mirror`).  Drawn inside the jitted train step from the step's key
+    (`jaxpose.train.augment_inputs`, `jaxpose.train.mirror_views`), so a resumed run draws what an
     uninterrupted one would.  All 0 (the default): the train step is exactly the one without it.
     """
 
@@ -84,13 +85,19 @@ class InputAugmentation:
     """See `displace`."""
     swap: float = 0.0
     """Probability that the two joints of one left/right pair trade places (a detector's left/right confusion)."""
+    mirror: float = 0.0
+    """Probability that a view is lifted from its mirror image (`jaxpose.flip.mirror_input`: the camera
+    K diag(-1, 1, 1), left and right swapped) and its lift mirrored back (`jaxpose.flip.mirror_pose3d`)
+    before every loss, so that the losses, the pseudo-labels and the multi-view geometry are those of the
+    batch as given.  Drawn independently of the failures above.  A lifter that never saw mirror images
+    lifts them badly, which is why test-time flip (--train.eval-flip) loses without it."""
 
     @property
-    def active(self) -> bool:
+    def imposes_failures(self) -> bool:
         return self.drop > 0 or self.displace > 0 or self.swap > 0
 
     def __post_init__(self):
-        for name in ("drop", "displace", "swap"):
+        for name in ("drop", "displace", "swap", "mirror"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"input augmentation {name}: a probability in [0, 1], got {getattr(self, name)}")
         if self.drop + self.displace + self.swap > 1.0 + 1e-9:

@@ -23,8 +23,10 @@ from jaxpose import parallel
 from jaxpose.camera import masked_median, normalize_keypoints
 from jaxpose.config import InputAugmentation, LossConfig, ModelConfig
 from jaxpose.data.batch import MultiViewBatch
+from jaxpose.flip import mirror_input, mirror_pose3d
 from jaxpose.losses import TERMS, gradient_shares, input_triangulation_loss, total_loss
 from jaxpose.model import LifterNetwork
+from jaxpose.skeleton import Skeleton
 
 
 # Metric-name prefix of each term's share of the gradient w.r.t. the lifter output (`gradient_shares`).
@@ -110,6 +112,23 @@ def augment_inputs(
     return keypoints2d, confidence
 
 
+def mirror_views(
+    key: jax.Array, keypoints2d: jax.Array, K: jax.Array, confidence: jax.Array, probability: float, skeleton: Skeleton
+) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+    """Each view (K [..., 3, 3]; keypoints2d [..., (T,) J, 2], confidence [..., (T,) J]) replaced by its
+    mirror image (`jaxpose.flip.mirror_input`) with `probability` -> (keypoints2d, K, confidence, mirrored
+    [...] bool): the lift of a mirrored view is mirrored back with `jaxpose.flip.mirror_pose3d`.  A pure
+    function of `key`."""
+    mirrored = jax.random.bernoulli(key, probability, K.shape[:-2])
+
+    def pick(mirror_image: jax.Array, given: jax.Array) -> jax.Array:
+        return jnp.where(mirrored.reshape(mirrored.shape + (1,) * (given.ndim - mirrored.ndim)), mirror_image, given)
+
+    mirror_image = mirror_input(keypoints2d, K, confidence, skeleton)
+    keypoints2d, K, confidence = (pick(image, given) for image, given in zip(mirror_image, (keypoints2d, K, confidence)))
+    return keypoints2d, K, confidence, mirrored
+
+
 def output_triangulation_start_step(loss: LossConfig, total_steps: int) -> int:
     return int(round(loss.output_triangulation_start * total_steps))
 
@@ -119,7 +138,7 @@ def make_loss_fn(
     measures_shares: Callable[[jax.Array], jax.Array],
     *,
     augmentation: InputAugmentation = InputAugmentation(),
-    left_right_pairs: tuple[tuple[int, int], ...] = (),
+    skeleton: Skeleton | None = None,
 ) -> Callable[..., tuple[jax.Array, tuple[dict[str, jax.Array], Any]]]:
     """loss_fn(params, batch_stats, batch, dropout_key, step) -> (loss, (metrics, new batch_stats)).
 
@@ -127,15 +146,24 @@ def make_loss_fn(
     0 on the others: their backward pulls make the main job's step 1.13x slower (benchmarks/README.md),
     and only logged steps need them.
     """
+    if skeleton is None and (augmentation.swap > 0 or augmentation.mirror > 0):
+        raise ValueError("input augmentation swap / mirror: the train step needs the skeleton (its left/right pairs)")
 
     def loss_fn(params, batch_stats, batch: MultiViewBatch, dropout_key, step):
         keypoints, confidence = lifter_input_2d(batch)
-        if augmentation.active:
-            # Its own key, derived from the step's dropout key: the dropout masks are those of a run without it.
+        K = batch.cameras.K
+        # Each augmentation has its own key, derived from the step's dropout key: the dropout masks are those
+        # of a run without it.
+        if augmentation.imposes_failures:
             keypoints, confidence = augment_inputs(
-                jax.random.fold_in(dropout_key, 0x61756700), keypoints, confidence, augmentation, left_right_pairs
+                jax.random.fold_in(dropout_key, 0x61756700), keypoints, confidence, augmentation,
+                skeleton.left_right_pairs if skeleton is not None else (),
+            )  # fmt: skip
+        if augmentation.mirror > 0:
+            keypoints, K, confidence, mirrored = mirror_views(
+                jax.random.fold_in(dropout_key, 0x6D697272), keypoints, K, confidence, augmentation.mirror, skeleton
             )
-        inputs = normalize_views(keypoints, batch.cameras.K, confidence, model_config.input_normalization)
+        inputs = normalize_views(keypoints, K, confidence, model_config.input_normalization)
         pred, updates = model.apply(
             {"params": params, "batch_stats": batch_stats},
             inputs,
@@ -143,6 +171,8 @@ def make_loss_fn(
             rngs={"dropout": dropout_key},
             mutable=["batch_stats"],
         )
+        if augmentation.mirror > 0:  # every loss sees the views as given
+            pred = jnp.where(mirrored[..., None, None], mirror_pose3d(pred, skeleton), pred)
         if loss.supervision == "full":
             supervised = batch.replace(pseudo3d=batch.target3d, pseudo3d_weight=None)
             value = input_triangulation_loss(pred, supervised)
@@ -173,15 +203,15 @@ def make_train_step(
     share_every: int = 1,
     last_step: int | None = None,
     augmentation: InputAugmentation = InputAugmentation(),
-    left_right_pairs: tuple[tuple[int, int], ...] = (),
+    skeleton: Skeleton | None = None,
 ) -> Callable[[TrainState, MultiViewBatch, jax.Array], tuple[TrainState, dict[str, jax.Array]]]:
     """The pure train step (un-jitted; see `jit_train_step`).
 
     The metrics' gradient shares are measured every `share_every` steps (counting completed steps,
     as the run log does) and on the step that completes `last_step` (default `total_steps`), 0 on
     the others: pass the log interval so that every logged line has them at no cost elsewhere.
-    `augmentation` (with the skeleton's `left_right_pairs` for its swaps) perturbs the lifter's input
-    only (`augment_inputs`).
+    `augmentation` perturbs the lifter's input only (`augment_inputs`, `mirror_views`: a mirrored view's
+    lift is mirrored back before the losses); its swaps and mirror need the `skeleton`'s left/right pairs.
     """
     if loss.supervision not in ("self", "full"):
         raise ValueError(f"unknown supervision {loss.supervision!r}; expected 'self' or 'full'")
@@ -195,7 +225,7 @@ def make_train_step(
 
     loss_fn = make_loss_fn(
         model, model_config, loss, output_triangulation_start_step(loss, total_steps), measures_shares,
-        augmentation=augmentation, left_right_pairs=left_right_pairs,
+        augmentation=augmentation, skeleton=skeleton,
     )  # fmt: skip
     grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
 
