@@ -158,9 +158,10 @@ def test_the_up_axis_of_upright_cameras():
 
 
 @pytest.mark.trains
-def test_opensims_reader_takes_the_trc_files(project, run_dir, tmp_path):
+def test_opensims_reader_takes_the_trc_files(project, run_dir, tmp_path, monkeypatch):
     """OpenSim 4.6's own readers (where the package is installed; it is no dependency) read every segment's
     .trc with its markers, rate, unit and times."""
+    monkeypatch.chdir(tmp_path)  # OpenSim writes its opensim.log into the working folder
     opensim = pytest.importorskip("opensim")
     first = sorted(p.name for p in project.iterdir() if p.is_dir() and not p.name.startswith("."))[0]
     report = _reconstruct(run_dir, project, tmp_path, "--data.recordings", first)
