@@ -50,12 +50,7 @@ from jaxpose.formats.outputs import atomic_output, check_output
 from jaxpose.logs import show_logs
 from jaxpose.reconstruction.fusion import FusionConfig
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, fill_gaps
-from jaxpose.reconstruction.recording import (
-    RecordingInput,
-    lift_views,
-    reconstruct,
-    recording_inputs,
-)
+from jaxpose.reconstruction.recording import RecordingInput, lift_and_reconstruct, recording_inputs
 from jaxpose.rig.project import RigProjectConfig, load_rig_project
 from jaxpose.triangulation import triangulate
 
@@ -245,8 +240,7 @@ def evaluate(args: StudyArgs, lifter: inference.Lifter3D, dataset, occluded: boo
     for index, inputs in enumerate(tqdm(recordings, desc="occluded" if occluded else "as it is", unit="recording")):
         if occluded:
             inputs = occlude(inputs, args.occlusion, args.fps, (index,))
-        lifted = lift_views(lifter, inputs)
-        motion = reconstruct(inputs, lifted, args.fusion, args.max_gap, args.bridge_lifted)
+        motion, lifted = lift_and_reconstruct(lifter, inputs, args.fusion, args.max_gap, args.bridge_lifted)
         results = {"fused": motion.points, **triangulations(inputs, args.threshold, args.max_gap)}
         results["most confident view"] = most_confident_view(inputs, lifted, motion.fusion.placement)
         tally.add({m: results[m] for m in METHODS}, inputs.target3d, (inputs.confidence > 0).sum(1), inputs.seen)

@@ -118,9 +118,7 @@ def run(args: ReconstructArgs) -> dict:
                disable=not args.progress)  # fmt: skip
     for inputs in bar:
         bar.set_postfix_str(inputs.name)
-        motion = recording.reconstruct(
-            inputs, recording.lift_views(lifter, inputs), args.fusion, args.max_gap, args.bridge_lifted
-        )
+        motion, _ = recording.lift_and_reconstruct(lifter, inputs, args.fusion, args.max_gap, args.bridge_lifted)
         written = motion_files.write_motion(args.output, motion, lifter.joint_names, args.fps, up_axis, args.c3d)
         files += [str(path) for path in written]
         rows.append(recording_summary(motion) | {"files": [path.name for path in written]})

@@ -5,7 +5,7 @@
     project = recording.load_every_instant(RigProjectConfig(root=PROJECT), run_dir=RUN)
     lifter = inference.load(RUN)
     for inputs in recording.recording_inputs(project.validation):
-        motion = recording.reconstruct(inputs, recording.lift_views(lifter, inputs))
+        motion, lifted = recording.lift_and_reconstruct(lifter, inputs)
 
 The project is loaded as `experiments.rig` loads it (`jaxpose.rig.project`), with every recording in
 one part at every instant: no stride, nothing held out.  Its world frame is the calibration's; a
@@ -16,7 +16,8 @@ another world frame.
 Per recording, on its whole frame axis (first to last instant; an instant no camera saw has every
 confidence 0): each camera's detections lifted by the trained lifter (`jaxpose.inference.Lifter3D`,
 root-relative in the camera's axes; its chunks of fixed sizes keep the compilations bounded whatever
-the recordings), fused with the detections (`jaxpose.reconstruction.fusion.fuse`, world mm), then the
+the recordings), fused with the detections (`jaxpose.reconstruction.fusion.fuse`, world mm), the views
+whose root was occluded lifted about the fused root and fused again (`lift_and_reconstruct`), then the
 instants nothing fixes bridged up to `max_gap` frames and the rest split off
 (`jaxpose.reconstruction.gaps.fill_gaps`).
 """
@@ -34,7 +35,7 @@ from jaxpose.camera import Cameras
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.formats.rig_calibration import find_calibration
 from jaxpose.inference import Lifter3D
-from jaxpose.reconstruction.fusion import Fusion, FusionConfig, Provenance, fuse
+from jaxpose.reconstruction.fusion import MIN_DEPTH_MM, Fusion, FusionConfig, Provenance, fuse
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, fill_gaps
 from jaxpose.rig.project import RigProject, RigProjectConfig, load_rig_project
 from jaxpose.rig.recordings import recording_folders
@@ -124,21 +125,58 @@ def recording_inputs(dataset: MultiViewDataset) -> Iterator[RecordingInput]:
         yield RecordingInput(str(name), frame[0] + np.arange(F), cameras, keypoints, confidence, target)
 
 
-def lift_views(lifter: Lifter3D, inputs: RecordingInput) -> np.ndarray:
+def lift_views(lifter: Lifter3D, inputs: RecordingInput, roots: np.ndarray | None = None) -> np.ndarray:
     """f32[F, C, J, 3]: each camera's detections lifted (mm, root-relative, that camera's axes; NaN where
     the view's root is neither detected nor derived from the hips, `root_from_hips`), camera by camera as
-    a sequence, so a temporal lifter reads its windows of frames."""
+    a sequence, so a temporal lifter reads its windows of frames.
+
+    `roots` (f32[F, 3] world mm, `root_track`): lift only the view-frames whose root neither the detector
+    nor the hips give, with the root put where `roots` projects into that view (`root_from_world`)."""
     names = tuple(lifter.joint_names)
     F, C, J, _ = inputs.keypoints.shape
     if J != lifter.num_joints:
         raise ValueError(f"recording {inputs.name}: {J} joints per view, but the lifter of {lifter.source} lifts {names}")
     keypoints, confidence = root_from_hips(lifter.skeleton, inputs.keypoints, inputs.confidence)
+    liftable = confidence[..., ROOT] > 0
+    if roots is not None:
+        keypoints, confidence = root_from_world(inputs.cameras, keypoints, confidence, roots)
+        liftable = (confidence[..., ROOT] > 0) & ~liftable
     lifted = np.full((F, C, J, 3), np.nan, np.float32)
     for view in range(C):
-        if (confidence[:, view, ROOT] > 0).any():
+        if liftable[:, view].any():
             K = np.asarray(inputs.cameras.K[view], np.float32)
-            lifted[:, view] = lifter.predict(keypoints[:, view], intrinsics=K, confidence=confidence[:, view])
+            lift = lifter.predict(keypoints[:, view], intrinsics=K, confidence=confidence[:, view])
+            lifted[:, view] = np.where(liftable[:, view, None, None], lift, np.nan)
     return lifted
+
+
+def root_from_world(cameras: Cameras, keypoints: np.ndarray, confidence: np.ndarray, roots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The detections (f32[F, C, J, 2] undistorted pixels, [F, C, J]) with a missing root put where the
+    world point roots[f] (mm, NaN where unknown) projects into that view, at a view-frame that detects
+    some joint and has the point in front of it: the lifter's input is root-relative, so a view whose
+    pelvis and hips are occluded is lifted about where the body's root is known to be."""
+    R, t, K = (np.asarray(getattr(cameras, name), np.float64) for name in ("R", "t", "K"))
+    in_camera = np.einsum("cij,fj->fci", R, np.asarray(roots, np.float64)) + t  # [F, C, 3]
+    pixels = np.einsum("cij,fcj->fci", K, in_camera / in_camera[..., 2:])[..., :2]
+    derive = (
+        (confidence[..., ROOT] <= 0) & (confidence > 0).any(-1) & np.isfinite(in_camera).all(-1) & (in_camera[..., 2] > MIN_DEPTH_MM)
+    )
+    keypoints, confidence = keypoints.copy(), confidence.copy()
+    keypoints[..., ROOT, :] = np.where(derive[..., None], pixels, keypoints[..., ROOT, :])
+    confidence[..., ROOT] = np.where(derive, 1.0, confidence[..., ROOT])  # any score > 0: the lifter reads seen / not
+    return keypoints, confidence
+
+
+def root_track(roots: np.ndarray) -> np.ndarray:
+    """f32[F, 3]: a recording's fused root positions (world mm, NaN where the fusion has none) with every
+    missing frame interpolated linearly between the nearest frames that have one (held before the first
+    and after the last): the body's root moves smoothly, so this is where it was.  All NaN without any."""
+    roots = np.asarray(roots, np.float32)
+    known = np.flatnonzero(np.isfinite(roots).all(-1))
+    if not len(known):
+        return roots
+    frames = np.arange(len(roots))
+    return np.stack([np.interp(frames, known, roots[known, axis]) for axis in range(3)], -1).astype(np.float32)
 
 
 def root_from_hips(skeleton: Skeleton, keypoints: np.ndarray, confidence: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -194,27 +232,46 @@ class RecordingMotion:
         return int((~self.seen).sum())
 
 
-def reconstruct(
+def lift_and_reconstruct(
+    lifter: Lifter3D,
     inputs: RecordingInput,
-    lifted: np.ndarray | None,
     config: FusionConfig = FusionConfig(),
     max_gap: int = DEFAULT_MAX_GAP,
     bridge_lifted: bool = True,
-) -> RecordingMotion:
-    """The recording's motion: `fuse` at every frame some camera sees the person, then `fill_gaps`.
-    `lifted`: `lift_views`' output, or None to fuse the detections alone.
+) -> tuple[RecordingMotion, np.ndarray]:
+    """The recording's motion and the lifts it fused (f32[F, C, J, 3]), in two passes.
 
-    `bridge_lifted`: a joint no view detects (LIFTED: the lifts alone) for at most `max_gap` frames
-    between frames where views fix it is interpolated between them instead: on the Human3.6M training
-    recordings with simulated occlusion, 148 mm from the truth against the lifts' 175 (a lifter guesses
-    a joint missing from its input; the joint moves little in 0.2 s).  Longer runs keep the lifts."""
-    seen = inputs.seen
+    The first lifts every view whose root the detector or the hips give and fuses.  A view that detects
+    the person but not its root (pelvis and a hip occluded) is then lifted about the fused root's
+    projection (`root_track`, `root_from_world`) and the frames it gains are fused again: without it, a
+    joint such a view alone detects has nothing to fix its depth, and the frame has a gap although a
+    camera sees the person."""
+    lifted = lift_views(lifter, inputs)
+    fusion = fuse_recording(inputs, lifted, config)
+    unlifted = np.isnan(lifted[..., ROOT, 0]) & (inputs.confidence > 0).any(-1)
+    if unlifted.any():
+        relifted = lift_views(lifter, inputs, root_track(fusion.points[:, ROOT]))
+        gained = unlifted & np.isfinite(relifted[..., ROOT, 0])
+        if gained.any():
+            lifted = np.where(gained[..., None, None], relifted, lifted)
+            again = fuse_recording(inputs, lifted, config, frames=gained.any(1))
+            fusion = Fusion(**{
+                name: np.where(gained.any(1).reshape((-1,) + (1,) * (value.ndim - 1)), getattr(again, name), value)
+                for name, value in dataclasses.asdict(fusion).items()
+            })  # fmt: skip
+    return fill_recording(inputs, fusion, max_gap, bridge_lifted), lifted
+
+
+def fuse_recording(
+    inputs: RecordingInput, lifted: np.ndarray | None, config: FusionConfig = FusionConfig(), frames: np.ndarray | None = None
+) -> Fusion:
+    """`fuse` at every frame some camera sees the person (and `frames`, bool[F], allows), on the whole
+    frame axis: a frame not fused has nothing (NONE, NaN)."""
     F, C, J, _ = inputs.keypoints.shape
-    rows = np.flatnonzero(seen)
+    rows = np.flatnonzero(inputs.seen if frames is None else inputs.seen & frames)
     fused = fuse(
         inputs.cameras, inputs.keypoints[rows], inputs.confidence[rows], None if lifted is None else lifted[rows], config
     )
-    # On the whole frame axis: a frame no camera sees has nothing (NONE, NaN).
     shapes = {"points": (J, 3), "provenance": (J,), "uncertainty": (J,), "views": (J,), "placement": (C, 4)}
     whole = {}
     for name, shape in shapes.items():
@@ -222,7 +279,17 @@ def reconstruct(
         full = np.zeros((F, *shape), values.dtype) if values.dtype.kind == "i" else np.full((F, *shape), np.nan, values.dtype)
         full[rows] = values
         whole[name] = full
-    fusion = Fusion(**whole)
+    return Fusion(**whole)
+
+
+def fill_recording(inputs: RecordingInput, fusion: Fusion, max_gap: int = DEFAULT_MAX_GAP, bridge_lifted: bool = True) -> RecordingMotion:
+    """`fill_gaps` on a recording's fusion (`fuse_recording`).
+
+    `bridge_lifted`: a joint no view detects (LIFTED: the lifts alone) for at most `max_gap` frames
+    between frames where views fix it is interpolated between them instead: on the Human3.6M training
+    recordings with simulated occlusion, 148 mm from the truth against the lifts' 175 (a lifter guesses
+    a joint missing from its input; the joint moves little in 0.2 s).  Longer runs keep the lifts."""
+    F, J = fusion.provenance.shape
     points, bridged = fusion.points, np.zeros((F, J), bool)
     if bridge_lifted:
         lifted_only = fusion.provenance == Provenance.LIFTED
@@ -232,4 +299,6 @@ def reconstruct(
     filling = fill_gaps(points, max_gap)
     provenance = np.where(filling.filled | bridged, np.int8(Provenance.INTERPOLATED), fusion.provenance).astype(np.int8)
     uncertainty = np.where(bridged, np.nan, fusion.uncertainty).astype(np.float32)
-    return RecordingMotion(inputs.name, inputs.frames, filling.values, provenance, uncertainty, fusion.views, filling.segments, seen, fusion)
+    return RecordingMotion(
+        inputs.name, inputs.frames, filling.values, provenance, uncertainty, fusion.views, filling.segments, inputs.seen, fusion
+    )
