@@ -50,7 +50,7 @@ from jaxpose.formats.outputs import atomic_output, check_output
 from jaxpose.logs import show_logs
 from jaxpose.reconstruction.fusion import FusionConfig
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, fill_gaps
-from jaxpose.reconstruction.recording import RecordingInput, lift_and_reconstruct, recording_inputs
+from jaxpose.reconstruction.recording import RecordingInput, lift_and_reconstruct, placed_lifts, recording_inputs
 from jaxpose.rig.project import RigProjectConfig, load_rig_project
 from jaxpose.triangulation import triangulate
 
@@ -163,13 +163,9 @@ def held_filled(points: np.ndarray, max_gap: int) -> np.ndarray:
 
 def most_confident_view(inputs: RecordingInput, lifted: np.ndarray, placement: np.ndarray) -> np.ndarray:
     """f32[F, J, 3]: each instant's lift of the view with the highest mean confidence, placed as the
-    fusion placed that view (X = T_c + s_c R_c^T L_c); NaN where that view's lift did not count."""
+    fusion placed that view (`placed_lifts`); NaN where that view's lift did not count."""
     view = inputs.confidence.mean(-1).argmax(-1)  # [F]
-    frames = np.arange(len(view))
-    R = np.asarray(inputs.cameras.R, np.float64)[view]  # [F, 3, 3]
-    world = lifted[frames, view].astype(np.float64) @ R  # R^T L as rows
-    where = placement[frames, view].astype(np.float64)  # [F, 4]
-    return (where[:, None, :3] + where[:, None, 3:] * world).astype(np.float32)
+    return placed_lifts(inputs.cameras, lifted, placement)[np.arange(len(view)), view]
 
 
 class Tally:

@@ -327,6 +327,27 @@ def _solve(ev: _Evidence, rays: np.ndarray, lifts: np.ndarray, config: FusionCon
     return points, placement.reshape(n, C, 4), spread
 
 
+def _disagreeing_lifts(ev: _Evidence, points, placement, spread, known, trust, config: FusionConfig):
+    """(points, spread, known) with each joint that nothing fixed (no detection, and its lifts cut for
+    disagreeing beyond `lift_agree_sigmas`) put at the trust-weighted mean of its placed lifts (placement
+    [n, C, 4], NaN for a view whose lift did not count), with an uncertainty of the lift's error and the
+    lifts' spread: views whose lifts disagree there leave the joint lifted, not missing.  Added after the
+    solve, so that such a joint moves neither the placements nor the other joints."""
+    placed = placement[:, :, None, :3] + placement[:, :, None, 3:] * ev.lift  # [n, C, J, 3]
+    counted = ev.lifted & np.isfinite(placed).all(-1) & (trust[..., None] > 0)
+    weight = np.where(counted, trust[..., None], 0.0)  # [n, C, J]
+    fill = ~known & counted.any(1)
+    total = np.maximum(weight.sum(1), 1e-12)[..., None]  # [n, J, 1]
+    mean = np.sum(weight[..., None] * np.where(counted[..., None], placed, 0.0), 1) / total
+    scatter = np.sum(weight * np.sum((np.where(counted[..., None], placed, 0.0) - mean[:, None]) ** 2, -1), 1) / total[..., 0]
+    lift_error = np.sqrt(2 * config.lift_lateral_mm**2 + config.lift_depth_mm**2)
+    return (
+        np.where(fill[..., None], mean, points),
+        np.where(fill, np.sqrt(lift_error**2 + scatter), spread),
+        known | fill,
+    )
+
+
 def _fuse_rows(K, R, t, keypoints, confidence, lifted, *, config: FusionConfig):
     """`fuse` on one chunk of instants: the tuple of `Fusion`'s fields."""
     ev = _evidence(K, R, t, keypoints, confidence, lifted, config)
@@ -350,6 +371,8 @@ def _fuse_rows(K, R, t, keypoints, confidence, lifted, *, config: FusionConfig):
     views = (ev.seen & (error <= config.agree_px)).sum(1)
     spread = np.sqrt(np.trace(covariance[0], axis1=-2, axis2=-1))
     known = spread <= UNOBSERVABLE_MM
+    placement = np.where(lifts.any(-1)[..., None], placement, np.nan)  # views whose lift counted
+    points, spread, known = _disagreeing_lifts(ev, points, placement, spread, known, trust[..., 0], config)
     provenance = np.select(
         [~known, views >= 2, views == 1], [Provenance.NONE, Provenance.TRIANGULATED, Provenance.FUSED], Provenance.LIFTED
     )
@@ -358,5 +381,5 @@ def _fuse_rows(K, R, t, keypoints, confidence, lifted, *, config: FusionConfig):
         provenance.astype(np.int8),
         np.where(known, spread, np.nan).astype(np.float32),
         views.astype(np.int8),
-        np.where(lifts.any(-1)[..., None], placement, np.nan).astype(np.float32),  # views whose lift counted
+        placement.astype(np.float32),
     )

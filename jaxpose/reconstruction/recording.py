@@ -245,7 +245,12 @@ def lift_and_reconstruct(
     the person but not its root (pelvis and a hip occluded) is then lifted about the fused root's
     projection (`root_track`, `root_from_world`) and the frames it gains are fused again: without it, a
     joint such a view alone detects has nothing to fix its depth, and the frame has a gap although a
-    camera sees the person."""
+    camera sees the person.
+
+    Then the joints no view detects are re-anchored where views detect them (`anchored_lifts`), and
+    `fill_recording` bridges the short runs of them: on the Human3.6M development split's training
+    recordings with simulated occlusion (docs/reconstruction.md), such joints 124.5 mm from the truth,
+    against 147.8 bridged only, 140.4 anchored only and 175.6 with neither."""
     lifted = lift_views(lifter, inputs)
     fusion = fuse_recording(inputs, lifted, config)
     unlifted = np.isnan(lifted[..., ROOT, 0]) & (inputs.confidence > 0).any(-1)
@@ -259,7 +264,8 @@ def lift_and_reconstruct(
                 name: np.where(gained.any(1).reshape((-1,) + (1,) * (value.ndim - 1)), getattr(again, name), value)
                 for name, value in dataclasses.asdict(fusion).items()
             })  # fmt: skip
-    return fill_recording(inputs, fusion, max_gap, bridge_lifted), lifted
+    anchored = anchored_lifts(fusion.points, fusion.provenance, placed_lifts(inputs.cameras, lifted, fusion.placement))
+    return fill_recording(inputs, dataclasses.replace(fusion, points=anchored), max_gap, bridge_lifted), lifted
 
 
 def fuse_recording(
@@ -280,6 +286,39 @@ def fuse_recording(
         full[rows] = values
         whole[name] = full
     return Fusion(**whole)
+
+
+def placed_lifts(cameras: Cameras, lifted: np.ndarray, placement: np.ndarray) -> np.ndarray:
+    """f32[F, C, J, 3] world mm: each view's lift where the fusion placed it, X = T_c + s_c R_c^T L_c
+    (placement [F, C, 4]: root T_c and scale s_c); NaN where the view's lift did not count."""
+    R = np.asarray(cameras.R, np.float64)  # [C, 3, 3] (one rig per recording)
+    world = np.einsum("cba,fcjb->fcja", R, lifted.astype(np.float64))  # R^T L
+    where = placement.astype(np.float64)
+    return (where[..., None, :3] + where[..., None, 3:] * world).astype(np.float32)
+
+
+def anchored_lifts(points: np.ndarray, provenance: np.ndarray, placed: np.ndarray) -> np.ndarray:
+    """f32[F, J, 3]: the LIFTED cells (no view detects the joint) re-anchored to the detected ones.
+
+    A lifter's error in a joint changes slowly with the pose, so where the joint is detected (TRIANGULATED
+    or FUSED) the fused point minus the mean placed lift (`placed_lifts`) measures it; over a run of
+    lifted frames that offset is interpolated linearly between the detected frames around it (held
+    beyond the first and last) and added to the lifts: the joint follows the lifts' motion from where
+    the cameras last put it to where they put it next.  A joint never detected keeps its lifts."""
+    counted = np.isfinite(placed).all(-1)  # [F, C, J]
+    guess = np.where(counted[..., None], placed, 0.0).sum(1) / np.maximum(counted.sum(1), 1)[..., None]  # [F, J, 3]
+    guess = np.where(counted.any(1)[..., None], guess, np.nan)
+    detected = np.isin(provenance, (Provenance.TRIANGULATED, Provenance.FUSED)) & np.isfinite(guess).all(-1)
+    lifted_only = (provenance == Provenance.LIFTED) & np.isfinite(guess).all(-1)
+    out = points.copy()
+    frames = np.arange(len(points))
+    for joint in np.flatnonzero(lifted_only.any(0) & detected.any(0)):
+        known = np.flatnonzero(detected[:, joint])
+        offset = points[known, joint] - guess[known, joint]
+        cells = np.flatnonzero(lifted_only[:, joint])
+        shift = np.stack([np.interp(frames[cells], known, offset[:, axis]) for axis in range(3)], -1)
+        out[cells, joint] = guess[cells, joint] + shift
+    return out.astype(np.float32)
 
 
 def fill_recording(inputs: RecordingInput, fusion: Fusion, max_gap: int = DEFAULT_MAX_GAP, bridge_lifted: bool = True) -> RecordingMotion:

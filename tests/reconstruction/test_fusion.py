@@ -210,6 +210,24 @@ def test_what_nothing_fixes_is_missing_not_invented():
     assert (fused.uncertainty[0, others] < UNOBSERVABLE_MM).all()
 
 
+def test_a_joint_no_view_detects_whose_lifts_disagree_is_lifted_not_missing():
+    """A joint no camera detects, lifted by two views 600 mm apart across their axes (beyond the last
+    solve's agreement cut for both): it lies between the two lifts, LIFTED, with an uncertainty that
+    says how far apart they are; a detected joint's lifts never outvote agreeing detections (the cut)."""
+    scene = exact_scene(5, 2)
+    confidence = scene.confidence()
+    confidence[0, :, 5] = 0.0  # no view detects joint 5
+    lifted = scene.lifted.copy()
+    lifted[0, 0, 5, 0] += 300.0  # view 0's lift puts it 300 mm one way (camera x), view 1's 300 mm the other
+    lifted[0, 1, 5, 0] -= 300.0
+    fused = fuse(scene.cameras, scene.pixels, confidence, lifted, SIMULATED)
+    assert fused.provenance[0, 5] == Provenance.LIFTED and np.isfinite(fused.points[0, 5]).all()
+    assert np.linalg.norm(fused.points[0, 5] - scene.truth[0, 5]) < 300.0
+    assert fused.uncertainty[0, 5] > 3 * np.nanmedian(fused.uncertainty[0])
+    others = np.arange(J) != 5
+    assert np.abs(fused.points[0, others] - scene.truth[0, others]).max() < 1e-3
+
+
 def test_garbage_where_unseen_or_unlifted_changes_nothing_and_rows_are_independent():
     scene = exact_scene(11, 4, instants=5)
     confidence = scene.confidence()

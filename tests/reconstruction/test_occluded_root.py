@@ -117,3 +117,27 @@ def test_root_track_and_root_from_world_edges():
     points = np.array([[0.0, 0.0, 1000.0], [0.0, 0.0, -1000.0], [0.0, 0.0, 1000.0]])
     _, given = root_from_world(cameras, keypoints, confidence, points)
     assert given[:, 0, ROOT].tolist() == [1.0, 0.0, 0.0]
+
+
+def test_anchored_lifts_remove_a_slowly_changing_lift_error():
+    """A lift off by an error that changes linearly in time is put back on the truth between the frames
+    the cameras fix; beyond the last one the last offset is held; a joint never detected keeps its lift."""
+    from jaxpose.reconstruction.recording import anchored_lifts
+
+    rng = np.random.default_rng(3)
+    frames, joints = 30, 3
+    truth = rng.normal(0, 500, (frames, joints, 3)) + np.linspace(0, 900, frames)[:, None, None]
+    bias = np.linspace(0, 1, frames)[:, None] * np.array([60.0, -30.0, 90.0]) + np.array([10.0, 20.0, -40.0])
+    placed = np.stack([truth + bias[:, None], truth + bias[:, None] + 8.0, np.full_like(truth, np.nan)], 1)  # [F, C=3, J, 3]
+    guess = placed[:, :2].mean(1)
+    provenance = np.full((frames, joints), Provenance.TRIANGULATED, np.int8)
+    provenance[5:20, 0] = Provenance.LIFTED  # between two detected runs
+    provenance[22:, 1] = Provenance.LIFTED  # to the end
+    provenance[:, 2] = Provenance.LIFTED  # never detected
+    points = np.where((provenance == Provenance.LIFTED)[..., None], guess, truth).astype(np.float32)
+    anchored = anchored_lifts(points, provenance, placed.astype(np.float32))
+    np.testing.assert_allclose(anchored[:, 0], truth[:, 0], atol=1e-2)
+    held = truth[22:, 1] + (bias[22:] - bias[21])  # the offset of frame 21 held
+    np.testing.assert_allclose(anchored[22:, 1], held, atol=1e-2)
+    np.testing.assert_array_equal(anchored[:, 2], points[:, 2])
+    np.testing.assert_array_equal(anchored[provenance != Provenance.LIFTED], points[provenance != Provenance.LIFTED])
