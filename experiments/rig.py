@@ -109,7 +109,7 @@ def project_notes(project: RigProject, data: RigProjectConfig) -> tuple[str, ...
 # Preset "cpu": the Human3.6M cpu recipe (`experiments.h36m`, each choice measured there): a width-512
 # lifter of one stage, dropout 0.1, batch 128, cosine schedule, RANSAC pseudo-labels with a pseudo-Huber
 # label penalty, the rescaled loss weights.  70 epochs, but at most the Human3.6M cpu recipe's samples
-# (h36m.CPU_SAMPLES, 5.4M, ~17 minutes on 2 cores): on a larger project every epoch is thinned to fit
+# (h36m.CPU_SAMPLES, 5.4M, ~22 minutes on 2 cores): on a larger project every epoch is thinned to fit
 # (--train.max-samples; the report says so), so the budget does not grow with the project.  Inputs
 # augmented by dropping joints (--train.augment.drop 0.1): free on detections in docs/robust_input.md
 # (SH 81.1 / 81.5 against 81.1 / 81.3 mm, twin 55.1 against 55.0), while a missing joint then moves the
