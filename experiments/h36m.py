@@ -1,7 +1,7 @@
 """Human3.6M: self-supervised training on S1, S5, S6, S7, S8 (4 views), single-view evaluation on
 S9 and S11, P-MPJPE per action (the paper's Tables I and II).
 
-    python -m experiments.h36m --data.data-dir /data/h36m                  # preset cpu: ~23 min on 2 CPU cores
+    python -m experiments.h36m --data.data-dir /data/h36m                  # preset cpu: ~21 min on 2 CPU cores
     python -m experiments.h36m --preset paper --data.data-dir /data/h36m   # the paper's hyper-parameters
     python -m experiments.h36m --preset dev --data.data-dir /data/h36m     # development split on S1 (~2 min)
     python -m experiments.h36m --data.detections sh ...                    # Stacked Hourglass 2D (16 joints)
@@ -151,9 +151,10 @@ def expected_files(data: H36MData) -> str:
 #   ~312k single-view poses).  A "sample" below is one 4-view instant, as the runner counts them.
 # - A width-512 lifter of two stages trained at ~2,200 samples/s on 2 cores, at batch 128 as at 512 (a
 #   width-1024 one at about a third of that): 30 epochs = 2.3M samples = ~17 min.  One stage (two
-#   residual blocks, Martinez et al.'s depth) trains 1.8-2.2x as fast: 70 epochs (5.4M samples) at
-#   ~4,100 samples/s took 22 min of a 23-minute run on a full-size stand-in (docs/benchmarks.md "The
-#   recipe searched again"; on the development split 107 s against 104 s for 30 epochs of two stages).
+#   residual blocks, Martinez et al.'s depth) trains 1.8-2.2x as fast: 70 epochs of a full-size
+#   stand-in's 72k samples (5.0M) at ~4,300 samples/s took 19 min 38 s in all, so the real 78k (5.4M)
+#   about 21 min (docs/benchmarks.md "The recipe searched again"; on the development split 107 s
+#   against 104 s for 30 epochs of two stages).
 # - One stage for 70 epochs rather than two for 30, the same time (issue 36, development split, seeds
 #   0 / 1): ground-truth 2D 36.2 / 36.3 against 41.3 / 41.3 mm P-MPJPE, SH 79.5 / 80.0 against
 #   81.1 / 81.3 (80.9 re-run); 55 epochs of one stage were 37.4 / 37.2 and 80.0 / 80.2.
@@ -199,7 +200,7 @@ DEV = dataclasses.replace(
 
 PRESETS: dict[str, ExperimentConfig] = {"cpu": CPU, "paper": PAPER, "dev": DEV}
 PRESET_NOTES = {
-    "cpu": "width-512 lifter of one stage, batch 128, 70 epochs, cosine schedule, RANSAC pseudo-labels, rescaled loss weights: ~23 min on 2 CPU cores",
+    "cpu": "width-512 lifter of one stage, batch 128, 70 epochs, cosine schedule, RANSAC pseudo-labels, rescaled loss weights: ~21 min on 2 CPU cores",
     "paper": paper_note(PAPER),
     "dev": "development protocol: S1 only, first trial of each action trains, the other tests; SH 2D; cpu recipe",
 }
