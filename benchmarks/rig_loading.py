@@ -39,6 +39,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -125,8 +126,6 @@ class _PeakMemory:
     which the kernel drops under pressure)."""
 
     def __init__(self):
-        import threading
-
         self.peak = {"RssAnon": 0, "RssFile": 0, "VmRSS": 0}
         self.stopped = threading.Event()
         self.thread = threading.Thread(target=self._sample, daemon=True)

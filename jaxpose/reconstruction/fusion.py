@@ -238,11 +238,21 @@ def _ray_weights(ev: _Evidence, points: np.ndarray, config: FusionConfig, agreei
     return np.where(usable, weight, 0.0)
 
 
+def _placed_lifts(ev: _Evidence, placement: np.ndarray) -> np.ndarray:
+    """[n, C, J, 3]: each view's lift where `placement` [n, C, 4] (root T_c, scale s_c) puts it, T_c + s_c R_c^T L_c."""
+    return placement[:, :, None, :3] + placement[:, :, None, 3:] * ev.lift
+
+
+def _lift_mahalanobis(ev: _Evidence, points: np.ndarray, placement: np.ndarray) -> np.ndarray:
+    """[n, C, J]: each lifted joint's Mahalanobis residual (standard deviations) from `points` [n, J, 3]."""
+    residual = points[:, None] - _placed_lifts(ev, placement)
+    return np.sqrt(np.sum((residual @ ev.precision) * residual, -1))
+
+
 def _lift_weights(ev: _Evidence, points, placement, config: FusionConfig, agreeing_only: bool) -> np.ndarray:
     """[n, C, J]: the Cauchy weight of each lifted joint's Mahalanobis residual at `points` [n, J, 3] and
     `placement` [n, C, 4], 0 where not lifted (or, `agreeing_only`, beyond `lift_agree_sigmas`)."""
-    residual = points[:, None] - placement[:, :, None, :3] - placement[:, :, None, 3:] * ev.lift
-    mahalanobis = np.sqrt(np.sum((residual @ ev.precision) * residual, -1))
+    mahalanobis = _lift_mahalanobis(ev, points, placement)
     usable = ev.lifted & (mahalanobis <= config.lift_agree_sigmas) if agreeing_only else ev.lifted
     return np.where(usable, cauchy_weights(mahalanobis, config.lift_robust_sigmas), 0.0)
 
@@ -277,8 +287,7 @@ def _fitted_residuals(ev: _Evidence, points, weight, fitted, count, config: Fusi
     b[..., :3] = (ev.precision @ (weight @ points)[..., None])[..., 0]
     b[..., 3] = np.sum(weight * np.sum(ev.precision_lift * points[:, None], -1), -1) + 1.0 / config.scale_sigma**2
     placement = np.linalg.solve(A, b[..., None])[..., 0]
-    residual = points[:, None] - placement[:, :, None, :3] - placement[:, :, None, 3:] * ev.lift
-    mahalanobis = np.sqrt(np.sum((residual @ ev.precision) * residual, -1))
+    mahalanobis = _lift_mahalanobis(ev, points, placement)
     order = np.sort(np.where(fitted > 0, mahalanobis, np.inf), -1)  # the fitted joints' residuals first
     lower = np.take_along_axis(order, (np.maximum(count, 1) - 1)[..., None] // 2, -1)[..., 0]
     upper = np.take_along_axis(order, np.maximum(count, 1)[..., None] // 2, -1)[..., 0]
@@ -333,7 +342,7 @@ def _disagreeing_lifts(ev: _Evidence, points, placement, spread, known, trust, c
     [n, C, 4], NaN for a view whose lift did not count), with an uncertainty of the lift's error and the
     lifts' spread: views whose lifts disagree there leave the joint lifted, not missing.  Added after the
     solve, so that such a joint moves neither the placements nor the other joints."""
-    placed = placement[:, :, None, :3] + placement[:, :, None, 3:] * ev.lift  # [n, C, J, 3]
+    placed = _placed_lifts(ev, placement)
     counted = ev.lifted & np.isfinite(placed).all(-1) & (trust[..., None] > 0)
     weight = np.where(counted, trust[..., None], 0.0)  # [n, C, J]
     fill = ~known & counted.any(1)
