@@ -1,5 +1,5 @@
 """The main job on the embedded default: procedural multi-view data, self-supervised training,
-checkpoints, evaluation and report, in about 10 minutes on 2 CPU cores.
+checkpoints, evaluation and report, in about 3 minutes on 2 CPU cores (its budget: 10).
 
     python -m experiments.synthetic                      # self-supervised (the paper's four losses)
     python -m experiments.synthetic --supervision full   # the same network on 3D ground truth
