@@ -19,7 +19,7 @@ non-zero exit status, not a traceback.  The runner loads the data before it crea
 directory, so a failed start leaves nothing behind; a batch larger than the training set is refused there too.
 
 The budget.  A preset may cap the samples a run sees (`--train.max-samples`: min(its epochs, e.g. the
-Human3.6M cpu recipe's 5.4M samples) on a project of any size).  `--train.epochs` given on the command
+rig preset's 5.0M samples, the Human3.6M cpu recipe's time) on a project of any size).  `--train.epochs` given on the command
 line asks for that many full epochs: it lifts the preset's cap, unless `--train.max-samples` is given too.
 
 Compiled programs are cached on disk for the next run (`jaxpose.compilation_cache`;
