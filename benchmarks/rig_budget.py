@@ -35,27 +35,28 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 # Human3.6M's training subjects (S1, S5-S8): 1,559,752 frames over 4 cameras and 150 sequences.
 TRAINING_FRAMES_PER_SEQUENCE = 2_600
 
 
 def write_data(base: Path, frames: int) -> dict:
-    """The synthetic tree and its rig project in `base` (kept where they already exist)."""
+    """The synthetic tree and its rig project in `base` (kept where they already exist), written by
+    `benchmarks/rig_loading.py`'s own steps, each in a child process."""
     h36m_dir, rig_dir = base / "h36m", base / "rig"
     written = {}
     if not h36m_dir.exists():
-        written["h36m_tree"] = _child(["--write-h36m", str(h36m_dir), str(frames)])
+        written["h36m_tree"] = _rig_loading_step("write-h36m", h36m_dir, frames)
     if not rig_dir.exists():
-        written["rig_project"] = _child(["--write-rig", str(h36m_dir), str(rig_dir)])
+        written["rig_project"] = _rig_loading_step("write-rig", h36m_dir, rig_dir)
     return written
 
 
-def _child(arguments: list[str]) -> dict:
-    done = subprocess.run([sys.executable, __file__, *arguments], capture_output=True, text=True, check=False)
+def _rig_loading_step(*step) -> dict:
+    command = [sys.executable, str(ROOT / "benchmarks" / "rig_loading.py"), "--step", *map(str, step)]
+    done = subprocess.run(command, capture_output=True, text=True, check=False)
     if done.returncode:
-        raise SystemExit(f"{arguments[0]} failed (exit {done.returncode}):\n{done.stderr[-4000:]}")
+        raise SystemExit(f"{step[0]} failed (exit {done.returncode}):\n{done.stderr[-4000:]}")
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
@@ -99,24 +100,13 @@ def main() -> None:
     parser.add_argument("--keep", type=Path, help="write the data and the runs here and keep them (default: a temporary folder)")
     parser.add_argument("--frames-per-sequence", type=int, default=TRAINING_FRAMES_PER_SEQUENCE, help="frames of every synthetic sequence, 50 fps")
     parser.add_argument("--flags", default="", help="more flags for every run, one string (e.g. --flags='--train.max-steps 200')")
-    # Internal: the data are written in child processes.
-    parser.add_argument("--write-h36m", nargs=2, help=argparse.SUPPRESS)
-    parser.add_argument("--write-rig", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
-    if args.write_h36m:
-        from benchmarks import h36m_loading
-
-        print(json.dumps(h36m_loading.write_tree(Path(args.write_h36m[0]), int(args.write_h36m[1]))))
-        return
-    if args.write_rig:
-        from benchmarks import rig_loading
-
-        print(json.dumps(rig_loading.write_rig(*map(Path, args.write_rig))))
-        return
 
     flags = shlex.split(args.flags)
     with tempfile.TemporaryDirectory(prefix="rig_budget_") as scratch:
         base = args.keep or Path(scratch)
+        if (base / "runs").exists():
+            raise SystemExit(f"{base / 'runs'} exists: a run there would resume, not be measured; remove it or --keep another folder")
         base.mkdir(parents=True, exist_ok=True)
         data = write_data(base, args.frames_per_sequence)
         shutil.rmtree(base / "rig" / ".jaxpose_cache", ignore_errors=True)
@@ -127,8 +117,6 @@ def main() -> None:
             ("`experiments.h36m --preset cpu --data.detections sh`", "experiments.h36m", h36m, "h36m"),
             ("`experiments.rig`, warm (cache)", "experiments.rig", rig, "rig_warm"),
         ]
-        if (base / "runs").exists():
-            raise SystemExit(f"{base / 'runs'} exists: a run there would resume, not be measured; remove it or --keep another folder")
         (base / "runs").mkdir()
         runs = []
         for name, module, arguments, folder in plan:
