@@ -19,9 +19,7 @@ import time
 
 import numpy as np
 
-from jaxpose import inference
-
-
+from jaxpose.serving import inference
 def seconds_per_call(lifter: inference.Lifter3D, count: int, repeats: int) -> dict[str, float]:
     """Median seconds of `predict` on `count` poses, plain and flipped, over `repeats` alternating calls."""
     rng = np.random.default_rng(count)

@@ -21,7 +21,7 @@ import jax
 
 from benchmarks.train_step import synthetic_batch, timed_rounds
 from experiments.synthetic import DEFAULT
-from jaxpose.train import init_train_state, jit_train_step, make_train_step
+from jaxpose.training.step import init_train_state, jit_train_step, make_train_step
 
 
 def main(argv=None) -> dict[str, float]:

@@ -15,7 +15,7 @@ so the peaks of RssAnon, the process's own memory, and RssFile are sampled besid
   development protocol's thinning, `--data.train-stride 5 --data.validation-stride 5`);
 - rig warm: the same options again, read from the cache (memory-mapped);
 - warm + pseudo-labels: what a run does before its first training step besides compiling it
-  (`jaxpose.pseudo_labelling.label` of the training part, RANSAC as the rig presets), computed and
+  (`jaxpose.training.pseudo_labelling.label` of the training part, RANSAC as the rig presets), computed and
   cached beside the prepared project, then again (read from that cache);
 - h36m: `load_h36m` of the same tree, stride 1 and 5;
 - with `--ten-times`, the ten-times project trained (`experiments.rig`, `--train-steps` steps: loading
@@ -110,8 +110,8 @@ def measure_rig(rig_dir: str, stride: int, pseudo_labels: bool) -> dict:
         "rss_after_imports_gib": round(baseline / 2**20, 3),
     }
     if pseudo_labels:
-        from jaxpose import pseudo_labelling
-        from jaxpose.config import PseudoLabelConfig
+        from jaxpose.training import pseudo_labelling
+        from jaxpose.training.config import PseudoLabelConfig
 
         start = time.perf_counter()
         pseudo_labelling.label(project.train, PseudoLabelConfig(method="ransac"))

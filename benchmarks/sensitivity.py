@@ -39,8 +39,8 @@ ROOT_DIR = pathlib.Path(__file__).resolve().parents[1]
 if str(ROOT_DIR) not in sys.path:
     sys.path.insert(0, str(ROOT_DIR))
 
-from jaxpose import inference  # noqa: E402
-from jaxpose.evaluation import ground_truth_in_views  # noqa: E402
+from jaxpose.serving import inference
+from jaxpose.training.evaluation import ground_truth_in_views  # noqa: E402
 from jaxpose.metrics import p_mpjpe  # noqa: E402
 
 IMAGE_SIZE = (1000.0, 1000.0)

@@ -1,6 +1,6 @@
 """Train-step time of the temporal lifter against the frame lifter, in one process, as ratios.
 
-The same jitted step (`jaxpose.train`) on batches of the synthetic data set (4 views), for each
+The same jitted step (`jaxpose.training.step`) on batches of the synthetic data set (4 views), for each
 temporal window T, with the batch's windows gathered on the host as training does: the median step
 time and T = 1's samples/s divided by each window's.  The ratios set the epochs of a temporal run at the
 frame lifter's wall-clock budget (docs/temporal.md).
@@ -20,10 +20,10 @@ import time
 import jax
 import numpy as np
 
-from jaxpose import pseudo_labelling
-from jaxpose.config import RESCALED_LOSS, ModelConfig, OptimizerConfig, PseudoLabelConfig
+from jaxpose.training import pseudo_labelling
+from jaxpose.training.config import RESCALED_LOSS, ModelConfig, OptimizerConfig, PseudoLabelConfig
 from jaxpose.synthetic import SyntheticConfig, generate
-from jaxpose.train import init_train_state, jit_train_step, make_train_step
+from jaxpose.training.step import init_train_state, jit_train_step, make_train_step
 
 
 def step_seconds(dataset, window: int, stages: int, batch_size: int, width: int, steps: int) -> float:

@@ -1,4 +1,4 @@
-"""A PyTorch equivalent of `jaxpose.train`'s train step, for speed comparisons on the same machine.
+"""A PyTorch equivalent of `jaxpose.training.step`'s train step, for speed comparisons on the same machine.
 
 Written from the paper (Sec. III) and docs/method.md "Method choices", with the conventions of
 `jaxpose.losses` (metres / focal-normalized units, means over valid entries, root excluded,

@@ -47,12 +47,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpose import pseudo_labelling
-from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
+from jaxpose.training import pseudo_labelling
+from jaxpose.training.config import LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.synthetic import SyntheticConfig, generate
 from jaxpose.losses import total_loss
-from jaxpose.train import init_train_state, jit_train_step, make_train_step
+from jaxpose.training.step import init_train_state, jit_train_step, make_train_step
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = (8192, 4)  # (samples per batch, views)

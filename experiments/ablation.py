@@ -32,9 +32,9 @@ import sys
 import numpy as np
 
 from experiments import cli, h36m, humaneva, synthetic
-from experiments.config import ExperimentConfig
-from experiments.runner import run
-from jaxpose import evaluation
+from jaxpose.training.experiment import ExperimentConfig
+from jaxpose.training.runner import run
+from jaxpose.training import evaluation
 from jaxpose.losses import TERMS
 
 # The entry points an ablation can run, by their --dataset name.

@@ -40,9 +40,9 @@ import jax
 import tyro
 
 from experiments import paper_tables
-from experiments.config import ExperimentConfig
-from experiments.runner import run
-from experiments.splits import Splits
+from jaxpose.training.experiment import ExperimentConfig
+from jaxpose.training.runner import run
+from jaxpose.training.splits import Splits
 from jaxpose.formats.errors import DataFormatError
 
 SUPERVISED_SUFFIX = "_supervised"
@@ -156,7 +156,7 @@ def given(argv: Sequence[str], flag: str) -> bool:
 
 
 def main(experiment: Experiment, argv: Sequence[str] | None, description: str) -> dict:
-    """An entry point's whole command: parse, `experiments.runner.run`, then the paper-layout table
+    """An entry point's whole command: parse, `jaxpose.training.runner.run`, then the paper-layout table
     (when the experiment has one) written into, and printed from, the run directory."""
     config = parse(experiment, argv, description)
     report = run(config, experiment.loader(config))

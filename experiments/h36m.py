@@ -23,10 +23,10 @@ from typing import Literal
 import numpy as np
 
 from experiments import cli, paper_tables
-from experiments.config import ExperimentConfig, RunConfig, TrainConfig, paper_note, paper_preset
-from experiments.config import calibration_lines, mocap_calibration, on_training_calibration
-from experiments.splits import Splits
-from jaxpose.config import RESCALED_LOSS, ModelConfig, OptimizerConfig, PseudoLabelConfig
+from jaxpose.training.experiment import ExperimentConfig, RunConfig, TrainConfig, paper_note, paper_preset
+from jaxpose.training.experiment import calibration_lines, mocap_calibration, on_training_calibration
+from jaxpose.training.splits import Splits
+from jaxpose.training.config import RESCALED_LOSS, ModelConfig, OptimizerConfig, PseudoLabelConfig
 from jaxpose.datasets.h36m import DETECTION_FILES, POSES_3D_FILE, TEST_SUBJECTS, TRAIN_SUBJECTS, load_h36m, subject_rigs
 
 

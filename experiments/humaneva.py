@@ -20,10 +20,10 @@ import pathlib
 import numpy as np
 
 from experiments import cli, paper_tables
-from experiments.config import ExperimentConfig, RunConfig, TrainConfig, paper_note, paper_preset
-from experiments.config import calibration_lines, mocap_calibration, on_training_calibration
-from experiments.splits import Splits
-from jaxpose.config import ModelConfig, OptimizerConfig
+from jaxpose.training.experiment import ExperimentConfig, RunConfig, TrainConfig, paper_note, paper_preset
+from jaxpose.training.experiment import calibration_lines, mocap_calibration, on_training_calibration
+from jaxpose.training.splits import Splits
+from jaxpose.training.config import ModelConfig, OptimizerConfig
 from jaxpose.datasets.humaneva import POSES_3D_FILE, TEST_SUBJECTS, TRAIN_SUBJECTS, load_humaneva, subject_rigs
 
 GROUP_LABEL = "action_subject"

@@ -35,10 +35,11 @@ import sys
 import numpy as np
 
 from experiments import ablation, cli, h36m
-from experiments.config import ExperimentConfig
-from experiments.runner import run
-from experiments.splits import Splits
-from jaxpose import evaluation, inference, pseudo_labelling
+from jaxpose.training.experiment import ExperimentConfig
+from jaxpose.training.runner import run
+from jaxpose.training.splits import Splits
+from jaxpose.training import evaluation, pseudo_labelling
+from jaxpose.serving import inference
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.losses import TERMS
 from jaxpose.skeleton import Skeleton

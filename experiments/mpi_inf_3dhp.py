@@ -25,8 +25,10 @@ import pathlib
 import numpy as np
 import tyro
 
-from jaxpose import evaluation, inference
-from jaxpose.checkpoint import CheckpointError
+from jaxpose.training import evaluation
+
+from jaxpose.serving import inference
+from jaxpose.training.checkpoint import CheckpointError
 from jaxpose.data.dataset import consecutive_spans
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.datasets.mpi_inf_3dhp import ACTIVITY_NAMES, SEQUENCES, load_mpi_inf_3dhp_test

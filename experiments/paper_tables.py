@@ -32,7 +32,7 @@ class PaperTable:
     references: Mapping[str, tuple[float, ...]]
     """The paper's rows to compare with: one value per column, then Avg."""
     metric: str = "p_mpjpe"
-    """The metric of the paper's table (a key of `jaxpose.evaluation.summarize`)."""
+    """The metric of the paper's table (a key of `jaxpose.training.evaluation.summarize`)."""
 
 
 # Column order and headers of the paper's Table II; group labels are `jaxpose.datasets.h36m.sequence_action` names.

@@ -26,12 +26,12 @@ import time
 import numpy as np
 import tyro
 
-from experiments.config import RunConfig, TrainConfig
-from experiments.runner import run
-from experiments.splits import Splits
+from jaxpose.training.experiment import RunConfig, TrainConfig
+from jaxpose.training.runner import run
+from jaxpose.training.splits import Splits
 from experiments.synthetic import DEFAULT, SyntheticData, load_splits
-from jaxpose import pseudo_labelling
-from jaxpose.config import ModelConfig, PseudoLabelConfig
+from jaxpose.training import pseudo_labelling
+from jaxpose.training.config import ModelConfig, PseudoLabelConfig
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.synthetic import SyntheticConfig
 from jaxpose.robust import PseudoLabelMethod

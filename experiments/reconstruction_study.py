@@ -42,7 +42,9 @@ import numpy as np
 import tyro
 from tqdm.auto import tqdm
 
-from jaxpose import inference, robust
+from jaxpose import robust
+
+from jaxpose.serving import inference
 from jaxpose.camera import projection_matrices
 from jaxpose.chunks import map_in_chunks
 from jaxpose.compilation_cache import enable_compilation_cache

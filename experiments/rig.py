@@ -14,7 +14,7 @@ and docs/rig.md ("Train on your own rig").
 
 The lifter is trained on the detector's own joints (root first: its mid-hip, derived from the hips
 where the detector has none).  A held-out part (--data.validation-recordings, or the last
---data.validation-fraction of every recording) is evaluated without ground truth (`jaxpose.validation`:
+--data.validation-fraction of every recording) is evaluated without ground truth (`jaxpose.training.self_consistency`:
 how the views' predictions agree), and with it where a recording has a ground_truth.npz.  The run
 directory is used by `jaxpose.predict` and `jaxpose.export` like any other.
 """
@@ -26,9 +26,9 @@ import logging
 import pathlib
 
 from experiments import cli, h36m
-from experiments.config import ExperimentConfig, RunConfig
-from experiments.splits import Splits
-from jaxpose.config import InputAugmentation
+from jaxpose.training.experiment import ExperimentConfig, RunConfig
+from jaxpose.training.splits import Splits
+from jaxpose.training.config import InputAugmentation
 from jaxpose.formats.camera_file import save_cameras
 from jaxpose.rig.project import RigProject, RigProjectConfig, load_rig_project
 

@@ -32,7 +32,7 @@ import tyro
 from experiments.h36m import first_trials
 from jaxpose.formats.anipose_toml import write_anipose_toml
 from jaxpose.formats.h36m_cameras import H36M_IMAGE_SIZES, opencv_rig_from_h36m
-from jaxpose.formats.rig_calibration import read_rig_calibration
+from jaxpose.formats.calibration_files import read_rig_calibration
 from jaxpose.datasets.h36m import CAMERA_NAMES, load_h36m
 from jaxpose.formats.outputs import atomic_output
 from jaxpose.formats.rig_folder import CALIBRATION_TOML, DETECTIONS_NPZ, GROUND_TRUTH_NPZ

@@ -18,7 +18,7 @@ Every (variant, seed) trains in its own run directory, <run_dir>/<variant>/seed<
 runs/search_<dataset>_<preset>); one that holds a finished report of the same settings is read, not
 trained again, so an interrupted search resumes where it stopped.  The report, <run_dir>/search.md (and
 search.json), rewritten after every training, ranks the variants by the ground-truth-free reprojection
-error (`jaxpose.validation`: each view's lift placed and projected into the other views; on Human3.6M it
+error (`jaxpose.training.self_consistency`: each view's lift placed and projected into the other views; on Human3.6M it
 orders recipes as the true P-MPJPE does, docs/rig.md section 5), the mean over seeds, and picks the
 lowest.  Where the held-out data have 3D ground truth, it also gives each variant's P-MPJPE and how well
 the reprojection's ranking agrees with the true one (Spearman's rho and Kendall's tau) and what the pick
@@ -40,9 +40,9 @@ import numpy as np
 from scipy.stats import kendalltau, spearmanr
 
 from experiments import ablation, cli, rig
-from experiments.config import ExperimentConfig
-from experiments.run_directory import check_resumable, read_jsonl
-from experiments.runner import run
+from jaxpose.training.experiment import ExperimentConfig
+from jaxpose.training.run_directory import check_resumable, read_jsonl
+from jaxpose.training.runner import run
 
 EXPERIMENTS = ablation.EXPERIMENTS | {"rig": rig.EXPERIMENT}
 PROG = "python -m experiments.search"
@@ -98,7 +98,7 @@ def _presets(experiment: cli.Experiment) -> dict[str, ExperimentConfig]:
 
 def trained_report(experiment: cli.Experiment, config: ExperimentConfig) -> dict:
     """The run's report: read where its directory holds a finished one of these settings, else trained
-    (or resumed) and evaluated by `experiments.runner.run`."""
+    (or resumed) and evaluated by `jaxpose.training.runner.run`."""
     check_resumable(config)  # a directory holding another recipe's run is refused, naming it
     path = config.run.run_dir / "report.json"
     if path.exists():

@@ -13,9 +13,9 @@ import dataclasses
 import pathlib
 
 from experiments import cli
-from experiments.config import ExperimentConfig, RunConfig, TrainConfig
-from experiments.splits import Splits
-from jaxpose.config import ModelConfig, OptimizerConfig
+from jaxpose.training.experiment import ExperimentConfig, RunConfig, TrainConfig
+from jaxpose.training.splits import Splits
+from jaxpose.training.config import ModelConfig, OptimizerConfig
 from jaxpose.synthetic import SyntheticConfig, generate
 
 

@@ -303,7 +303,7 @@ def normalize_keypoints(
        the supervised twin 54.9 / 55.0; with ground-truth 2D 40.7 / 41.2): the median is the default.
        Inside the image the scale is
        not what moves the other joints (200 px: 124 vs 125 mm): the network mixes every input into
-       every output, which `jaxpose.config.InputAugmentation` trains against, and `jaxpose.predict`
+       every output, which `jaxpose.training.config.InputAugmentation` trains against, and `jaxpose.predict`
        lifts a keypoint far outside the image as missing.
 
     Joints with confidence 0 are set to 0 (and excluded from the scale), so a missing joint never

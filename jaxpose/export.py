@@ -11,7 +11,7 @@ writes, for the newest readable checkpoint of the run:
   lifter.json         the metadata of both: skeleton, joint names, inputs, output, units, step, and
                       test_time_flip: whether the flip (`--flip`, `jaxpose.flip`) is inside the graph
 
-The model takes what `jaxpose.inference.Lifter3D.predict` takes, for any number B of poses:
+The model takes what `jaxpose.serving.inference.Lifter3D.predict` takes, for any number B of poses:
 
   keypoints   f32[B, J, 2]  undistorted pixels, in the skeleton's joint order
   K           f32[B, 3, 3]  the intrinsics of each pose's camera
@@ -45,9 +45,9 @@ import jax
 import jax.numpy as jnp
 import tyro
 
-from jaxpose import checkpoint
+from jaxpose.training import checkpoint
 from jaxpose.formats.outputs import OutputError, atomic_output, check_output
-from jaxpose.inference import Lifter3D, load
+from jaxpose.serving.inference import Lifter3D, load
 from jaxpose.skeleton import ROOT
 
 INPUT_NAMES = ("keypoints", "K", "confidence")

@@ -23,18 +23,18 @@ the benchmarks take COCO-17, BODY_25 and HALPE_26 (through its COCO-17 keypoints
 
 Output by suffix (see --output; `jaxpose.formats.pose_files`), root-relative, on the input's time axis: each
 pose keeps its frame (an OpenPose file's index, a COCO image id's number), its time (frame - first frame) / --fps
-and its person, followed through the frames by its 2D keypoints (`jaxpose.tracking`).  A ``.trc`` is a file per
+and its person, followed through the frames by its 2D keypoints (`jaxpose.serving.tracking`).  A ``.trc`` is a file per
 person, a row per frame: gaps of up to --max-gap frames are interpolated, a longer one starts a new file, and
 the command prints what it filled and split.
 
 Keypoints that cannot be right are lifted as missing, and the command says how many joints of how many
-poses it treated so, per reason (`jaxpose.inference.implausible_joints`): NaN or infinite coordinates
+poses it treated so, per reason (`jaxpose.serving.inference.implausible_joints`): NaN or infinite coordinates
 with a positive score, a score below --min-confidence (default 0.05), and, where the image size is known
 (--image-size, or the --intrinsics calibration's), a keypoint more than --outside-margin (default 10%) of
 the larger image side outside the image.  Then, in each pose, the joint that fits the rest of the pose
 worst can be lifted as missing where it lies more than --reject-inconsistent (2 for a lifter trained with
 --train.augment.drop 0.1; off by default) median joint-to-root distances from where the rest of the pose
-puts it (frame lifters; `jaxpose.inference.inconsistent_joints`), and the command says how many.  One
+puts it (frame lifters; `jaxpose.serving.inference.inconsistent_joints`), and the command says how many.  One
 wild keypoint would otherwise move the whole lifted pose (docs/robust_input.md).
 
 --flip lifts each pose and its mirror image and averages the two (test-time flip augmentation, `jaxpose.flip`).
@@ -61,8 +61,10 @@ import numpy as np
 import tyro
 from tqdm.auto import tqdm
 
-from jaxpose import inference, lifting_figures, tracking, viz
-from jaxpose.checkpoint import CheckpointError
+from jaxpose import viz
+
+from jaxpose.serving import inference, lifting_figures, tracking
+from jaxpose.training.checkpoint import CheckpointError
 from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.formats import detection_file, intrinsics, pose_files
 from jaxpose.formats.outputs import OutputError, check_output
@@ -118,7 +120,7 @@ class PredictArgs:
     """A .trc output: up to this many frames in a row without a lifted pose of a person are filled by linear
     interpolation (Pose2Sim's default, 10); a longer gap ends the file and a new segment begins."""
     track_gap: int = tracking.DEFAULT_MAX_GAP
-    """Frames a person may go unseen and still be followed (`jaxpose.tracking`); one who comes back later
+    """Frames a person may go unseen and still be followed (`jaxpose.serving.tracking`); one who comes back later
     counts as another person."""
     overwrite: bool = False
     """Replace existing output files (--output, a .trc output's person files, --animation, the --plot
@@ -133,7 +135,7 @@ class PredictArgs:
     reject_inconsistent: float | None = None
     """In each pose, the joint that fits the rest of the pose worst is lifted as missing where it lies farther
     than this many median joint-to-root distances from where the rest of the pose puts it (frame lifters;
-    `jaxpose.inference.leave_one_out_residuals`).  2 is the measured choice for a lifter trained with
+    `jaxpose.serving.inference.leave_one_out_residuals`).  2 is the measured choice for a lifter trained with
     --train.augment.drop 0.1; off by default, as it costs a lifter trained without it accuracy
     (docs/robust_input.md)."""
     flip: bool = False

@@ -37,8 +37,8 @@ import numpy as np
 import tyro
 from tqdm.auto import tqdm
 
-from jaxpose import inference
-from jaxpose.checkpoint import CheckpointError
+from jaxpose.serving import inference
+from jaxpose.training.checkpoint import CheckpointError
 from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.outputs import OutputError, atomic_output, check_output

@@ -26,7 +26,7 @@ Both end alike (`refine_on_inliers`): the DLT over the views within `threshold_p
 re-selected against that solution and the DLT solved once more; a joint keeps weight 1 only if at
 least `min_views` views end within `threshold_px` of its final point, otherwise it gets weight 0
 and teaches nothing.  `agreeing_views` names the views that end within `threshold_px`: the others
-are outliers, and `jaxpose.pseudo_labelling.label` records them so that the losses do not take
+are outliers, and `jaxpose.training.pseudo_labelling.label` records them so that the losses do not take
 them as targets either (`MultiViewBatch.detection_weight`).
 
 All functions are pure, jittable, and batched over any leading axes: P [..., C, 3, 4] as built by

@@ -11,7 +11,7 @@ from fixtures_real_data import ring_of_cameras
 from scipy.spatial.transform import Rotation
 
 from jaxpose.camera import Cameras
-from jaxpose.formats.calibrated_rig import RigCalibration
+from jaxpose.formats.rig_cameras import RigCalibration
 
 
 def synthetic_rig(count=4, seed=0, fisheye=False, with_size=True) -> RigCalibration:

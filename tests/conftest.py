@@ -5,9 +5,10 @@ import hypothesis
 import pytest
 
 from experiments import synthetic as synthetic_job
-from jaxpose import compilation_cache, inference, logs
+from jaxpose import compilation_cache, logs
 
 # Hermetic: the command lines run in-process (and the processes the tests start) write no
+from jaxpose.serving import inference
 # compilation cache to the user's home; a test that wants one names its own folder.
 os.environ[compilation_cache.ENVIRONMENT] = compilation_cache.OFF
 

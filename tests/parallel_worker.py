@@ -24,15 +24,15 @@ import numpy as np
 from geometry_helpers import exact_batch
 
 from experiments import synthetic
-from experiments.config import ExperimentConfig, ParallelConfig, RunConfig, TrainConfig
-from experiments.run_directory import prepare_run_dir
-from experiments.training import train
-from jaxpose import parallel, pseudo_labelling
-from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
+from jaxpose.training.experiment import ExperimentConfig, ParallelConfig, RunConfig, TrainConfig
+from jaxpose.training.run_directory import prepare_run_dir
+from jaxpose.training.loop import train
+from jaxpose.training import parallel, pseudo_labelling
+from jaxpose.training.config import LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.synthetic import SyntheticConfig
 from jaxpose.model import LifterNetwork
-from jaxpose.train import TrainState, init_train_state, jit_train_step, lifter_input_2d, make_train_step, normalize_views
+from jaxpose.training.step import TrainState, init_train_state, jit_train_step, lifter_input_2d, make_train_step, normalize_views
 
 STEPS = 5
 SMALL = ModelConfig(width=64)  # dropout 0.5 and BatchNorm on, as in the paper's network

@@ -38,17 +38,17 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from experiments import rig as rig_experiment
-from jaxpose import pseudo_labelling
+from jaxpose.training import pseudo_labelling
 from jaxpose.data import BatchValidationError, validate_batch
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.datasets.h36m import load_h36m
 from jaxpose.datasets.humaneva import load_humaneva
 from jaxpose.datasets.mpi_inf_3dhp import load_mpi_inf_3dhp_test
 from jaxpose.formats import file_cache, intrinsics
-from jaxpose.formats.calibrated_rig import RigCalibration, check_intrinsics
+from jaxpose.formats.rig_cameras import RigCalibration, check_intrinsics
 from jaxpose.formats.camera_file import save_cameras
 from jaxpose.formats.errors import DataFormatError
-from jaxpose.formats.rig_calibration import read_rig_calibration
+from jaxpose.formats.calibration_files import read_rig_calibration
 from jaxpose.rig.project import RigProjectConfig, load_rig_project
 from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
 

@@ -26,12 +26,10 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("data sets, the simulator, calibration", ("jaxpose.datasets.", "jaxpose.synthetic.", "jaxpose.calibration.")),
     ("the user's rig project", ("jaxpose.rig.",)),
     ("training and evaluation", (
-        "jaxpose.model", "jaxpose.losses", "jaxpose.train", "jaxpose.config", "jaxpose.checkpoint", "jaxpose.parallel",
-        "jaxpose.evaluation", "jaxpose.validation", "jaxpose.pseudo_labelling", "jaxpose.viz",
+        "jaxpose.model", "jaxpose.losses", "jaxpose.viz", "jaxpose.training.",
     )),
-    ("inference and the command lines", (
-        "jaxpose.inference", "jaxpose.tracking", "jaxpose.lifting_figures", "jaxpose.predict", "jaxpose.export", "jaxpose.calibrate",
-        "jaxpose.reconstruct", "jaxpose.reconstruction.",
+    ("serving and the command lines", (
+        "jaxpose.serving.", "jaxpose.reconstruction.", "jaxpose.predict", "jaxpose.export", "jaxpose.calibrate", "jaxpose.reconstruct",
     )),
     ("experiments", ("experiments.",)),
 ]

@@ -11,7 +11,7 @@ import numpy as np
 from flax import struct
 
 from jaxpose.camera import Cameras, camera_centres
-from jaxpose.formats.calibrated_rig import MIN_BASELINE_MM
+from jaxpose.formats.rig_cameras import MIN_BASELINE_MM
 
 
 @struct.dataclass

@@ -61,7 +61,7 @@ class MultiViewDataset:
 
     keypoints2d f32[N, C, J, 2] pixels; confidence f32[N, C, J]; rigs: `Cameras` of numpy arrays
     with leading [R, C]; rig_index i32[N]; target3d f32[N, J, 3] world mm or None; pseudo3d and
-    pseudo3d_weight (f32[N, J, 3], f32[N, J]) once `jaxpose.pseudo_labelling.label` has set them, and detection_weight
+    pseudo3d_weight (f32[N, J, 3], f32[N, J]) once `jaxpose.training.pseudo_labelling.label` has set them, and detection_weight
     f32[N, C, J] when its method rejects outlying views (see `MultiViewBatch`); labels: per-sample
     string/int arrays such as "subject", "action", "frame" used to group evaluation results.
     context, context_row i32[N], context_span i32[N, 2]: every frame of the samples' recordings, each
@@ -200,7 +200,7 @@ class MultiViewDataset:
         """Gather samples into a `MultiViewBatch` of numpy arrays (vectorized, no per-sample loop), with
         the lifter's input windows of `window` frames where it is > 1."""
         if self.pseudo3d is None:
-            raise ValueError("dataset has no pseudo-labels yet: label it with jaxpose.pseudo_labelling.label first")
+            raise ValueError("dataset has no pseudo-labels yet: label it with jaxpose.training.pseudo_labelling.label first")
         window2d, window_confidence = self.windows(indices, window) if window > 1 else (None, None)
         return MultiViewBatch(
             window2d=window2d,

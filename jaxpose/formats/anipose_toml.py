@@ -24,7 +24,7 @@ from typing import Any, Literal
 import numpy as np
 
 from jaxpose.camera import Cameras
-from jaxpose.formats.calibrated_rig import (
+from jaxpose.formats.rig_cameras import (
     MM_PER_UNIT, CalibrationUnit, RigCalibration, check_intrinsics, check_rig_size, check_rotation, rig_size,
 )  # fmt: skip
 from jaxpose.formats.errors import DataFormatError
@@ -159,7 +159,7 @@ def _resolve_unit(unit: CalibrationUnit, R: np.ndarray, t_file: np.ndarray, meta
 
     "auto" takes the file's `[metadata] unit` (written by `write_anipose_toml`), else metres for a
     rig (or, for one camera, a distance from the origin) under `AUTO_METRES_BELOW` file units and
-    millimetres otherwise: `jaxpose.formats.rig_calibration.read_rig_calibration` says why.
+    millimetres otherwise: `jaxpose.formats.calibration_files.read_rig_calibration` says why.
     """
     if unit != "auto":
         return unit, "as given"

@@ -49,7 +49,7 @@ import tyro
 from jaxpose.camera import Cameras
 from jaxpose.formats import h36m_cameras
 from jaxpose.formats.h36m_cameras import H36M_IMAGE_SIZES
-from jaxpose.formats.calibrated_rig import check_intrinsics, check_rotation
+from jaxpose.formats.rig_cameras import check_intrinsics, check_rotation
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.files import read_json
 from jaxpose.formats.outputs import OutputError, atomic_output, check_output

@@ -18,7 +18,7 @@ import numpy as np
 import yaml
 
 from jaxpose.camera import Cameras
-from jaxpose.formats.calibrated_rig import (
+from jaxpose.formats.rig_cameras import (
     MM_PER_UNIT, CalibrationUnit, RigCalibration, check_intrinsics, check_rig_size, check_rotation,
 )  # fmt: skip
 from jaxpose.formats.errors import DataFormatError

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxpose.camera import Cameras
-from jaxpose.formats.calibrated_rig import RigCalibration
+from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.files import h5_dataset, open_h5
 

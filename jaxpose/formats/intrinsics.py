@@ -1,7 +1,7 @@
 """One camera's intrinsics as a single-view command takes them (`jaxpose.predict --intrinsics`).
 
 Four numbers fx fy cx cy; a calibration file and a camera name (a rig's calibration as
-`jaxpose.formats.rig_calibration` reads it: Anipose / Pose2Sim / FreeMoCap TOML, EasyMocap intri.yml, a
+`jaxpose.formats.calibration_files` reads it: Anipose / Pose2Sim / FreeMoCap TOML, EasyMocap intri.yml, a
 jaxpose camera file), e.g. ``calibration.toml cam01``, the name matched to the file's cameras as
 `jaxpose.formats.camera_names` matches them (``cam_01`` finds Pose2Sim's ``int_cam01_img``); or a JSON
 file holding one camera in the fields of a jaxpose camera file entry: {"K": [[fx, s, cx], [0, fy, cy],
@@ -17,14 +17,16 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxpose.formats import files, rig_calibration
-from jaxpose.formats.calibrated_rig import check_intrinsics
+from jaxpose.formats import files
+
+from jaxpose.formats import calibration_files
+from jaxpose.formats.rig_cameras import check_intrinsics
 from jaxpose.formats.errors import DataFormatError
 
 
 @dataclasses.dataclass(frozen=True)
 class CameraIntrinsics:
-    """The camera that saw the poses, as `jaxpose.inference.Lifter3D.predict` takes it."""
+    """The camera that saw the poses, as `jaxpose.serving.inference.Lifter3D.predict` takes it."""
 
     K: np.ndarray | None = None
     """f32[3, 3] shared by every pose or f32[N, 3, 3] one per pose; None: the default of `image_size`."""
@@ -67,7 +69,7 @@ def read_intrinsics(values: Sequence[str]) -> CameraIntrinsics:
 
 def _checked_K(value, where: str) -> np.ndarray:
     """f32[3, 3] intrinsics from `value`, refused as every calibration reader refuses them
-    (`jaxpose.formats.calibrated_rig.check_intrinsics`: a near-singular K too)."""
+    (`jaxpose.formats.rig_cameras.check_intrinsics`: a near-singular K too)."""
     try:
         K = np.array(value, np.float64)
     except (TypeError, ValueError):
@@ -80,7 +82,7 @@ def _checked_K(value, where: str) -> np.ndarray:
 
 def _calibration_camera(path: Path, camera: str) -> CameraIntrinsics:
     """One camera of a rig calibration file."""
-    rig = rig_calibration.read_rig_calibration(path).select([camera], f"--intrinsics {path} {camera}")
+    rig = calibration_files.read_rig_calibration(path).select([camera], f"--intrinsics {path} {camera}")
     cameras = rig.cameras
     if cameras.dist is not None and cameras.distortion_model != "opencv":
         raise ValueError(

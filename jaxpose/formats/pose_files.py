@@ -3,7 +3,7 @@
 Every pose keeps its input frame (an OpenPose file's index, a COCO image id's number:
 `jaxpose.formats.detection_file`), its time in seconds, Time = (frame - first frame) / fps, where the
 first frame is the input's first (so every file of one input shares one time axis), and its person
-(a track of `jaxpose.tracking`; -1 for a pose followed by none).  By suffix; poses are root-relative, in
+(a track of `jaxpose.serving.tracking`; -1 for a pose followed by none).  By suffix; poses are root-relative, in
 the camera frame (x right, y down, z forward), in mm unless said otherwise:
 - ``.json``: a list, a record per input pose in input order, {"image_id", "frame", "time_s", "person",
   "pose3d_mm": [[x, y, z] * J] or null, "joint_names"};

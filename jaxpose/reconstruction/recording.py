@@ -1,6 +1,6 @@
 """A rig project's recordings as 3D motion: every instant, each view lifted, all fused, gaps bridged.
 
-    from jaxpose import inference
+    from jaxpose.serving import inference
     from jaxpose.reconstruction import recording
     project = recording.load_every_instant(RigProjectConfig(root=PROJECT), run_dir=RUN)
     lifter = inference.load(RUN)
@@ -14,7 +14,7 @@ RUN/recovered_cameras.json), and that rig is read, never recovered again: anothe
 another world frame.
 
 Per recording, on its whole frame axis (first to last instant; an instant no camera saw has every
-confidence 0): each camera's detections lifted by the trained lifter (`jaxpose.inference.Lifter3D`,
+confidence 0): each camera's detections lifted by the trained lifter (`jaxpose.serving.inference.Lifter3D`,
 root-relative in the camera's axes; its chunks of fixed sizes keep the compilations bounded whatever
 the recordings), fused with the detections (`jaxpose.reconstruction.fusion.fuse`, world mm), the views
 whose root was occluded lifted about the fused root and fused again (`lift_and_reconstruct`), then the
@@ -33,8 +33,8 @@ import numpy as np
 
 from jaxpose.camera import Cameras
 from jaxpose.data.dataset import MultiViewDataset
-from jaxpose.formats.rig_calibration import find_calibration
-from jaxpose.inference import Lifter3D
+from jaxpose.formats.calibration_files import find_calibration
+from jaxpose.serving.inference import Lifter3D
 from jaxpose.reconstruction.fusion import MIN_DEPTH_MM, Fusion, FusionConfig, Provenance, fuse
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, fill_gaps
 from jaxpose.rig.project import RigProject, RigProjectConfig, load_rig_project

@@ -16,7 +16,7 @@ import numpy as np
 
 from jaxpose.camera import projection_matrices, undistort_compiled
 from jaxpose.chunks import map_over_parts
-from jaxpose.formats.calibrated_rig import RigCalibration
+from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.triangulation import triangulate
 
 CHUNK = 2048  # instants per call: a chunk's person-choice intermediates stay near 50 MiB at 4 views, 2 people

@@ -5,7 +5,7 @@ applied here, before anything costly: a thinned recording is read whole but alig
 searched for its person only where it is kept), then undistorted and searched for the person the
 views agree on in chunks of `geometry.CHUNK` instants that run across recordings (`jaxpose.chunks`),
 so that a short recording does not pay for a chunk of its own and the compiled functions see one
-shape.  Each recording's result is appended to the prepared arrays (`jaxpose.rig.prepared.Assembly`)
+shape.  Each recording's result is appended to the prepared arrays (`jaxpose.rig.cache.Assembly`)
 as soon as it is chosen, and let go.
 """
 
@@ -24,8 +24,8 @@ from tqdm.auto import tqdm
 from jaxpose.chunks import ChunkedMap
 from jaxpose.data.dataset import consecutive_spans
 from jaxpose.rig import geometry, people
-from jaxpose.rig.calibrations import check_unit_against_people
-from jaxpose.rig.prepared import Assembly
+from jaxpose.rig.cameras import check_unit_against_people
+from jaxpose.rig.cache import Assembly
 from jaxpose.rig.recordings import Recording, ground_truth_on_instants
 from jaxpose.rig.recovered import ground_truth_into_recovered_world
 from jaxpose.skeleton import Skeleton
@@ -222,7 +222,7 @@ class Preparation:
 
 class _UnitCheck:
     """The people of each rig, triangulated on a few instants of its recordings, against its unit
-    (`jaxpose.rig.calibrations.check_unit_against_people`): checked once a rig has
+    (`jaxpose.rig.cameras.check_unit_against_people`): checked once a rig has
     `UNIT_CHECK_INSTANTS` instants, so a wrong unit stops the load early."""
 
     def __init__(self, rigs: geometry.Rigs, skeleton: Callable[[], Skeleton]):

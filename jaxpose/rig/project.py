@@ -14,7 +14,7 @@ A project folder::
         ground_truth.npz         optional, evaluation only: points3d [N, J, 3] world mm (the
                                  calibration's world frame), frames [N], joint_names [J]
 
-Calibrations (`jaxpose.formats.rig_calibration`): a jaxpose camera file, an Anipose / Pose2Sim /
+Calibrations (`jaxpose.formats.calibration_files`): a jaxpose camera file, an Anipose / Pose2Sim /
 FreeMoCap TOML, or EasyMocap's intri.yml + extri.yml, found in a folder by their content.  Cameras
 are matched to the detection folders by name (a folder's name without `_json`), ignoring case,
 separators and leading zeros where that matches them one to one ("cam_01" is folder "cam01_json").  Without any
@@ -22,7 +22,7 @@ calibration the rig is recovered from the recordings (`jaxpose.calibrate`).
 
 What loading does to each recording, in order (one recording at a time: `jaxpose.rig.preparation`):
 1. reads every camera's detections (parsed once, then cached: `jaxpose.formats.keypoint_files`),
-   and finds its calibration (`jaxpose.rig.recordings`, `jaxpose.rig.calibrations`);
+   and finds its calibration (`jaxpose.rig.recordings`, `jaxpose.rig.cameras`);
 2. converts them from the detector's layout to its lifting skeleton (the detector's own joints,
    root first: `jaxpose.layouts.to_lifting_skeleton`); scores below `min_confidence` are
    treated as missing;
@@ -39,7 +39,7 @@ What loading does to each recording, in order (one recording at a time: `jaxpose
    `jaxpose.data.ground_truth`), moved into a recovered rig's world.
 
 The result is prepared once: written beside the recordings (``PROJECT/.jaxpose_cache/prepared-<key>/``,
-`jaxpose.rig.prepared`) and memory-mapped from there by every later run with the same inputs and options.
+`jaxpose.rig.cache`) and memory-mapped from there by every later run with the same inputs and options.
 Steps 5 and 6 run in chunks of one fixed size across recordings (`jaxpose.rig.geometry`): the compilations
 of loading do not grow with the number or the lengths of the recordings.
 """
@@ -59,12 +59,12 @@ import numpy as np
 from jaxpose.camera import Cameras
 from jaxpose.data import ground_truth
 from jaxpose.data.dataset import FrameContext, MultiViewDataset
-from jaxpose.formats.calibrated_rig import CalibrationUnit
+from jaxpose.formats.rig_cameras import CalibrationUnit
 from jaxpose.formats import keypoint_files
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.layouts import lifting_skeleton
-from jaxpose.rig import prepared
-from jaxpose.rig.calibrations import attach_calibrations, in_view_order
+from jaxpose.rig import cache
+from jaxpose.rig.cameras import attach_calibrations, in_view_order
 from jaxpose.rig.geometry import Rigs
 from jaxpose.rig.people import DEFAULT_THRESHOLD_PX
 from jaxpose.rig.preparation import Aligned, Phases, Preparation, kept_rows
@@ -186,12 +186,12 @@ def load_rig_project(config: RigProjectConfig, progress: bool = True, window: in
         raise ValueError(f"load_rig_project: window must be >= 1, got {window}")
     started = time.perf_counter()
     recordings = [find_recording(folder) for folder in recording_folders(config.root, config.recordings)]
-    cache_key = prepared.key(_options(config, window), _input_files(config, recordings))
-    cached = prepared.folder(config.root, cache_key)
+    cache_key = cache.key(_options(config, window), _input_files(config, recordings))
+    cached = cache.folder(config.root, cache_key)
     if cached.is_dir():
         try:
-            meta, recovered = prepared.read_meta(cached)
-            project = _project(meta, prepared.read_arrays(cached), recovered, f"read from the cache {cached}")
+            meta, recovered = cache.read_meta(cached)
+            project = _project(meta, cache.read_arrays(cached), recovered, f"read from the cache {cached}")
         except Exception as error:  # noqa: BLE001 - an unreadable cache is only a missed shortcut
             log.warning("ignoring the unreadable prepared project %s (%s: %s)", cached, type(error).__name__, error)
         else:
@@ -259,17 +259,17 @@ def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bo
         rig_index.setdefault(id(recording.calibration), len(rig_index))
     distinct = {id(recording.calibration): recording.calibration for recording in recordings}
     rigs = Rigs.of([in_view_order(distinct[key], camera_order) for key in rig_index])
-    temporary = prepared.start(config.root, cache_key)
+    temporary = cache.start(config.root, cache_key)
     preparation = Preparation(
         rigs, lambda recording: rig_index[id(recording.calibration)], lambda: lifting_skeleton(next(iter(layouts.values()))),
-        prepared.Assembly(temporary), phases, threshold_px=config.person_threshold_px, recovered=recovered_calibration is not None,
+        cache.Assembly(temporary), phases, threshold_px=config.person_threshold_px, recovered=recovered_calibration is not None,
         check_unit=config.calibration_unit == "auto" and recovered_calibration is None, context=window > 1,
         labels={"subject": np.dtype(f"<U{len(f'rig{len(rig_index) - 1}')}"),
                 "recording": np.dtype(f"<U{max(len(recording.name) for recording in recordings)}")},
     )  # fmt: skip
     try:
         preparation.run(parts)
-        arrays = preparation.assembly.close() or prepared.read_arrays(temporary)
+        arrays = preparation.assembly.close() or cache.read_arrays(temporary)
     except BaseException:
         if temporary is not None:
             shutil.rmtree(temporary, ignore_errors=True)
@@ -291,8 +291,8 @@ def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bo
     if temporary is None:
         how = "prepared in memory (the project folder cannot be written: not cached)"
     else:
-        final = prepared.commit(temporary, cache_key, meta, recovered_calibration)
-        arrays, how = prepared.read_arrays(final), f"prepared and written to the cache {final}"
+        final = cache.commit(temporary, cache_key, meta, recovered_calibration)
+        arrays, how = cache.read_arrays(final), f"prepared and written to the cache {final}"
     log.info("%d recordings %s in %.1f s", len(recordings), how, time.perf_counter() - started)
     return _project(meta, arrays, recovered_calibration, how)
 

@@ -15,10 +15,10 @@ import numpy as np
 
 from jaxpose.data import ground_truth
 from jaxpose.formats import detections_npz
-from jaxpose.formats.calibrated_rig import RigCalibration
+from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.keypoint_files import CameraDetections, read_camera_detections
-from jaxpose.formats.rig_calibration import find_calibration
+from jaxpose.formats.calibration_files import find_calibration
 from jaxpose.formats.rig_folder import (
     DETECTIONS_NPZ,
     GROUND_TRUTH_NPZ,

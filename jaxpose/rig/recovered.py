@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from jaxpose.camera import projection_matrices
-from jaxpose.formats.calibrated_rig import RigCalibration
+from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_folder import GROUND_TRUTH_NPZ
 from jaxpose.rig.geometry import triangulate_rows

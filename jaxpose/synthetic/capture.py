@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpose.camera import Cameras, camera_centres, project_from_camera, undistort_points, world_to_camera
-from jaxpose.formats.calibrated_rig import RigCalibration
+from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.rotations import nearest_rotation
 from jaxpose.skeleton import H36M_17
 from jaxpose.synthetic.body import axis_rotation, sample_bone_lengths

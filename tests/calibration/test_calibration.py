@@ -250,8 +250,7 @@ def test_real_s1_rig_from_stacked_hourglass_detections(tmp_path):
 
 
 def test_synthetic_calibration_experiment_help_documents_every_flag(capsys):
-    from experiments import calibration as experiment
-
+    from experiments import calibration_study as experiment
     with pytest.raises(SystemExit) as stop:
         experiment.main(["--help"])
     assert stop.value.code == 0

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from experiments import h36m as h36m_experiment
-from jaxpose import pseudo_labelling
+from jaxpose.training import pseudo_labelling
 from jaxpose.camera import camera_centres, project
-from jaxpose.config import PseudoLabelConfig
+from jaxpose.training.config import PseudoLabelConfig
 from jaxpose.formats.h36m_cameras import read_h36m_cameras
 from jaxpose.datasets.h36m import CAMERA_NAMES, load_h36m
 import paths

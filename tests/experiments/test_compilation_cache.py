@@ -10,7 +10,8 @@ import jax
 import pytest
 
 import paths
-from experiments import cli, runner, synthetic
+from experiments import cli, synthetic
+from jaxpose.training import runner
 from jaxpose.compilation_cache import ENVIRONMENT, MIN_COMPILE_TIME_S, cache_folder
 
 

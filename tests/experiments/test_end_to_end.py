@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from experiments import synthetic
-from experiments.config import TrainConfig
-from experiments.run_directory import prepare_run_dir
-from experiments.training import train
-from jaxpose import pseudo_labelling
-from jaxpose.config import ModelConfig
+from jaxpose.training.experiment import TrainConfig
+from jaxpose.training.run_directory import prepare_run_dir
+from jaxpose.training.loop import train
+from jaxpose.training import pseudo_labelling
+from jaxpose.training.config import ModelConfig
 
 pytestmark = [pytest.mark.trains]
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from experiments import synthetic as synthetic_job
-from jaxpose import evaluation, inference
-
+from jaxpose.training import evaluation
+from jaxpose.serving import inference
 pytestmark = [pytest.mark.trains]
 METHOD = "Lifter, self-supervised (ours)"
 

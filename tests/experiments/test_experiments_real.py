@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from experiments import ablation, cli, h36m, humaneva, mpi_inf_3dhp, paper_tables, rig_from_h36m
-from experiments.config import mocap_calibration, other_training_calibration
+from jaxpose.training.experiment import mocap_calibration, other_training_calibration
 from help_text import assert_every_flag_documented, assert_help_documents_every_field
 from jaxpose.formats.camera_file import load_cameras, save_cameras
 from jaxpose.formats.h36m_cameras import read_h36m_cameras

@@ -1,15 +1,15 @@
-"""One run per run directory (experiments.run_directory.exclusive)."""
+"""One run per run directory (jaxpose.training.run_directory.exclusive)."""
 
 import subprocess
 import sys
 
 import pytest
 
-from experiments.run_directory import LOCK_FILE, exclusive
+from jaxpose.training.run_directory import LOCK_FILE, exclusive
 
 HOLD = """
 import sys, time, pathlib
-from experiments.run_directory import exclusive
+from jaxpose.training.run_directory import exclusive
 with exclusive(pathlib.Path(sys.argv[1])):
     print("held", flush=True)
     time.sleep(60)

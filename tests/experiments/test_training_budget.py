@@ -1,4 +1,4 @@
-"""The training budget (experiments.training.training_budget): --train.max-samples shortens the run and
+"""The training budget (jaxpose.training.loop.training_budget): --train.max-samples shortens the run and
 its schedules by thinning every epoch, a resume continues it, --train.epochs lifts a preset's cap, and a
 batch larger than the data is refused before the run directory is written."""
 
@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from experiments import cli, synthetic
-from experiments.config import TrainConfig
-from experiments.run_directory import check_resumable, prepare_run_dir
-from experiments.training import budget_batches, train, training_budget
-from jaxpose import parallel, pseudo_labelling
-from jaxpose.config import OptimizerConfig
+from jaxpose.training.experiment import TrainConfig
+from jaxpose.training.run_directory import check_resumable, prepare_run_dir
+from jaxpose.training.loop import budget_batches, train, training_budget
+from jaxpose.training import parallel, pseudo_labelling
+from jaxpose.training.config import OptimizerConfig
 from jaxpose.data.dataset import training_indices
-from jaxpose.train import output_triangulation_start_step
+from jaxpose.training.step import output_triangulation_start_step
 
 
 def test_without_a_binding_cap_the_budget_is_every_sample_each_epoch():
@@ -161,8 +161,8 @@ def test_a_start_that_left_no_checkpoint_does_not_block_another_config(tmp_path)
 
 
 def test_a_test_split_larger_than_the_evaluation_cap_is_thinned_evenly_and_said(labelled):
-    from experiments.runner import bounded_test_split
-    from experiments.splits import Splits
+    from jaxpose.training.runner import bounded_test_split
+    from jaxpose.training.splits import Splits
 
     splits = Splits(train=labelled, test=labelled, group_label="action", notes=("loaded",))
     assert bounded_test_split(splits, 0) is splits and bounded_test_split(splits, len(labelled)) is splits

@@ -1,4 +1,4 @@
-"""The calibration files users bring (jaxpose.formats.rig_calibration and the readers and writer it
+"""The calibration files users bring (jaxpose.formats.calibration_files and the readers and writer it
 dispatches to: anipose_toml, easymocap_yaml, camera_file, h36m_cameras), and the fisheye lens model.
 
 The real files are those of `../shared/data/formats` (their README lists each one's quirks); tests
@@ -27,7 +27,7 @@ from jaxpose.formats.camera_file import save_cameras
 from jaxpose.formats.easymocap_yaml import read_easymocap_intrinsics
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.h36m_cameras import opencv_from_h36m_distortion, opencv_rig_from_h36m
-from jaxpose.formats.rig_calibration import RigCalibration, find_calibration, read_rig_calibration
+from jaxpose.formats.calibration_files import RigCalibration, find_calibration, read_rig_calibration
 from jaxpose.rotations import rotation_from_rodrigues
 import paths
 

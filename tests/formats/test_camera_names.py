@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from jaxpose.formats import intrinsics
 from jaxpose.formats.camera_names import CameraMismatch, camera_key, match_cameras
 from jaxpose.formats.errors import DataFormatError
-from jaxpose.formats.rig_calibration import read_rig_calibration
+from jaxpose.formats.calibration_files import read_rig_calibration
 
 POSE2SIM = paths.FORMATS / "pose2sim-calib-toml"
 ANIPOSE = paths.FORMATS / "anipose-calibration-toml"

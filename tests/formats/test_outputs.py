@@ -67,7 +67,7 @@ def test_jaxpose_info_lines_reach_the_terminal_once_whatever_configured_the_root
         "import logging; logging.basicConfig(level=logging.WARNING, format='ROOT %(message)s');"
         "from jaxpose.logs import show_logs; show_logs(); show_logs();"
         "logging.getLogger('jaxpose.rig').info('resumed from step 7');"
-        "logging.getLogger('experiments.runner').info('report written');"
+        "logging.getLogger('jaxpose.training.runner').info('report written');"
         "logging.getLogger('other').info('not ours')"
     )
     result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)

@@ -7,9 +7,11 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from jaxpose import evaluation, metrics
+from jaxpose import metrics
 
 
+
+from jaxpose.training import evaluation
 def numpy_p_mpjpe(pred, target):
     """Independent oracle: orthogonal Procrustes via the SVD of the cross-covariance, float64."""
     errors = []

@@ -1,4 +1,4 @@
-"""Inference on your own detections: `jaxpose.inference` (load + predict) and the CLI `jaxpose.predict`.
+"""Inference on your own detections: `jaxpose.serving.inference` (load + predict) and the CLI `jaxpose.predict`.
 
 One tiny synthetic main job (module fixture) provides the run directory; its own test detections,
 lifted through the CLI, must reproduce the P-MPJPE of the experiment's evaluation.
@@ -16,7 +16,9 @@ import pytest
 
 from detection_helpers import body25_from_coco, coco_from_h36m, views
 from help_text import assert_help_documents_every_field
-from jaxpose import checkpoint, evaluation, inference, predict
+from jaxpose import predict
+from jaxpose.training import checkpoint, evaluation
+from jaxpose.serving import inference
 from jaxpose.camera import project_from_camera, world_to_camera
 from jaxpose.layouts import OPENPOSE_25_JOINT_NAMES, coco17_to_h36m17
 from jaxpose.skeleton import COCO_17, H36M_17

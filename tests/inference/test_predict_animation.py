@@ -12,7 +12,8 @@ from matplotlib import animation
 from PIL import Image, ImageSequence
 
 from detection_helpers import body25_from_coco, coco_from_h36m, views
-from jaxpose import lifting_figures, predict, viz
+from jaxpose import predict, viz
+from jaxpose.serving import lifting_figures
 from jaxpose.skeleton import COCO_17
 
 IMAGE_SIZE = (1000, 1000)  # the synthetic rig's images

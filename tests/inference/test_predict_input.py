@@ -15,11 +15,13 @@ import numpy as np
 import optax
 import pytest
 
-from jaxpose import checkpoint, predict
-from jaxpose.config import ModelConfig
+from jaxpose import predict
+
+from jaxpose.training import checkpoint
+from jaxpose.training.config import ModelConfig
 from jaxpose.formats import detection_file, intrinsics
 from jaxpose.layouts import layout_joint_names, lifting_skeleton
-from jaxpose.train import init_train_state
+from jaxpose.training.step import init_train_state
 from keypoint_writers import write_frame
 import paths
 

@@ -42,7 +42,7 @@ def test_a_second_run_replaces_every_output_only_with_overwrite(trained_run, tmp
     outputs = ["--output", tmp_path / "out" / "poses.npz", "--plot", tmp_path / "plots", "--animation", tmp_path / "clip.gif"]
     common = ["--checkpoint", trained_run[0], "--input", tmp_path / "results.json", "--image-size", 1000, 1000, *outputs]
     first = _cli(*common, "--plot-count", 2)
-    logging.getLogger("jaxpose.inference").info("a jaxpose log line")  # predict shows them (jaxpose.logs)
+    logging.getLogger("jaxpose.serving.inference").info("a jaxpose log line")  # predict shows them (jaxpose.logs)
     assert capsys.readouterr().err.count("a jaxpose log line") == 1
     written = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*") if p.is_file())
     assert [str(p) for p in written] == [

@@ -18,11 +18,13 @@ from geometry_helpers import exact_batch, random_poses, random_rig
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jaxpose import export, inference, predict
+from jaxpose import export, predict
+
+from jaxpose.serving import inference
 from jaxpose.camera import MEDIAN_RADIUS_LIMIT, masked_median, normalize_keypoints, project
-from jaxpose.config import InputAugmentation, LossConfig, ModelConfig, OptimizerConfig
+from jaxpose.training.config import InputAugmentation, LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.skeleton import H36M_17
-from jaxpose.train import augment_inputs, init_train_state, make_eval_step, make_train_step
+from jaxpose.training.step import augment_inputs, init_train_state, make_eval_step, make_train_step
 
 IMAGE = (1000.0, 1000.0)
 

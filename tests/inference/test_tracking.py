@@ -1,4 +1,4 @@
-"""Following people through frames (`jaxpose.tracking.follow_people`)."""
+"""Following people through frames (`jaxpose.serving.tracking.follow_people`)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jaxpose.tracking import NOT_FOLLOWED, follow_people
+from jaxpose.serving.tracking import NOT_FOLLOWED, follow_people
 
 JOINTS = 12
 

@@ -13,7 +13,7 @@ from help_text import assert_every_flag_documented
 from experiments import rig as rig_job
 from jaxpose import reconstruct
 from jaxpose.formats.camera_file import save_cameras
-from jaxpose.formats.rig_calibration import read_rig_calibration
+from jaxpose.formats.calibration_files import read_rig_calibration
 from jaxpose.formats.trc import read_trc
 from jaxpose.reconstruction.fusion import Provenance
 from jaxpose.reconstruction.motion_files import (

@@ -1,4 +1,4 @@
-"""Loading a rig project at scale (`jaxpose.rig.project`, `jaxpose.rig.prepared`): compilations that do
+"""Loading a rig project at scale (`jaxpose.rig.project`, `jaxpose.rig.cache`): compilations that do
 not grow with the recordings, the prepared project cached and memory-mapped, a calibration's unit
 checked against the people in view, and one-line refusals of folder names and links that break loading."""
 
@@ -14,8 +14,8 @@ import jax
 import numpy as np
 import pytest
 
-from jaxpose import pseudo_labelling
-from jaxpose.config import PseudoLabelConfig
+from jaxpose.training import pseudo_labelling
+from jaxpose.training.config import PseudoLabelConfig
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.rig.project import RigProjectConfig, load_rig_project
 from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project

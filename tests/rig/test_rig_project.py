@@ -11,10 +11,11 @@ import pytest
 from help_text import assert_every_flag_documented
 
 from experiments import rig as rig_job
-from jaxpose import predict, validation
+from jaxpose import predict
+from jaxpose.training import self_consistency
 from jaxpose import camera
 from jaxpose.camera import Cameras, projection_matrices
-from jaxpose.formats.rig_calibration import read_rig_calibration
+from jaxpose.formats.calibration_files import read_rig_calibration
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.rig.people import choose_person
 from jaxpose.rig.project import RigProjectConfig, load_rig_project
@@ -79,7 +80,7 @@ def test_example_project_trains_resumes_and_lifts(project, tmp_path):
     assert report["joint_names"][0] == "pelvis" and len(report["joint_names"]) == 18
     ours = report["results"]["Lifter, self-supervised (ours)"]["overall"]
     assert np.isfinite(ours["p_mpjpe"]) and ours["count"] > 0
-    for name in validation.METRICS:
+    for name in self_consistency.METRICS:
         values = report["ground_truth_free"][name]
         assert np.isfinite(values["overall"]) and len(values["per_camera"]) == 4
     evaluations = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines() if "eval_" in line]
@@ -174,12 +175,12 @@ def test_a_still_person_gives_an_unreliable_sync():
 
 def test_ground_truth_free_measures_against_an_oracle(project):
     data = load_rig_project(RigProjectConfig(root=project, frame_offsets=("cam03=3",)), progress=False)
-    from jaxpose import evaluation, pseudo_labelling
-    from jaxpose.config import PseudoLabelConfig
+    from jaxpose.training import evaluation, pseudo_labelling
+    from jaxpose.training.config import PseudoLabelConfig
 
     test = pseudo_labelling.label(data.validation, PseudoLabelConfig(method="ransac"))
     truth, _ = evaluation.ground_truth_in_views(test)
-    exact = validation.self_consistency(truth, test, test.pseudo3d, test.pseudo3d_weight > 0)
+    exact = self_consistency.self_consistency(truth, test, test.pseudo3d, test.pseudo3d_weight > 0)
     assert exact["disagreement_mm"]["overall"] < 1e-2  # one pose seen from every camera
     # The reprojection of the true pose is the detector's error (a few px), that of the true pose
     # against the triangulation the triangulation's error.
@@ -187,7 +188,7 @@ def test_ground_truth_free_measures_against_an_oracle(project):
     # Depth guessed wrong in one view: that view disagrees and reprojects worse, the others less so.
     flattened = truth.copy()
     flattened[:, 1, :, 2] *= 0.2
-    worse = validation.self_consistency(flattened, test, test.pseudo3d, test.pseudo3d_weight > 0)
+    worse = self_consistency.self_consistency(flattened, test, test.pseudo3d, test.pseudo3d_weight > 0)
     assert worse["disagreement_mm"]["per_camera"][1] > 50 > exact["disagreement_mm"]["per_camera"][1]
     assert worse["reprojection_px"]["per_camera"][1] > 2 * exact["reprojection_px"]["per_camera"][1]
     assert worse["reprojection_px"]["per_camera"][0] == pytest.approx(exact["reprojection_px"]["per_camera"][0])
@@ -267,8 +268,7 @@ def test_a_project_without_calibration_recovers_the_rig(tmp_path):
     # The ground truth, turned into the recovered world, has the triangulation's orientation in every
     # camera: root-relative and up to the recovered rig's scale error (the limb prior's misfit: N-MPJPE's
     # scale alignment), the two agree to the triangulation's error, not to a rotation's.
-    from jaxpose import evaluation, pseudo_labelling
-
+    from jaxpose.training import evaluation, pseudo_labelling
     test = pseudo_labelling.label(data.validation)
     truth, valid = evaluation.ground_truth_in_views(test)
     triangulated = evaluation.poses_in_views(test, test.pseudo3d)
@@ -279,8 +279,7 @@ def test_a_project_without_calibration_recovers_the_rig(tmp_path):
 
 
 def test_ground_truth_for_some_recordings_serves_evaluation_only(project_copy):
-    from jaxpose import evaluation
-
+    from jaxpose.training import evaluation
     recordings = sorted(p for p in project_copy.iterdir() if p.is_dir() and not p.name.startswith("."))
     (recordings[0] / "ground_truth.npz").unlink()
     data = load_rig_project(RigProjectConfig(root=project_copy, frame_offsets=("cam03=3",)), progress=False)
@@ -299,8 +298,8 @@ def test_the_real_pose2sim_demo_as_a_rig_project(tmp_path):
     cameras named "cam_01" in its calibration (metres) and "cam01_json" on disk.  The person the views
     agree on, triangulated, is the one Pose2Sim itself triangulated (its TRC, in OpenSim's y-up axes):
     25 mm apart at the median joint."""
-    from jaxpose import pseudo_labelling
-    from jaxpose.config import PseudoLabelConfig
+    from jaxpose.training import pseudo_labelling
+    from jaxpose.training.config import PseudoLabelConfig
 
     root = tmp_path / "demo"
     shutil.copytree(SHARED_FORMATS / "openpose-json" / "pose2sim_demo_balancing_body25b", root / "balancing")
@@ -323,7 +322,7 @@ def test_messy_projects_load(project_copy):
     """A camera that never sees anybody, a recording without one camera and with its own jaxpose camera file
     of the cameras it has, CAMERA=N offsets for a camera only some recordings have, and a crowd of
     detections in one frame."""
-    from jaxpose.formats.rig_calibration import read_rig_calibration
+    from jaxpose.formats.calibration_files import read_rig_calibration
     from jaxpose.formats.camera_file import save_cameras
 
     first, second = sorted(p for p in project_copy.iterdir() if p.is_dir() and not p.name.startswith("."))
@@ -347,7 +346,7 @@ def test_messy_projects_load(project_copy):
 
 
 def test_a_lost_marker_costs_its_instant_not_the_report(project):
-    from jaxpose import evaluation
+    from jaxpose.training import evaluation
     from jaxpose.data.ground_truth import ground_truth_joints
 
     data = load_rig_project(RigProjectConfig(root=project, frame_offsets=("cam03=3",)), progress=False)

@@ -15,7 +15,7 @@ import pytest
 from help_text import assert_every_flag_documented
 
 from jaxpose.camera import project
-from jaxpose.formats.rig_calibration import read_rig_calibration
+from jaxpose.formats.calibration_files import read_rig_calibration
 from jaxpose.synthetic import ExampleProjectConfig, keypoints3d, rig_calibration, write_rig_project
 from jaxpose.synthetic.project import main
 from jaxpose.layouts import OPENPOSE_25_JOINT_NAMES

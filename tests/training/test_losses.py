@@ -7,7 +7,7 @@ import pytest
 from geometry_helpers import LOSS_TERMS, exact_batch
 
 from jaxpose import losses
-from jaxpose.config import LossConfig
+from jaxpose.training.config import LossConfig
 from jaxpose.losses import LossWeights, total_loss
 
 

@@ -1,4 +1,4 @@
-"""Train-time mirroring (`InputAugmentation.mirror`, `jaxpose.train.mirror_views`): a view lifted from its
+"""Train-time mirroring (`InputAugmentation.mirror`, `jaxpose.training.step.mirror_views`): a view lifted from its
 mirror image and its lift mirrored back leaves the losses of a mirror-equivariant lifter exactly as they
 were, changes those of any other, is drawn with its probability, and costs no recompilation."""
 
@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from geometry_helpers import exact_batch
 
-from jaxpose.config import InputAugmentation, LossConfig, ModelConfig, OptimizerConfig
+from jaxpose.training.config import InputAugmentation, LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.flip import mirror_input
 from jaxpose.skeleton import H36M_17
-from jaxpose.train import init_train_state, make_loss_fn, make_train_step, mirror_views
+from jaxpose.training.step import init_train_state, make_loss_fn, make_train_step, mirror_views
 
 MIRROR = InputAugmentation(mirror=1.0)
 CONFIG = ModelConfig(width=64, dropout_rate=0.0)  # its input normalisation: the default median scale

@@ -1,4 +1,4 @@
-"""Data parallelism (`jaxpose.parallel`): 8 devices train as one does, and a two-process run agrees.
+"""Data parallelism (`jaxpose.training.parallel`): 8 devices train as one does, and a two-process run agrees.
 
 Forced CPU devices and `jax.distributed` must be set up before JAX starts, so the sharded and
 multi-process parts run in subprocesses (tests/parallel_worker.py); this process, with its one
@@ -26,9 +26,9 @@ from parallel_worker import (
     sharded_run,
 )
 
-from jaxpose import checkpoint, parallel
+from jaxpose.training import checkpoint, parallel
 from jaxpose.data.dataset import steps_per_epoch
-from jaxpose.train import init_train_state
+from jaxpose.training.step import init_train_state
 import paths
 
 WORKER = paths.TESTS / "parallel_worker.py"

@@ -9,8 +9,8 @@ import pytest
 from geometry_helpers import LOSS_TERMS, exact_batch, look_at, random_poses
 
 from jaxpose import robust
-from jaxpose import pseudo_labelling
-from jaxpose.config import PseudoLabelConfig
+from jaxpose.training import pseudo_labelling
+from jaxpose.training.config import PseudoLabelConfig
 from jaxpose.camera import Cameras, normalize_keypoints, project, projection_matrices
 from jaxpose.data.batch import MultiViewBatch, validate_batch
 from jaxpose.data.dataset import MultiViewDataset

@@ -15,9 +15,10 @@ from hypothesis import strategies as st
 
 from detection_helpers import body25_from_coco, coco_from_h36m
 from experiments import synthetic as synthetic_job
-from jaxpose import export, inference, predict
+from jaxpose import export, predict
+from jaxpose.serving import inference
 from jaxpose.camera import Cameras
-from jaxpose.config import ModelConfig
+from jaxpose.training.config import ModelConfig
 from jaxpose.data.dataset import MultiViewDataset, concatenate, consecutive_spans, window_rows
 from jaxpose.layouts import to_skeleton
 from jaxpose.model import LifterNetwork

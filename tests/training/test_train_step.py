@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from geometry_helpers import exact_batch
 
-from jaxpose.config import LossConfig, ModelConfig, OptimizerConfig
-from jaxpose.train import (
+from jaxpose.training.config import LossConfig, ModelConfig, OptimizerConfig
+from jaxpose.training.step import (
     init_train_state,
     jit_train_step,
     make_eval_step,

@@ -14,7 +14,7 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Generic, TypeVar
 
 from jaxpose.camera import Cameras
-from jaxpose.config import InputAugmentation, LossConfig, ModelConfig, OptimizerConfig, PseudoLabelConfig
+from jaxpose.training.config import InputAugmentation, LossConfig, ModelConfig, OptimizerConfig, PseudoLabelConfig
 from jaxpose.data.dataset import MultiViewDataset
 
 DataT = TypeVar("DataT")
@@ -62,7 +62,7 @@ class TrainConfig:
     image lifted and averaged; the periodic evaluation stays plain).  Given to a finished run's command, it
     evaluates the final checkpoint again and rewrites the report."""
     augment: InputAugmentation = InputAugmentation()
-    """The detector's failure modes imposed on the lifter's input (jaxpose.config.InputAugmentation);
+    """The detector's failure modes imposed on the lifter's input (jaxpose.training.config.InputAugmentation);
     all 0 by default."""
 
 

@@ -1,6 +1,6 @@
 """The calibration files users already have, read as they are.
 
-`read_rig_calibration` returns one `RigCalibration` (`jaxpose.formats.calibrated_rig`: camera names,
+`read_rig_calibration` returns one `RigCalibration` (`jaxpose.formats.rig_cameras`: camera names,
 float64 numpy `Cameras` [C] in the library's conventions, image sizes) from any of:
 
 1. **Anipose-family TOML** (`*.toml`, `jaxpose.formats.anipose_toml`), as aniposelib, Anipose,
@@ -26,7 +26,7 @@ from typing import get_args
 import numpy as np
 
 from jaxpose.formats import anipose_toml, camera_file, easymocap_yaml, h36m_cameras
-from jaxpose.formats.calibrated_rig import CalibrationUnit, RigCalibration, check_distinct_centres
+from jaxpose.formats.rig_cameras import CalibrationUnit, RigCalibration, check_distinct_centres
 from jaxpose.formats.errors import DataFormatError
 
 __all__ = ["CalibrationUnit", "RigCalibration", "find_calibration", "read_rig_calibration"]

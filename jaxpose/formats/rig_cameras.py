@@ -1,6 +1,6 @@
 """A calibrated rig as any calibration file gives it, and the checks every calibration reader applies.
 
-`RigCalibration` is what `jaxpose.formats.rig_calibration.read_rig_calibration` returns whatever the
+`RigCalibration` is what `jaxpose.formats.calibration_files.read_rig_calibration` returns whatever the
 file (`anipose_toml`, `easymocap_yaml`, `camera_file`, `h36m_cameras`); the length units a file may
 be in, the rig-size check that catches a wrong unit, and the intrinsic-matrix and rotation-matrix
 checks live here so that each reader words its errors the same way.

@@ -19,9 +19,9 @@ import optax
 from flax import struct
 from jax.sharding import Mesh
 
-from jaxpose import parallel
+from jaxpose.training import parallel
 from jaxpose.camera import masked_median, normalize_keypoints
-from jaxpose.config import InputAugmentation, LossConfig, ModelConfig
+from jaxpose.training.config import InputAugmentation, LossConfig, ModelConfig
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.flip import mirror_input, mirror_pose3d
 from jaxpose.losses import TERMS, gradient_shares, input_triangulation_loss, total_loss
@@ -250,7 +250,7 @@ def jit_train_step(train_step: Callable, mesh: Mesh | None = None) -> Callable:
     """The jit of `train_step(state, batch, key) -> (state, metrics)` over the devices of `mesh`
     (None: the default device alone), the one way a train step is compiled.
 
-    State and key replicated, batch split by samples, outputs replicated (`jaxpose.parallel`); the
+    State and key replicated, batch split by samples, outputs replicated (`jaxpose.training.parallel`); the
     state is donated, so its buffers are reused for the new state.
     """
     mesh = parallel.data_mesh(1) if mesh is None else mesh

@@ -9,16 +9,17 @@ import pathlib
 import jax
 import numpy as np
 
-from experiments.config import ExperimentConfig, to_json_dict
-from experiments.run_directory import read_jsonl
-from experiments.splits import Splits
-from experiments.training import training_budget
-from jaxpose import evaluation, pseudo_labelling, validation, viz
+from jaxpose.training.experiment import ExperimentConfig, to_json_dict
+from jaxpose.training.run_directory import read_jsonl
+from jaxpose.training.splits import Splits
+from jaxpose.training.loop import training_budget
+from jaxpose import viz
+from jaxpose.training import evaluation, pseudo_labelling, self_consistency
 from jaxpose.data import ground_truth
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.flip import flip_averaged
 from jaxpose.losses import TERMS
-from jaxpose.train import GRADIENT_SHARE_PREFIX, TrainState, make_eval_step
+from jaxpose.training.step import GRADIENT_SHARE_PREFIX, TrainState, make_eval_step
 
 
 def evaluate_and_report(
@@ -31,7 +32,7 @@ def evaluate_and_report(
     wall_time: float,
 ) -> dict:
     """Single-view evaluation on every test view (with test-time flip where `train.eval_flip`): the
-    ground-truth-free measures (`jaxpose.validation`) always; where the test split has 3D ground truth,
+    ground-truth-free measures (`jaxpose.training.self_consistency`) always; where the test split has 3D ground truth,
     the metrics against it with the reference rows; report.{json,md}, plots."""
     test = splits.test
     eval_step = make_eval_step(model, config.model)
@@ -41,7 +42,7 @@ def evaluate_and_report(
     groups = test.labels.get(splits.group_label)
     test_triangulated = pseudo_labelling.label(test, config.pseudo_labels)
     triangulation = evaluation.poses_in_views(test, test_triangulated.pseudo3d)
-    consistency = validation.self_consistency(pred, test_triangulated, test_triangulated.pseudo3d, test_triangulated.pseudo3d_weight > 0)
+    consistency = self_consistency.self_consistency(pred, test_triangulated, test_triangulated.pseudo3d, test_triangulated.pseudo3d_weight > 0)
     excluded = splits.detector_specific_joints
     rows, joint_names = {}, test.skeleton.joint_names
     if test.target3d is not None:
@@ -112,16 +113,16 @@ def evaluate_and_report(
 
 
 def ground_truth_free_table(consistency: dict, camera_names: tuple[str, ...]) -> str:
-    """Markdown: the `jaxpose.validation` measures per lifted camera and overall."""
+    """Markdown: the `jaxpose.training.self_consistency` measures per lifted camera and overall."""
     lines = [
-        "**Without ground truth (jaxpose.validation): single-view predictions against the other views**",
+        "**Without ground truth (jaxpose.training.self_consistency): single-view predictions against the other views**",
         "",
         "| Lifted view | disagreement with the other views (mm) | reprojection into the other views (px) | P-MPJPE vs triangulation (mm) |",
         "|---|---|---|---|",
     ]
     for c, name in enumerate(camera_names):
-        lines.append("| " + " | ".join([name, *(f"{consistency[m]['per_camera'][c]:.1f}" for m in validation.METRICS)]) + " |")
-    lines.append("| all | " + " | ".join(f"{consistency[m]['overall']:.1f}" for m in validation.METRICS) + " |")
+        lines.append("| " + " | ".join([name, *(f"{consistency[m]['per_camera'][c]:.1f}" for m in self_consistency.METRICS)]) + " |")
+    lines.append("| all | " + " | ".join(f"{consistency[m]['overall']:.1f}" for m in self_consistency.METRICS) + " |")
     lines += [
         "",
         "Lower is better for all three. To compare runs without ground truth, use the reprojection: on Human3.6M it"

@@ -1,12 +1,12 @@
 """Which ground-truth-free measure should a user select models by?  Measured where the truth is known.
 
     python -m experiments.rig_from_h36m --data-dir DATA/h36m --output runs/h36m_s1_rig
-    python -m experiments.validation_study --data.root runs/h36m_s1_rig --data.train-stride 5 \\
+    python -m experiments.selection_study --data.root runs/h36m_s1_rig --data.train-stride 5 \\
         --data.validation-stride 5 --data.validation-recordings 'Directions 1' ... (as rig_from_h36m prints)
 
 Trains `experiments.rig` (preset cpu) in several recipes that differ in accuracy, each evaluated every
 `--eval-every` steps on a fixed subset of the validation recordings, with the ground truth (P-MPJPE)
-and without it (`jaxpose.validation`).  Then, for each ground-truth-free measure, Spearman's rank
+and without it (`jaxpose.training.self_consistency`).  Then, for each ground-truth-free measure, Spearman's rank
 correlation with the true P-MPJPE:
 - across checkpoints: within each recipe, over its periodic evaluations (mean over recipes);
 - across recipes: over the recipes' final reports (the whole validation split);
@@ -28,10 +28,10 @@ import tyro
 from scipy.stats import spearmanr
 
 from experiments import rig as rig_job
-from experiments.config import ExperimentConfig
-from experiments.runner import run
-from jaxpose import validation
-from jaxpose.config import LossConfig, PseudoLabelConfig
+from jaxpose.training.experiment import ExperimentConfig
+from jaxpose.training.runner import run
+from jaxpose.training import self_consistency
+from jaxpose.training.config import LossConfig, PseudoLabelConfig
 from jaxpose.rig.project import RigProjectConfig
 
 Recipe = Literal["cpu", "dropout_0.5", "plain_dlt_labels", "input_triangulation_only", "paper_loss_weights"]
@@ -83,7 +83,7 @@ def study(args: StudyArgs) -> str:
         report = run(config, rig_job.EXPERIMENT.loader())
         summary = report["results"]["Lifter, self-supervised (ours)"]
         finals[recipe] = {"p_mpjpe": summary["overall"]["p_mpjpe"]} | {
-            name: report["ground_truth_free"][name]["overall"] for name in validation.METRICS
+            name: report["ground_truth_free"][name]["overall"] for name in self_consistency.METRICS
         }
         lines = (config.run.run_dir / "metrics.jsonl").read_text().splitlines()
         series[recipe] = [record for record in map(json.loads, lines) if "eval_p_mpjpe" in record]
@@ -106,7 +106,7 @@ def report_table(finals: dict[str, dict], series: dict[str, list[dict]]) -> str:
         "|---|---|---|---|---|",
     ]
     for recipe, values in finals.items():
-        lines.append(f"| {recipe} | {values['p_mpjpe']:.1f} | " + " | ".join(f"{values[m]:.1f}" for m in validation.METRICS) + " |")
+        lines.append(f"| {recipe} | {values['p_mpjpe']:.1f} | " + " | ".join(f"{values[m]:.1f}" for m in self_consistency.METRICS) + " |")
     lines += [
         "",
         "**Spearman rank correlation with the true P-MPJPE (1 = the measure orders models exactly as the truth does)**",
@@ -115,7 +115,7 @@ def report_table(finals: dict[str, dict], series: dict[str, list[dict]]) -> str:
         "|---|---|---|---|",
     ]
     pooled = [record for records in series.values() for record in records]
-    for measure in validation.METRICS:
+    for measure in self_consistency.METRICS:
         key = f"eval_{measure}"
         within = [_rank_correlation([r[key] for r in records], [r["eval_p_mpjpe"] for r in records]) for records in series.values()]
         across = _rank_correlation([v[measure] for v in finals.values()], [v["p_mpjpe"] for v in finals.values()])
@@ -125,7 +125,7 @@ def report_table(finals: dict[str, dict], series: dict[str, list[dict]]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> str:
-    args = tyro.cli(StudyArgs, args=argv, prog="python -m experiments.validation_study", description=__doc__.split("\n\n")[0])
+    args = tyro.cli(StudyArgs, args=argv, prog="python -m experiments.selection_study", description=__doc__.split("\n\n")[0])
     return study(args)
 
 

@@ -16,13 +16,13 @@ import numpy as np
 from jax.sharding import Mesh
 from tqdm.auto import tqdm
 
-from experiments.config import ExperimentConfig, TrainConfig
-from experiments.run_directory import RunLog
-from jaxpose import checkpoint, evaluation, parallel, pseudo_labelling, validation
+from jaxpose.training.experiment import ExperimentConfig, TrainConfig
+from jaxpose.training.run_directory import RunLog
+from jaxpose.training import checkpoint, evaluation, parallel, pseudo_labelling, self_consistency
 from jaxpose.data import ground_truth
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.data.dataset import MultiViewDataset
-from jaxpose.train import TrainState, init_train_state, jit_train_step, make_eval_step, make_train_step
+from jaxpose.training.step import TrainState, init_train_state, jit_train_step, make_eval_step, make_train_step
 
 log = logging.getLogger("jaxpose")
 
@@ -140,7 +140,7 @@ class _SignalFlag:
 
 def periodic_evaluation(config: ExperimentConfig, test: MultiViewDataset, model) -> Callable[[Any], dict]:
     """variables -> metrics on `config.train.eval_samples` evenly spaced test samples: the ground-truth-free
-    `jaxpose.validation` measures (eval_disagreement_mm, eval_reprojection_px,
+    `jaxpose.training.self_consistency` measures (eval_disagreement_mm, eval_reprojection_px,
     eval_triangulation_p_mpjpe_mm) and, where the test split has 3D ground truth, eval_p_mpjpe / eval_mpjpe (mm)."""
     rows = np.unique(np.linspace(0, len(test) - 1, min(config.train.eval_samples, len(test))).astype(int))
     subset = pseudo_labelling.label(test.subset(rows), config.pseudo_labels)  # its views' triangulation, once
@@ -158,7 +158,7 @@ def periodic_evaluation(config: ExperimentConfig, test: MultiViewDataset, model)
             joints, target, valid = truth
             overall = evaluation.evaluate_poses(pred[..., joints, :], target, None, valid)["overall"]
             record = {"eval_p_mpjpe": overall["p_mpjpe"], "eval_mpjpe": overall["mpjpe"]}
-        consistency = validation.self_consistency(pred, subset, subset.pseudo3d, subset.pseudo3d_weight > 0)
+        consistency = self_consistency.self_consistency(pred, subset, subset.pseudo3d, subset.pseudo3d_weight > 0)
         return record | {f"eval_{name}": values["overall"] for name, values in consistency.items()}
 
     return evaluate
@@ -175,7 +175,7 @@ def train(
     (drawn without copying a memory-mapped data set).  Returns (state, model).
     With `train.eval_every`, a subset of `test_set` is evaluated every so many steps (monitoring only).
 
-    Data parallel over `config.parallel.data` devices of all processes (`jaxpose.parallel`); the
+    Data parallel over `config.parallel.data` devices of all processes (`jaxpose.training.parallel`); the
     returned state is this process's copy, on one local device.
     """
     cfg = config.train

@@ -1,14 +1,14 @@
 """The job every experiment entry point runs: data -> pseudo-labels -> train (or resume) -> evaluate -> report.
 
-Its parts: `experiments.splits` (what a data loader returns), `experiments.run_directory` (config.json
-and the resume check, the metric log), `experiments.training` (the loop, checkpoints, signals) and
-`experiments.report` (the evaluation, report.{json,md} and plots).
+Its parts: `jaxpose.training.splits` (what a data loader returns), `jaxpose.training.run_directory` (config.json
+and the resume check, the metric log), `jaxpose.training.loop` (the loop, checkpoints, signals) and
+`jaxpose.training.report` (the evaluation, report.{json,md} and plots).
 
 A run directory holds:
   config.json      the resolved config (what a resume checks it continues)
   metrics.jsonl    one line per `train.log_every` steps (appended across resumes)
   checkpoints/     Orbax CheckpointManager steps (the newest `train.keep_checkpoints`); each holds the
-                   train state and, for `jaxpose.inference`, the variables and the network's record
+                   train state and, for `jaxpose.serving.inference`, the variables and the network's record
   report.json/.md  the evaluation on the test split, with the reference rows
   plots/           loss curves and GT-vs-prediction skeletons (PNG)
 Ctrl-C or SIGTERM saves a checkpoint before exit; starting again on the same directory resumes.
@@ -25,12 +25,12 @@ from typing import Any
 import jax
 import numpy as np
 
-from experiments.config import ExperimentConfig
-from experiments.report import evaluate_and_report
-from experiments.run_directory import check_resumable, exclusive, prepare_run_dir
-from experiments.splits import Splits
-from experiments.training import Interrupted, train, training_budget
-from jaxpose import parallel, pseudo_labelling
+from jaxpose.training.experiment import ExperimentConfig
+from jaxpose.training.report import evaluate_and_report
+from jaxpose.training.run_directory import check_resumable, exclusive, prepare_run_dir
+from jaxpose.training.splits import Splits
+from jaxpose.training.loop import Interrupted, train, training_budget
+from jaxpose.training import parallel, pseudo_labelling
 from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.data.batch import validate_batch
 from jaxpose.data.dataset import MultiViewDataset

@@ -1,13 +1,13 @@
 """The input triangulation of a data set: its pseudo-labels (paper Eq. 2), computed once before training.
 
-    from jaxpose import pseudo_labelling
-    from jaxpose.config import PseudoLabelConfig
+    from jaxpose.training import pseudo_labelling
+    from jaxpose.training.config import PseudoLabelConfig
     train = pseudo_labelling.label(train, PseudoLabelConfig(method="ransac"))
 
 The geometry (DLT solvers, outlier rejection) is `jaxpose.robust`; this module applies it to every
 sample of a `MultiViewDataset` in fixed-size chunks and stores the result in the data set.
 
-A data set memory-mapped from .npy files (a rig project's prepared arrays, `jaxpose.rig.prepared`) has
+A data set memory-mapped from .npy files (a rig project's prepared arrays, `jaxpose.rig.cache`) has
 its labels kept beside them, in ``pseudo_labels/<part>-<key>/``, and memory-mapped from there by the
 next run: the key digests the method and its settings, the rigs, and the detections' files (path,
 size, modification and status-change times, inode: they are never rewritten in place).
@@ -31,7 +31,7 @@ from tqdm.auto import tqdm
 from jaxpose import robust
 from jaxpose.camera import projection_matrices
 from jaxpose.chunks import chunk_rows, map_over_parts
-from jaxpose.config import PseudoLabelConfig
+from jaxpose.training.config import PseudoLabelConfig
 from jaxpose.data.dataset import MultiViewDataset
 
 

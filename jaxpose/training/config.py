@@ -1,10 +1,10 @@
 """The library's configuration dataclasses: model, losses, optimizer, pseudo-labels.
 
 Each builds what it describes (`ModelConfig.build`, `OptimizerConfig.build`, `LossConfig.weights`;
-`jaxpose.pseudo_labelling.label` takes a `PseudoLabelConfig`), so there is one place that turns
+`jaxpose.training.pseudo_labelling.label` takes a `PseudoLabelConfig`), so there is one place that turns
 settings into objects.  They live in the library, not in `experiments/`, because a checkpoint must
 be loadable (the model rebuilt from its saved config) by code that knows nothing of the
-experiments.  The experiments' config tree (`experiments.config`) composes them with data, run and
+experiments.  The experiments' config tree (`jaxpose.training.experiment`) composes them with data, run and
 parallelism settings.
 """
 
@@ -72,7 +72,7 @@ class InputAugmentation:
     Each view-pose gets at most one of them, with these probabilities (their sum must be <= 1); the
     joint (never the root) or the left/right pair is drawn uniformly.  Besides, a view may be seen in a
     mirror (`mirror`).  Drawn inside the jitted train step from the step's key
-    (`jaxpose.train.augment_inputs`, `jaxpose.train.mirror_views`), so a resumed run draws what an
+    (`jaxpose.training.step.augment_inputs`, `jaxpose.training.step.mirror_views`), so a resumed run draws what an
     uninterrupted one would.  All 0 (the default): the train step is exactly the one without it.
     """
 
@@ -195,7 +195,7 @@ class OptimizerConfig:
 @dataclasses.dataclass(frozen=True)
 class PseudoLabelConfig:
     """How the input triangulation (the pseudo-labels) is computed, once, before training
-    (`jaxpose.pseudo_labelling.label`)."""
+    (`jaxpose.training.pseudo_labelling.label`)."""
 
     method: PseudoLabelMethod = "svd"
     """"svd" (reference), "eigh" or "normal" (closed form): the DLT with views weighted by detector

@@ -26,9 +26,9 @@ import jax
 import jax.numpy as jnp
 import orbax.checkpoint as ocp
 
-from jaxpose.config import ModelConfig
+from jaxpose.training.config import ModelConfig
 from jaxpose.skeleton import Skeleton, get_skeleton
-from jaxpose.train import TrainState
+from jaxpose.training.step import TrainState
 
 log = logging.getLogger(__name__)
 

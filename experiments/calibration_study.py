@@ -1,7 +1,7 @@
 """Rig calibration from the person on the synthetic data set, where every rig and body is known.
 
-    python -m experiments.calibration                        # every subject, intrinsics given (~3 min on 2 cores)
-    python -m experiments.calibration --unknown-intrinsics   # focal lengths estimated too
+    python -m experiments.calibration_study                        # every subject, intrinsics given (~3 min on 2 cores)
+    python -m experiments.calibration_study --unknown-intrinsics   # focal lengths estimated too
 
 Each subject of the default synthetic data set (its own rig: the room's cameras with a small
 per-subject jitter; the default detector with its noise, outliers and left/right swaps) is
@@ -38,7 +38,7 @@ class Args:
 
 
 def main(argv=None) -> list[dict]:
-    args = tyro.cli(Args, args=argv, prog="python -m experiments.calibration", description=__doc__.split("\n\n")[0])
+    args = tyro.cli(Args, args=argv, prog="python -m experiments.calibration_study", description=__doc__.split("\n\n")[0])
     dataset = generate(args.generator)
     names = tuple(f"camera{c}" for c in range(dataset.num_views))
     image_size = np.tile(np.asarray(args.generator.image_size), (dataset.num_views, 1))

@@ -1,5 +1,5 @@
 """The run directory: the config a resume must continue (config.json) and the metric log (metrics.jsonl,
-TensorBoard).  The layout of the whole directory is in `experiments.runner`."""
+TensorBoard).  The layout of the whole directory is in `jaxpose.training.runner`."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from collections.abc import Iterator
 
 import jax
 
-from experiments.config import ExperimentConfig, TrainConfig, dumps, to_json_dict
+from jaxpose.training.experiment import ExperimentConfig, TrainConfig, dumps, to_json_dict
 
 log = logging.getLogger("jaxpose")
 

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from jaxpose.formats.calibrated_rig import (
+from jaxpose.formats.rig_cameras import (
     MM_PER_UNIT,
     UNIT_FLAG,
     CalibrationUnit,
@@ -21,7 +21,7 @@ from jaxpose.formats.calibrated_rig import (
 )
 from jaxpose.formats.camera_names import CameraMismatch, match_cameras
 from jaxpose.formats.errors import DataFormatError
-from jaxpose.formats.rig_calibration import find_calibration, read_rig_calibration
+from jaxpose.formats.calibration_files import find_calibration, read_rig_calibration
 from jaxpose.rig.recordings import Recording
 from jaxpose.skeleton import Skeleton
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from jaxpose.camera import projection_matrices
 from jaxpose.data.dataset import MultiViewDataset
-from jaxpose.evaluation import compute_metrics, poses_in_views
+from jaxpose.training.evaluation import compute_metrics, poses_in_views
 
 METRICS = ("disagreement_mm", "reprojection_px", "triangulation_p_mpjpe_mm")
 CHUNK = 2048  # instants per block of the pairwise measures

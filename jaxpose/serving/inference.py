@@ -1,11 +1,11 @@
 """Single-view inference with a trained lifter: load a run, lift 2D detections to 3D poses.
 
-    from jaxpose import inference
+    from jaxpose.serving import inference
     lifter = inference.load("runs/synthetic")        # the run directory, or its checkpoints/
     poses = lifter.predict(keypoints2d, intrinsics=K, confidence=scores)   # f32[N, J, 3] mm
 
-A run directory (see `experiments.runner`) holds `checkpoints/`, Orbax steps that each record the
-network's skeleton and `ModelConfig` beside its variables (`jaxpose.checkpoint`).  Loading needs no
+A run directory (see `jaxpose.training.runner`) holds `checkpoints/`, Orbax steps that each record the
+network's skeleton and `ModelConfig` beside its variables (`jaxpose.training.checkpoint`).  Loading needs no
 data set, no config file and no training: of the newest readable step (an unreadable one is
 reported and the previous one used) only the record and the params and BatchNorm statistics are
 read.  The synthetic main job trains on H36M_17; detections in COCO-17 or OpenPose BODY_25 layout
@@ -29,14 +29,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpose import checkpoint
+from jaxpose.training import checkpoint
 from jaxpose.camera import Cameras, masked_median, normalize_keypoints, undistort_points
-from jaxpose.config import ModelConfig
+from jaxpose.training.config import ModelConfig
 from jaxpose.chunks import map_in_chunks
 from jaxpose.data.dataset import window_rows
 from jaxpose.flip import flip_averaged
 from jaxpose.skeleton import ROOT, Skeleton
-from jaxpose.train import make_eval_step
+from jaxpose.training.step import make_eval_step
 
 DEFAULT_BATCH_SIZE = 1024
 
@@ -401,7 +401,7 @@ def load(path: str | pathlib.Path, batch_size: int = DEFAULT_BATCH_SIZE) -> Lift
     """The lifter of a run: `path` is the run directory or its checkpoints/ directory.
 
     Restores the newest readable checkpoint (on the default device).  Raises FileNotFoundError for a
-    missing run directory or checkpoints/, and `jaxpose.checkpoint.CheckpointError` when no step
+    missing run directory or checkpoints/, and `jaxpose.training.checkpoint.CheckpointError` when no step
     can be read.
     """
     checkpoints = _checkpoints_directory(pathlib.Path(path))
