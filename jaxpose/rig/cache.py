@@ -4,7 +4,7 @@ Loading a project (reading every detection, aligning the cameras, undistorting, 
 is done once; its result is written to ``PROJECT/.jaxpose_cache/prepared-<key>/``: one ``.npy`` per
 array of each part (``train.keypoints2d.npy``, ...), written row block by row block as the recordings
 are prepared (`Assembly`), and ``project.json`` with the rest (cameras, layout, the per-recording
-summaries; ``recovered.pickle`` for a recovered rig).  The next run with the same inputs and options
+summaries; ``recovered.json`` for a recovered rig).  The next run with the same inputs and options
 memory-maps the arrays (`read`): it starts in seconds, and a project larger than memory trains with
 only the rows of each batch read from disk.
 
@@ -18,6 +18,9 @@ kept is a miss too.  A copy of the project is a miss once (new inodes and times)
 The folder appears whole or not at all: it is written under a temporary name and renamed.  Only the
 `KEEP` most recently used prepared folders are kept.  A cache that cannot be written (a read-only
 project) is a warning; the arrays then stay in memory.
+
+Nothing here unpickles: a project folder may sit on a shared drive, and a crafted file in its cache
+must not run code.  The arrays load with ``allow_pickle=False`` and the recovered rig is JSON.
 """
 
 from __future__ import annotations
@@ -28,9 +31,9 @@ import hashlib
 import json
 import logging
 import os
-import pickle
 import shutil
 import struct
+import typing
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -46,6 +49,7 @@ log = logging.getLogger(__name__)
 VERSION = 1  # bump when the prepared arrays change meaning
 PREFIX = "prepared-"
 KEEP = 2
+RECOVERED_JSON = "recovered.json"
 _HEADER_BYTES = 128  # a fixed-length .npy header: the row count is set at the end without moving the data
 
 
@@ -177,8 +181,7 @@ def commit(temporary: Path, cache_key: str, meta: Mapping[str, Any], recovered: 
     of the same key wins); older prepared folders beyond `KEEP` are removed."""
     (temporary / "project.json").write_text(json.dumps(meta, indent=1))
     if recovered is not None:
-        with open(temporary / "recovered.pickle", "wb") as file:
-            pickle.dump(recovered, file)
+        (temporary / RECOVERED_JSON).write_text(json.dumps(_to_json(recovered)))
     final = temporary.parent / f"{PREFIX}{cache_key}"
     try:
         os.rename(temporary, final)
@@ -195,15 +198,52 @@ def _prune(cache: Path) -> None:
         shutil.rmtree(old, ignore_errors=True)
 
 
-def read_meta(directory: Path) -> tuple[dict[str, Any], object | None]:
-    """(project.json, the recovered calibration or None) of a prepared folder; marks it as just used."""
+def read_meta(directory: Path, recovered_type: type | None = None) -> tuple[dict[str, Any], object | None]:
+    """(project.json, the recovered calibration as a `recovered_type` or None) of a prepared folder;
+    marks it as just used.  A file that does not decode is a `DataFormatError` naming it."""
     meta = json.loads((directory / "project.json").read_text())
     recovered = None
-    if (directory / "recovered.pickle").exists():
-        with open(directory / "recovered.pickle", "rb") as file:
-            recovered = pickle.load(file)  # our own file, written by `commit`
+    path = directory / RECOVERED_JSON
+    if recovered_type is not None and path.exists():
+        try:
+            recovered = _from_json(recovered_type, json.loads(path.read_text()))
+        except (ValueError, TypeError, KeyError) as error:
+            raise DataFormatError(printable(path), f"a recovered rig written by jaxpose (delete the folder {directory} to prepare again)", str(error)) from None
     os.utime(directory)
     return meta, recovered
+
+
+def _to_json(value: Any) -> Any:
+    """A frozen dataclass of numpy arrays, numbers, strings, tuples and dicts (a recovered calibration) as JSON."""
+    if dataclasses.is_dataclass(value):
+        return {field.name: _to_json(getattr(value, field.name)) for field in dataclasses.fields(value)}
+    if isinstance(value, np.ndarray) or hasattr(value, "__array__") and not isinstance(value, (int, float, bool)):
+        array = np.asarray(value)
+        return {"ndarray": array.tolist(), "dtype": array.dtype.str}
+    if isinstance(value, (tuple, list)):
+        return [_to_json(item) for item in value]
+    if isinstance(value, dict):
+        return {key: _to_json(item) for key, item in value.items()}
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _from_json(kind: Any, value: Any) -> Any:
+    """The inverse of `_to_json`, guided by the dataclass's type hints (no code named by the file runs)."""
+    if isinstance(value, dict) and set(value) == {"ndarray", "dtype"}:
+        dtype = np.dtype(value["dtype"])
+        if dtype.hasobject:
+            raise ValueError(f"an array of {dtype}")
+        return np.asarray(value["ndarray"], dtype)
+    if isinstance(kind, type) and dataclasses.is_dataclass(kind):
+        if not isinstance(value, dict):
+            raise ValueError(f"{kind.__name__}: expected an object")
+        hints = typing.get_type_hints(kind)
+        return kind(**{field.name: _from_json(hints[field.name], value[field.name]) for field in dataclasses.fields(kind) if field.name in value})
+    if typing.get_origin(kind) is tuple and isinstance(value, list):
+        return tuple(value)
+    return value
 
 
 def as_json(value: Any) -> Any:

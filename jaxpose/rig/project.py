@@ -190,10 +190,11 @@ def load_rig_project(config: RigProjectConfig, progress: bool = True, window: in
     cached = cache.folder(config.root, cache_key)
     if cached.is_dir():
         try:
-            meta, recovered = cache.read_meta(cached)
+            meta, recovered = cache.read_meta(cached, _recovered_type(cached))
             project = _project(meta, cache.read_arrays(cached), recovered, f"read from the cache {cached}")
         except Exception as error:  # noqa: BLE001 - an unreadable cache is only a missed shortcut
-            log.warning("ignoring the unreadable prepared project %s (%s: %s)", cached, type(error).__name__, error)
+            log.warning("ignoring the unreadable prepared project %s (%s: %s); preparing it again", cached, type(error).__name__, error)
+            shutil.rmtree(cached, ignore_errors=True)  # jaxpose's own folder: replaced by the one prepared now
         else:
             log.info("prepared project read from the cache %s in %.1f s (%d recordings)", cached, time.perf_counter() - started, len(recordings))
             return project
@@ -356,6 +357,15 @@ def _dataset(meta: dict, arrays: dict[str, dict[str, np.ndarray]], part: str) ->
         context_row=None if context is None else get["context_row"],
         context_span=None if context is None else get["context_span"],
     )  # fmt: skip
+
+
+def _recovered_type(cached: pathlib.Path) -> type | None:
+    """The type a cached recovered rig decodes to (the calibrate extra recovered it), or None without one."""
+    if not (cached / cache.RECOVERED_JSON).exists():
+        return None
+    from jaxpose.calibration import Calibration
+
+    return Calibration
 
 
 def _project(meta: dict, arrays: dict[str, dict[str, np.ndarray]], recovered: object | None, how: str) -> RigProject:
