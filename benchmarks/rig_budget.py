@@ -34,6 +34,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from jaxpose.training.run_directory import RunDirectory
+
 ROOT = Path(__file__).resolve().parents[1]
 
 # Human3.6M's training subjects (S1, S5-S8): 1,559,752 frames over 4 cameras and 150 sequences.
@@ -70,7 +72,7 @@ def timed_run(name: str, module: str, arguments: list[str], run_dir: Path, log: 
     seconds = time.perf_counter() - start
     if os.waitstatus_to_exitcode(status):
         raise SystemExit(f"{name} failed (exit {os.waitstatus_to_exitcode(status)}); see {log}")
-    report = json.loads((run_dir / "report.json").read_text())
+    report = json.loads(RunDirectory(run_dir).report_json.read_text())
     batch = report["config"]["train"]["batch_size"]
     return {
         "name": name,

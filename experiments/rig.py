@@ -27,6 +27,7 @@ import pathlib
 
 from experiments import cli, h36m
 from jaxpose.training.experiment import ExperimentConfig, RunConfig
+from jaxpose.training.run_directory import RECOVERED_CAMERAS_FILE, RunDirectory
 from jaxpose.training.splits import Splits
 from jaxpose.training.config import InputAugmentation
 from jaxpose.formats.camera_file import save_cameras
@@ -35,7 +36,6 @@ from jaxpose.rig.project import RigProject, RigProjectConfig, load_rig_project
 log = logging.getLogger("jaxpose")
 
 EXAMPLE_ROOT = RigProjectConfig().root
-RECOVERED_CALIBRATION = "recovered_cameras.json"
 
 
 def load_splits(data: RigProjectConfig, progress: bool = True, window: int = 1) -> Splits:
@@ -48,16 +48,16 @@ def load_splits(data: RigProjectConfig, progress: bool = True, window: int = 1) 
         log.info("writing the embedded example project to %s", data.root)
         write_rig_project(data.root)
     project = load_rig_project(data, progress=progress, window=window)
-    artifacts = {}
+    artifacts = ()
     if project.recovered_calibration is not None:
         calibration = project.recovered_calibration
 
-        def write_calibration(path: pathlib.Path) -> None:
+        def write_calibration(run: RunDirectory) -> None:
             sizes = {"rig": [tuple(int(v) for v in size) for size in calibration.image_size]}
             comment = f"Recovered by jaxpose.calibrate from the recordings of {data.root}."
-            save_cameras(path, {"rig": (list(calibration.camera_names), calibration.cameras)}, sizes, comment)
+            save_cameras(run.recovered_cameras, {"rig": (list(calibration.camera_names), calibration.cameras)}, sizes, comment)
 
-        artifacts[RECOVERED_CALIBRATION] = write_calibration
+        artifacts = (write_calibration,)
     return Splits(
         train=project.train,
         test=project.validation,
@@ -100,7 +100,7 @@ def project_notes(project: RigProject, data: RigProjectConfig) -> tuple[str, ...
         from jaxpose.calibrate import report as calibration_report
 
         notes.append(
-            f"No calibration file: the rig was recovered from the recordings and written to {RECOVERED_CALIBRATION}"
+            f"No calibration file: the rig was recovered from the recordings and written to {RECOVERED_CAMERAS_FILE}"
             f" in the run directory.\n\n{calibration_report(project.recovered_calibration, None, None)}"
         )
     return tuple(notes)

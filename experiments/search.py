@@ -41,7 +41,7 @@ from scipy.stats import kendalltau, spearmanr
 
 from experiments import ablation, cli, rig
 from jaxpose.training.experiment import ExperimentConfig
-from jaxpose.training.run_directory import check_resumable, read_jsonl
+from jaxpose.training.run_directory import RunDirectory, check_resumable, read_jsonl
 from jaxpose.training.runner import run
 
 EXPERIMENTS = ablation.EXPERIMENTS | {"rig": rig.EXPERIMENT}
@@ -100,7 +100,7 @@ def trained_report(experiment: cli.Experiment, config: ExperimentConfig) -> dict
     """The run's report: read where its directory holds a finished one of these settings, else trained
     (or resumed) and evaluated by `jaxpose.training.runner.run`."""
     check_resumable(config)  # a directory holding another recipe's run is refused, naming it
-    path = config.run.run_dir / "report.json"
+    path = RunDirectory(config.run.run_dir).report_json
     if path.exists():
         report = json.loads(path.read_text())
         if report.get("test_time_flip", False) == config.train.eval_flip:
@@ -116,7 +116,7 @@ def summary(report: dict, run_dir: pathlib.Path) -> dict:
     if results:
         own = results[report["method"]]
         truth = own.get("group_average", own["overall"])["p_mpjpe"]
-    rates = [record["samples_per_s"] for record in read_jsonl(run_dir / "metrics.jsonl") if "samples_per_s" in record]
+    rates = [record["samples_per_s"] for record in read_jsonl(RunDirectory(run_dir).metrics) if "samples_per_s" in record]
     batch = report["config"]["train"]["batch_size"]
     return {
         SELECTION_METRIC: report["ground_truth_free"][SELECTION_METRIC]["overall"],

@@ -29,6 +29,7 @@ from scipy.stats import spearmanr
 
 from experiments import rig as rig_job
 from jaxpose.training.experiment import ExperimentConfig
+from jaxpose.training.run_directory import RunDirectory
 from jaxpose.training.runner import run
 from jaxpose.training import self_consistency
 from jaxpose.training.config import LossConfig, PseudoLabelConfig
@@ -85,7 +86,7 @@ def study(args: StudyArgs) -> str:
         finals[recipe] = {"p_mpjpe": summary["overall"]["p_mpjpe"]} | {
             name: report["ground_truth_free"][name]["overall"] for name in self_consistency.METRICS
         }
-        lines = (config.run.run_dir / "metrics.jsonl").read_text().splitlines()
+        lines = RunDirectory(config.run.run_dir).metrics.read_text().splitlines()
         series[recipe] = [record for record in map(json.loads, lines) if "eval_p_mpjpe" in record]
     text = report_table(finals, series)
     (args.run_root / "validation_study.md").write_text(text)

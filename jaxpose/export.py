@@ -156,21 +156,13 @@ class ExportArgs:
 
 def check_outputs(args: ExportArgs) -> None:
     """Check the files the export writes (metadata, JAX form, ONNX unless --no-onnx) before any work with
-    `check_output`: the run directory's own files (all but an earlier export's) count as its inputs."""
+    `check_output`: the run directory is its input, so nothing is written inside it."""
     if args.output.is_dir():
         check_output(args.output, args.overwrite)  # refused as a folder
     output = args.output.with_suffix(".onnx")
-    run_files = [args.run_dir, *(path for path in args.run_dir.glob("*") if not _exported(path))]
     paths = [output.with_suffix(".json"), output.with_suffix(JAX_SUFFIX)] + ([output] if args.onnx else [])
     for path in paths:
-        check_output(path, args.overwrite, run_files)
-
-
-def _exported(path: pathlib.Path) -> bool:
-    """A file an earlier export wrote: a model, or the metadata JSON beside one."""
-    return path.suffix in (".onnx", JAX_SUFFIX) or (
-        path.suffix == ".json" and any(path.with_suffix(s).exists() for s in (".onnx", JAX_SUFFIX))
-    )
+        check_output(path, args.overwrite, [args.run_dir])
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -67,7 +67,7 @@ from jaxpose.serving import inference, lifting_figures, tracking
 from jaxpose.training.checkpoint import CheckpointError
 from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.formats import detection_file, intrinsics, pose_files
-from jaxpose.formats.outputs import OutputError, check_output
+from jaxpose.formats.outputs import OutputError, check_output, check_output_folder
 from jaxpose.layouts import LAYOUTS, infer_layout, layout_joint_names, layout_of, to_skeleton
 from jaxpose.logs import show_logs
 
@@ -231,7 +231,7 @@ def check_outputs(args: PredictArgs) -> list[pathlib.Path]:
     """Refuse, before any work, an output that exists (without --overwrite), that is a folder (a file for
     --plot) or that is one of the command's inputs (`jaxpose.formats.outputs.check_output`).  A .trc output
     may write person files beside FILE: returns those that exist (`pose_files.trc_family`), each checked."""
-    inputs = [args.input, *(value for value in args.intrinsics or () if pathlib.Path(value).is_file())]
+    inputs = [args.input, args.checkpoint, *(value for value in args.intrinsics or () if pathlib.Path(value).is_file())]
     check_output(args.output, args.overwrite, inputs)
     earlier = pose_files.trc_family(args.output) if args.output.suffix == ".trc" else []
     for path in earlier:
@@ -239,8 +239,7 @@ def check_outputs(args: PredictArgs) -> list[pathlib.Path]:
     if args.animation is not None:
         check_output(args.animation, args.overwrite, [*inputs, args.output], flag="--animation")
     if args.plot is not None:
-        if args.plot.exists() and not args.plot.is_dir():
-            raise OutputError(f"--plot {args.plot}: is a file; give a folder for the figures")
+        check_output_folder(args.plot, inputs, flag="--plot")
         figures = sorted(args.plot.glob(lifting_figures.PLOT_PATTERN)) if args.plot.is_dir() else []
         if figures and not args.overwrite:
             raise OutputError(

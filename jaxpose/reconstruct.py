@@ -41,7 +41,7 @@ from jaxpose.serving import inference
 from jaxpose.training.checkpoint import CheckpointError
 from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.formats.errors import DataFormatError
-from jaxpose.formats.outputs import OutputError, atomic_output, check_output
+from jaxpose.formats.outputs import OutputError, atomic_output, check_output, check_output_folder
 from jaxpose.logs import show_logs
 from jaxpose.reconstruction import motion_files, recording
 from jaxpose.reconstruction.fusion import FusionConfig, Provenance
@@ -151,10 +151,14 @@ def run(args: ReconstructArgs) -> dict:
 def check_outputs(args: ReconstructArgs, names: Sequence[str]) -> list[pathlib.Path]:
     """Refuse, before any work, to write over an earlier run's files without --overwrite; returns them
     (with --overwrite, those this run does not write again are named after it, and left as they were)."""
-    if args.output.resolve().is_relative_to(args.data.root.resolve()):
+    inputs = [args.data.root, args.checkpoint, *([args.data.calibration] if args.data.calibration else [])]
+    check_output_folder(args.output, inputs)
+    colliding = motion_files.colliding_names(names)
+    if colliding:
+        first, second = colliding
         raise OutputError(
-            f"--output {args.output}: lies in the project {args.data.root}, whose files it would join (and change the"
-            " prepared project's key); choose a folder outside it"
+            f"recordings {first!r} and {second!r}: a later segment of {first!r} is written as {second}.trc, the file of"
+            f" {second!r}; reconstruct them into separate --output folders (--data.recordings {first} / {second})"
         )
     for name in REPORT_FILES:
         check_output(args.output / name, args.overwrite, flag="--output")

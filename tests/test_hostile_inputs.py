@@ -11,6 +11,8 @@ from __future__ import annotations
 import ast
 import dataclasses
 import pickle
+import re
+import shutil
 
 import numpy as np
 import paths
@@ -119,3 +121,137 @@ def test_no_module_unpickles_except_the_named_videopose3d_files():
     assert unpickling == []
     assert sorted(set(object_loads)) == ["caller jaxpose/datasets/videopose3d.py", "jaxpose/formats/files.py"]
 
+
+
+def _snapshot(folder) -> dict[str, bytes]:
+    """Every file below `folder` with its bytes (the cache aside)."""
+    return {
+        str(path.relative_to(folder)): path.read_bytes()
+        for path in sorted(folder.rglob("*")) if path.is_file() and ".jaxpose_cache" not in path.parts
+    }  # fmt: skip
+
+
+def _never_loads(_data):
+    raise AssertionError("the data were loaded before the run folder was checked")
+
+
+def _experiment(run_dir, overwrite: bool):
+    from jaxpose.training.experiment import ExperimentConfig, RunConfig
+
+    return ExperimentConfig(data=None, run=RunConfig(run_dir=run_dir, overwrite=overwrite, progress=False))
+
+
+@pytest.mark.parametrize("overwrite", [False, True])
+@pytest.mark.parametrize("target", ["folder of other files", "the project itself"])
+def test_a_run_folder_that_holds_other_files_is_refused_and_left_as_it_was(tmp_path, overwrite, target):
+    """Issue 42 case 1: --run.run-dir at a folder holding a project and a thesis (or at the project), with
+    or without --run.overwrite: one line naming the folder and what it holds; not a byte changed."""
+    from jaxpose.training.runner import run
+
+    folder = tmp_path / "work"
+    project = write_rig_project(folder / "project", TINY)
+    (folder / "thesis.pdf").write_bytes(b"%PDF-1.7 years of work")
+    run_dir = folder if target == "folder of other files" else project
+    before = _snapshot(folder)
+    with pytest.raises(SystemExit, match=rf"--run.run-dir {run_dir}: holds \d+ entr(y|ies) that no jaxpose run wrote \(.*\); a run folder holds only a run"):
+        run(_experiment(run_dir, overwrite), _never_loads)
+    assert _snapshot(folder) == before
+
+
+def test_overwrite_removes_only_what_a_run_wrote(tmp_path):
+    """A run folder with a study's summary and a nested run (as experiments.search and ablation leave them):
+    --run.overwrite removes the run's own entries and keeps the others."""
+    from jaxpose.training.run_directory import RunDirectory, prepare_run_dir
+
+    run_dir = tmp_path / "run"
+    files = RunDirectory(run_dir)
+    prepare_run_dir(_experiment(run_dir, overwrite=False))
+    files.metrics.write_text("{}\n")
+    (files.checkpoints / "100").mkdir(parents=True)
+    files.report_md.write_text("old")
+    (run_dir / "search.md").write_text("summary")
+    prepare_run_dir(_experiment(run_dir / "supervised", overwrite=False))
+    prepare_run_dir(_experiment(run_dir, overwrite=True))
+    assert sorted(p.name for p in run_dir.iterdir()) == ["config.json", "plots", "run.json", "search.md", "supervised"]
+    assert (run_dir / "supervised" / "run.json").is_file()
+
+
+def test_a_run_folder_from_before_the_record_is_still_a_run(tmp_path):
+    from jaxpose.training.run_directory import check_run_folder
+
+    run_dir = tmp_path / "old_run"
+    (run_dir / "checkpoints" / "500").mkdir(parents=True)
+    (run_dir / "config.json").write_text("{}")
+    (run_dir / "metrics.jsonl").write_text("")
+    check_run_folder(run_dir)  # no refusal
+    (run_dir / "notes.txt").write_text("mine")
+    with pytest.raises(SystemExit, match=r"holds 1 entry that no jaxpose run wrote \(notes.txt\)"):
+        check_run_folder(run_dir)
+
+
+def _refused(main, argv: list[str], match: str) -> None:
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    message = str(stop.value.code)
+    assert "\n" not in message and "Traceback" not in message, message
+    assert re.search(match, message), message
+
+
+@pytest.fixture(scope="module")
+def small_project(tmp_path_factory):
+    return write_rig_project(tmp_path_factory.mktemp("hostile") / "project", ExampleProjectConfig(recordings=2, frames_per_recording=20))
+
+
+@pytest.mark.parametrize(
+    "outputs",
+    [
+        lambda folder: ["--output", str(next(folder.glob("*.json"))), "--overwrite"],  # a frame, replaced
+        lambda folder: ["--output", str(folder / "poses.json")],  # a stray file among the frames
+        lambda folder: ["--output", str(folder.parent / "poses.json"), "--plot", str(folder)],  # PNGs among the frames
+        lambda folder: ["--output", str(folder.parent / "poses.json"), "--plot", str(folder / "plots")],
+    ],
+    ids=["over a frame", "among the frames", "plots among the frames", "plots in a folder inside"],
+)
+def test_predict_never_writes_into_its_input_folder(small_project, tmp_path, outputs):
+    """Issue 42 case 2: --output or --plot inside the OpenPose folder given as --input is refused in one
+    line, with or without --overwrite, and the folder is byte-identical afterwards."""
+    from jaxpose import predict
+
+    folder = next(small_project.glob("*/cam01_json"))
+    before = _snapshot(small_project)
+    _refused(predict.main, ["--checkpoint", str(tmp_path / "run"), "--input", str(folder), *outputs(folder)], r"input folder|command's input")
+    assert _snapshot(small_project) == before
+
+
+def test_reconstruct_refuses_recordings_whose_files_would_collide(small_project, tmp_path):
+    """Issue 42 case 3: `walking01`'s second segment and the recording `walking01.seg1` would both write
+    walking01.seg1.trc: refused before any work, naming both, with the way out."""
+    from jaxpose import reconstruct
+
+    project = tmp_path / "project"
+    shutil.copytree(small_project, project, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    first, second = sorted(p for p in project.iterdir() if p.is_dir())
+    first.rename(project / "trial")
+    second.rename(project / "trial.seg1")
+    before = _snapshot(project)
+    _refused(
+        reconstruct.main, ["--checkpoint", str(tmp_path / "run"), "--data.root", str(project), "--output", str(tmp_path / "motion"), "--fps", "50"],
+        r"recordings 'trial' and 'trial.seg1'.*separate --output folders",
+    )
+    assert _snapshot(project) == before and not (tmp_path / "motion").exists()
+
+
+@pytest.mark.parametrize("inside", ["project", "run"])
+def test_reconstruct_never_writes_into_its_inputs(small_project, tmp_path, inside):
+    from jaxpose import reconstruct
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text("{}")
+    output = (small_project if inside == "project" else run) / "motion"
+    before = _snapshot(small_project) | _snapshot(run)
+    _refused(
+        reconstruct.main, ["--checkpoint", str(run), "--data.root", str(small_project), "--output", str(output), "--fps", "50"],
+        r"--output .*motion: is inside this command's input folder",
+    )
+    assert _snapshot(small_project) | _snapshot(run) == before and not output.exists()

@@ -1,9 +1,11 @@
 """Files a command writes where the user told it to: never over an existing file unless asked, never
-over one of its own inputs, and never half-written.
+over or inside one of its own inputs, and never half-written.
 
 `check_output` refuses, before any work is done, an output that exists (unless `--overwrite`), that
-is a folder, or that is one of the command's inputs (even with `--overwrite`: that would destroy
-the data the output is computed from).  `atomic_output` gives a temporary path beside the output,
+is a folder, or that is one of the command's inputs or lies inside an input folder (even with
+`--overwrite`: that would destroy the data the output is computed from, or put a stray file among
+them that the next reading of the folder takes for data).  `check_output_folder` applies the same rule to a
+folder of outputs.  `atomic_output` gives a temporary path beside the output,
 with the same suffix (writers such as `np.savez` and matplotlib choose the format by it), and
 renames it into place only when the writer finished: an interrupted or failed write leaves the
 previous file, if any, as it was.
@@ -28,10 +30,7 @@ def check_output(path: str | Path, overwrite: bool, inputs: Iterable[str | Path]
     path = Path(path)
     if path.is_dir():
         raise OutputError(f"{flag} {path}: is a folder; give a file name (e.g. {path / 'poses'}{path.suffix or '.json'})")
-    target = path.resolve()
-    for given in inputs:
-        if target == Path(given).resolve():
-            raise OutputError(f"{flag} {path}: is this command's input {given}; writing there would destroy it, choose another file")
+    _refuse_inside_inputs(path, inputs, flag)
     if path.exists() and not overwrite:
         raise OutputError(f"{flag} {path}: exists; pass {OVERWRITE_FLAG} to replace it")
     if not path.parent.exists():
@@ -39,6 +38,28 @@ def check_output(path: str | Path, overwrite: bool, inputs: Iterable[str | Path]
     if not os.access(path.parent, os.W_OK):
         raise OutputError(f"{flag} {path}: its folder {path.parent} cannot be written")
     return path
+
+
+def check_output_folder(folder: str | Path, inputs: Iterable[str | Path] = (), flag: str = "--output") -> Path:
+    """`folder` as a Path once it is safe to write outputs into it: not a file, not an input, not inside
+    an input folder.  The files written into it are each checked with `check_output`."""
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(f"{flag} {folder}: is a file; give a folder")
+    _refuse_inside_inputs(folder, inputs, flag)
+    return folder
+
+
+def _refuse_inside_inputs(path: Path, inputs: Iterable[str | Path], flag: str) -> None:
+    target = path.resolve()
+    for given in inputs:
+        source = Path(given).resolve()
+        if target == source:
+            raise OutputError(f"{flag} {path}: is this command's input {given}; writing there would destroy it, choose another path")
+        if source.is_dir() and target.is_relative_to(source):
+            raise OutputError(
+                f"{flag} {path}: is inside this command's input folder {given}; outputs never go among the inputs, choose a path outside it"
+            )
 
 
 @contextlib.contextmanager

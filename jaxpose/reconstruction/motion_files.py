@@ -77,6 +77,16 @@ def segment_paths(folder: pathlib.Path, name: str, count: int, suffix: str) -> l
     return [folder / (name + (f".seg{index}" if index else "") + suffix) for index in range(count)]
 
 
+def colliding_names(names: Sequence[str]) -> tuple[str, str] | None:
+    """Two recordings whose files could be one (`walking01`'s second segment and `walking01.seg1`), or None."""
+    known = set(names)
+    for name in names:
+        stem, _, segment = name.rpartition(".seg")
+        if stem in known and segment.isdigit():
+            return stem, name
+    return None
+
+
 def existing_outputs(folder: pathlib.Path, name: str) -> list[pathlib.Path]:
     """The files of recording `name` already in `folder`: what this command would write, or did."""
     found = [folder / f"{name}{suffix}" for suffix in (".csv", ".npz", ".trc", ".c3d")]

@@ -38,12 +38,12 @@ from jaxpose.serving.inference import Lifter3D
 from jaxpose.reconstruction.fusion import MIN_DEPTH_MM, Fusion, FusionConfig, Provenance, fuse
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, fill_gaps
 from jaxpose.rig.project import RigProject, RigProjectConfig, load_rig_project
+from jaxpose.training.run_directory import RunDirectory
 from jaxpose.rig.recordings import recording_folders
 from jaxpose.skeleton import ROOT, Skeleton
 
 log = logging.getLogger(__name__)
 
-RECOVERED_CAMERAS = "recovered_cameras.json"  # what experiments.rig writes into a run trained on a recovered rig
 SPLIT_FIELDS = ("validation_recordings", "validation_fraction", "train_stride", "validation_stride")
 """RigProjectConfig's fields of a training split: a reconstruction takes every instant of every recording."""
 
@@ -61,14 +61,14 @@ def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: 
         raise ValueError(f"{flags}: a reconstruction takes every instant of every recording; leave the split flags out")
     names = tuple(folder.name for folder in recording_folders(data.root, data.recordings))
     calibration = data.calibration
-    recovered = pathlib.Path(run_dir) / RECOVERED_CAMERAS
+    recovered = RunDirectory(pathlib.Path(run_dir)).recovered_cameras
     if calibration is None and recovered.is_file():
         log.info("the run was trained on the rig recovered from the recordings: its world frame, %s", recovered)
         calibration = recovered
     elif calibration is None and find_calibration(data.root) is None:
         if not all(find_calibration(data.root / name) for name in names):
             raise ValueError(
-                f"{data.root}: no calibration file, and the run {run_dir} has no {RECOVERED_CAMERAS} (it was trained on"
+                f"{data.root}: no calibration file, and the run {run_dir} has no {recovered.name} (it was trained on"
                 " a calibrated project): pass --data.calibration; a rig recovered again would have another world frame"
             )
     config = dataclasses.replace(data, calibration=calibration, validation_recordings=names)

@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpose.training import checkpoint
+from jaxpose.training.run_directory import RunDirectory
 from jaxpose.camera import Cameras, masked_median, normalize_keypoints, undistort_points
 from jaxpose.training.config import ModelConfig
 from jaxpose.chunks import map_in_chunks
@@ -387,8 +388,8 @@ def _checkpoints_directory(path: pathlib.Path) -> pathlib.Path:
     """The checkpoints directory of a run directory, or `path` itself when it is one."""
     if not path.exists():
         raise FileNotFoundError(f"{path} does not exist; expected a run directory (with checkpoints/) or its checkpoints/")
-    if (path / "checkpoints").is_dir():
-        return path / "checkpoints"
+    if RunDirectory(path).checkpoints.is_dir():
+        return RunDirectory(path).checkpoints
     if path.name == "checkpoints" and path.is_dir():
         return path
     raise FileNotFoundError(

@@ -17,7 +17,7 @@ from jax.sharding import Mesh
 from tqdm.auto import tqdm
 
 from jaxpose.training.experiment import ExperimentConfig, TrainConfig
-from jaxpose.training.run_directory import RunLog
+from jaxpose.training.run_directory import RunDirectory, RunLog
 from jaxpose.training import checkpoint, evaluation, parallel, pseudo_labelling, self_consistency
 from jaxpose.data import ground_truth
 from jaxpose.data.batch import MultiViewBatch
@@ -188,7 +188,7 @@ def train(
     mesh = parallel.data_mesh(config.parallel.data)
     init_key, dropout_key = jax.random.split(jax.random.key(cfg.seed))
     state, dropout_key = parallel.replicate((init_train_state(model, optimizer, init_key), dropout_key), mesh)
-    manager = checkpoint.checkpoint_manager(run_dir / "checkpoints", cfg.keep_checkpoints)
+    manager = checkpoint.checkpoint_manager(RunDirectory(run_dir).checkpoints, cfg.keep_checkpoints)
     lifter = checkpoint.LifterRecord(train_set.skeleton, config.model)
     restored = checkpoint.restore_latest(manager, state, discard_unreadable=True)
     if restored is not None:

@@ -10,7 +10,7 @@ import jax
 import numpy as np
 
 from jaxpose.training.experiment import ExperimentConfig, to_json_dict
-from jaxpose.training.run_directory import read_jsonl
+from jaxpose.training.run_directory import RunDirectory, read_jsonl
 from jaxpose.training.splits import Splits
 from jaxpose.training.loop import training_budget
 from jaxpose import viz
@@ -67,7 +67,7 @@ def evaluate_and_report(
             name: evaluation.evaluate_poses(poses[..., joints, :], target[..., joints, :], groups, views, agreeing, sequences, frames)
             for name, (poses, views) in predictions.items()
         }
-    history = read_jsonl(run_dir / "metrics.jsonl")
+    history = read_jsonl(RunDirectory(run_dir).metrics)
     last_train = next((r for r in reversed(history) if "loss" in r), {})
     shares = {k.removeprefix(GRADIENT_SHARE_PREFIX): v for k, v in last_train.items() if k.startswith(GRADIENT_SHARE_PREFIX)}
     budget = training_budget(splits.train_count, config.train)
@@ -88,7 +88,7 @@ def evaluate_and_report(
         "config": to_json_dict(config),
     }
     if jax.process_index() == 0:
-        (run_dir / "report.json").write_text(json.dumps(report, indent=2))
+        RunDirectory(run_dir).report_json.write_text(json.dumps(report, indent=2))
         tables = [*splits.notes, *([f"Training budget: trained {budget.note()}."] if budget.capped else [])]
         if config.train.eval_flip:
             tables.append("Test-time flip (--train.eval-flip): every view's pose and its mirror image lifted and averaged.")
@@ -106,7 +106,7 @@ def evaluate_and_report(
         tables.append(ground_truth_free_table(consistency, splits.view_names()))
         if shares:
             tables.append(gradient_share_table(shares, int(state.step)))
-        (run_dir / "report.md").write_text("\n\n".join(tables) + "\n")
+        RunDirectory(run_dir).report_md.write_text("\n\n".join(tables) + "\n")
         reference = target if rows and len(joint_names) == test.skeleton.num_joints else triangulation
         _plots(config, test, pred, reference, run_dir)
     return report
@@ -168,7 +168,7 @@ EVALUATION_LABELS = {
 
 
 def _plots(config, test: MultiViewDataset, pred, target, run_dir: pathlib.Path) -> None:
-    records = read_jsonl(run_dir / "metrics.jsonl")
+    records = read_jsonl(RunDirectory(run_dir).metrics)
     history = [r for r in records if "loss" in r]
     evaluations = [r for r in records if any(key.startswith("eval_") for key in r)]
     if evaluations:
@@ -178,18 +178,18 @@ def _plots(config, test: MultiViewDataset, pred, target, run_dir: pathlib.Path) 
         }
         figure = viz.figure_loss_curves(curves, log_y=False)
         figure.suptitle("periodic evaluation on a test subset (monitoring only; the report is the final checkpoint)")
-        viz.save_figure(figure, run_dir / "plots" / "periodic_evaluation.png")
+        viz.save_figure(figure, RunDirectory(run_dir).plot("periodic_evaluation.png"))
     if history:
         keys = [k for k in ("loss", *TERMS, "supervised") if k in history[-1]]
         curves = {k: [(r["step"], r[k]) for r in history if k in r] for k in keys}
-        viz.save_figure(viz.figure_loss_curves(curves), run_dir / "plots" / "loss_curves.png")
+        viz.save_figure(viz.figure_loss_curves(curves), RunDirectory(run_dir).plot("loss_curves.png"))
         share_keys = [f"{GRADIENT_SHARE_PREFIX}{term}" for term in TERMS if f"{GRADIENT_SHARE_PREFIX}{term}" in history[-1]]
         if share_keys:
             shares = {k.removeprefix(GRADIENT_SHARE_PREFIX): [(r["step"], r[k]) for r in history if k in r] for k in share_keys}
             figure = viz.figure_loss_curves(shares, log_y=False, overlay=True)
-            viz.save_figure(figure, run_dir / "plots" / "gradient_shares.png")
+            viz.save_figure(figure, RunDirectory(run_dir).plot("gradient_shares.png"))
     count = min(config.run.plot_samples, len(test))
     if count:
         picks = np.linspace(0, len(test) - 1, count).astype(int)
         figure = viz.figure_gt_vs_prediction(target[picks, 0], pred[picks, 0], test.skeleton)
-        viz.save_figure(figure, run_dir / "plots" / "gt_vs_prediction.png")
+        viz.save_figure(figure, RunDirectory(run_dir).plot("gt_vs_prediction.png"))

@@ -1,9 +1,17 @@
-"""The run directory: the config a resume must continue (config.json) and the metric log (metrics.jsonl,
-TensorBoard).  The layout of the whole directory is in `jaxpose.training.runner`."""
+"""The run directory: the one place that knows a run folder's files (`RunDirectory`), the config a resume
+must continue (config.json), the metric log (metrics.jsonl, TensorBoard), and the rule that a run folder is
+only ever a run folder.
+
+A run folder is marked at creation by its record, `run.json`.  A folder that holds anything a run did not
+write (a project, a thesis) is refused before anything is written, with or without --run.overwrite, and
+--run.overwrite removes only the entries a run writes (`RUN_ENTRIES`), never a nested run or a study's
+summary beside it.  A run folder written before the record existed is recognised by its entries.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import fcntl
 import json
 import logging
@@ -22,6 +30,95 @@ log = logging.getLogger("jaxpose")
 
 
 LOCK_FILE = "run.lock"
+RECORD_FILE = "run.json"
+RECOVERED_CAMERAS_FILE = "recovered_cameras.json"
+
+
+@dataclasses.dataclass(frozen=True)
+class RunDirectory:
+    """The files of one run folder, by name: every module reads and writes them through this."""
+
+    path: pathlib.Path
+
+    @property
+    def record(self) -> pathlib.Path:
+        """run.json: the marker written at creation (`mark`)."""
+        return self.path / RECORD_FILE
+
+    @property
+    def config(self) -> pathlib.Path:
+        return self.path / "config.json"
+
+    @property
+    def metrics(self) -> pathlib.Path:
+        return self.path / "metrics.jsonl"
+
+    @property
+    def checkpoints(self) -> pathlib.Path:
+        return self.path / "checkpoints"
+
+    @property
+    def tensorboard(self) -> pathlib.Path:
+        return self.path / "tensorboard"
+
+    @property
+    def report_json(self) -> pathlib.Path:
+        return self.path / "report.json"
+
+    @property
+    def report_md(self) -> pathlib.Path:
+        return self.path / "report.md"
+
+    @property
+    def recovered_cameras(self) -> pathlib.Path:
+        """The rig recovered from the recordings (a jaxpose camera file), where the project had no calibration."""
+        return self.path / RECOVERED_CAMERAS_FILE
+
+    @property
+    def plots(self) -> pathlib.Path:
+        return self.path / "plots"
+
+    def plot(self, name: str) -> pathlib.Path:
+        return self.plots / name
+
+
+# What a run writes into its folder, and what --run.overwrite may remove.
+RUN_ENTRIES = frozenset({RECORD_FILE, LOCK_FILE, "config.json", "metrics.jsonl", "checkpoints", "tensorboard", "report.json", "report.md", "plots", RECOVERED_CAMERAS_FILE})
+# What the studies of experiments/ write beside the runs they train inside a run folder (kept by --run.overwrite).
+STUDY_ENTRIES = frozenset({"comparison.md", "comparison.json", "search.md", "search.json", "label_bias.md", "table_paper_layout.md", "mpi_inf_3dhp"})
+
+
+def _written_by_jaxpose(entry: pathlib.Path) -> bool:
+    """A nested run (its record, or a pre-record run's config and checkpoints), or a folder of nothing but such runs."""
+    if not entry.is_dir() or entry.is_symlink():
+        return False
+    if (entry / RECORD_FILE).is_file() or ((entry / "config.json").is_file() and (entry / "checkpoints").is_dir()):
+        return True
+    children = list(entry.iterdir())
+    return bool(children) and all(_written_by_jaxpose(child) for child in children)
+
+
+def foreign_entries(run_dir: pathlib.Path) -> list[str]:
+    """The names in `run_dir` that no jaxpose run or study wrote (none where it does not exist)."""
+    if not run_dir.is_dir():
+        return []
+    return sorted(
+        entry.name for entry in run_dir.iterdir()
+        if entry.name not in RUN_ENTRIES | STUDY_ENTRIES and not _written_by_jaxpose(entry)
+    )  # fmt: skip
+
+
+def check_run_folder(run_dir: pathlib.Path) -> None:
+    """Refuse, before anything is written, a --run.run-dir that is a file or holds what a run did not write."""
+    if run_dir.exists() and not run_dir.is_dir():
+        raise SystemExit(f"--run.run-dir {run_dir}: is a file, not a folder; choose a new or empty folder")
+    foreign = foreign_entries(run_dir)
+    if foreign:
+        shown = ", ".join(foreign[:4]) + (f" and {len(foreign) - 4} more" if len(foreign) > 4 else "")
+        raise SystemExit(
+            f"--run.run-dir {run_dir}: holds {len(foreign)} entr{'y' if len(foreign) == 1 else 'ies'} that no jaxpose run wrote"
+            f" ({shown}); a run folder holds only a run, so nothing was changed: choose a new or empty folder"
+        )
 
 # Fields that must match for a run directory to be resumed (the rest may change between attempts).
 _RESUME_KEYS = ("data", "model", "loss", "optimizer", "pseudo_labels")
@@ -41,14 +138,15 @@ def holds_a_run(run_dir: pathlib.Path) -> bool:
     """Whether run_dir holds something a different config must not take over: a committed checkpoint
     (Orbax names them by step) or a finished run's report.  A start that failed before its first
     checkpoint (a batch larger than the data, a crash while compiling) left nothing to resume."""
-    checkpoints = run_dir / "checkpoints"
-    committed = checkpoints.is_dir() and any(entry.name.isdigit() for entry in checkpoints.iterdir())
-    return committed or (run_dir / "report.json").exists()
+    files = RunDirectory(run_dir)
+    committed = files.checkpoints.is_dir() and any(entry.name.isdigit() for entry in files.checkpoints.iterdir())
+    return committed or files.report_json.exists()
 
 
 def check_resumable(config: ExperimentConfig) -> None:
-    """Fail early (before any data are loaded) if run_dir holds a run of a different config."""
-    config_path = config.run.run_dir / "config.json"
+    """Fail early (before any data are loaded) if run_dir is not a run folder, or holds a run of a different config."""
+    check_run_folder(config.run.run_dir)
+    config_path = RunDirectory(config.run.run_dir).config
     if config.run.overwrite or not config_path.exists() or not holds_a_run(config.run.run_dir):
         return
     if _identity(json.loads(config_path.read_text())) != _identity(to_json_dict(config)):
@@ -99,17 +197,20 @@ def exclusive(run_dir: pathlib.Path) -> Iterator[None]:
 
 
 def prepare_run_dir(config: ExperimentConfig) -> pathlib.Path:
-    """Create (or check, for a resume) the run directory and write config.json."""
+    """Create (or check, for a resume) the run directory, mark it, and write config.json."""
     check_resumable(config)
     run_dir = config.run.run_dir
+    files = RunDirectory(run_dir)
     if config.run.overwrite and run_dir.exists() and jax.process_index() == 0:
-        for entry in run_dir.iterdir():  # everything but the lock this run holds
-            if entry.name != LOCK_FILE:
+        for entry in run_dir.iterdir():  # what a run wrote, but the lock this run holds
+            if entry.name in RUN_ENTRIES and entry.name != LOCK_FILE:
                 shutil.rmtree(entry) if entry.is_dir() and not entry.is_symlink() else entry.unlink()
     run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "plots").mkdir(exist_ok=True)
+    files.plots.mkdir(exist_ok=True)
     if jax.process_index() == 0:
-        (run_dir / "config.json").write_text(dumps(config))
+        if not files.record.exists():
+            files.record.write_text(json.dumps({"jaxpose_run": 1, "created": time.strftime("%Y-%m-%d %H:%M:%S")}, indent=1) + "\n")
+        files.config.write_text(dumps(config))
     return run_dir
 
 
@@ -132,7 +233,7 @@ class RunLog:
     as TensorBoard scalars (`<group>/<name>`) to <run_dir>/tensorboard.  Process 0 writes."""
 
     def __init__(self, run_dir: pathlib.Path, start_step: int, tensorboard: bool):
-        self.path = run_dir / "metrics.jsonl"
+        self.path = RunDirectory(run_dir).metrics
         _truncate_log(self.path, start_step)
         self.writer = None
         if not tensorboard or jax.process_index() != 0:
@@ -144,7 +245,7 @@ class RunLog:
             return
         # purge_step: a resumed run replays the steps after its checkpoint; TensorBoard drops their
         # first logging, as `_truncate_log` does for metrics.jsonl.
-        self.writer = SummaryWriter(str(run_dir / "tensorboard"), purge_step=start_step or None, flush_secs=5)
+        self.writer = SummaryWriter(str(RunDirectory(run_dir).tensorboard), purge_step=start_step or None, flush_secs=5)
 
     def write(self, group: str, record: dict) -> None:
         _append_jsonl(self.path, record)

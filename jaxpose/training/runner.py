@@ -27,7 +27,7 @@ import numpy as np
 
 from jaxpose.training.experiment import ExperimentConfig
 from jaxpose.training.report import evaluate_and_report
-from jaxpose.training.run_directory import check_resumable, exclusive, prepare_run_dir
+from jaxpose.training.run_directory import RunDirectory, check_resumable, exclusive, prepare_run_dir
 from jaxpose.training.splits import Splits
 from jaxpose.training.loop import Interrupted, train, training_budget
 from jaxpose.training import parallel, pseudo_labelling
@@ -88,8 +88,8 @@ def _run_holding_the_directory(
     splits = dataclasses.replace(splits, train=train_set, train_samples=samples)
     run_dir = prepare_run_dir(config)
     if jax.process_index() == 0:
-        for name, write in splits.artifacts.items():
-            write(run_dir / name)
+        for write in splits.artifacts:
+            write(RunDirectory(run_dir))
     try:
         state, model = train(config, train_set, run_dir, splits.test, samples)
     except Interrupted as stop:
@@ -98,7 +98,7 @@ def _run_holding_the_directory(
     method = "Lifter, supervised (3D ground truth)" if config.loss.supervision == "full" else "Lifter, self-supervised (ours)"
     report = evaluate_and_report(config, splits, state, model, run_dir, method, time.perf_counter() - begin)
     if jax.process_index() == 0:
-        print((run_dir / "report.md").read_text())
+        print(RunDirectory(run_dir).report_md.read_text())
         print(f"run directory: {run_dir}  (wall time {time.perf_counter() - begin:.0f} s)")
     return report
 

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
-import pathlib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 
 import numpy as np
 
 from jaxpose.data.dataset import MultiViewDataset
+from jaxpose.training.run_directory import RunDirectory
 
 
 @dataclasses.dataclass(frozen=True)
@@ -28,9 +28,9 @@ class Splits:
     notes: tuple[str, ...] = ()
     """Paragraphs for the top of the report: what the loader did to the data (e.g. a rig project's
     calibration, frame offsets and person choices)."""
-    artifacts: Mapping[str, Callable[[pathlib.Path], None]] = dataclasses.field(default_factory=dict)
-    """Files the loader made for the run directory: file name -> a function writing it to a path
-    (e.g. the rig `jaxpose.calibrate` recovered)."""
+    artifacts: tuple[Callable[[RunDirectory], None], ...] = ()
+    """Files the loader made for the run directory: functions writing each into it (e.g. the rig
+    `jaxpose.calibrate` recovered, to `RunDirectory.recovered_cameras`)."""
     train_samples: np.ndarray | None = None
     """The rows of `train` trained on (None: all of them).  The runner leaves out the samples with too
     few usable views this way, so a memory-mapped training set is never copied."""

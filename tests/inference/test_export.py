@@ -59,8 +59,9 @@ def test_jax_form_matches_predict(exported, trained_run, lifter):
 
 
 def test_errors_and_help(tmp_path, capsys):
+    (tmp_path / "run").mkdir()
     with pytest.raises(SystemExit, match="no checkpoints/"):
-        export.main([str(tmp_path), "--output", str(tmp_path / "lifter.onnx")])
+        export.main([str(tmp_path / "run"), "--output", str(tmp_path / "lifter.onnx")])
     with pytest.raises(SystemExit) as stop:
         export.main(["--help"])
     assert stop.value.code == 0

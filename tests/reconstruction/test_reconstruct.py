@@ -21,7 +21,7 @@ from jaxpose.reconstruction.motion_files import (
     camera_up_axis,
     opensim_rotation,
 )
-from jaxpose.reconstruction.recording import RECOVERED_CAMERAS
+from jaxpose.training.run_directory import RECOVERED_CAMERAS_FILE
 from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
 
 PROJECT = ExampleProjectConfig(recordings=2, frames_per_recording=160, desync_camera=-1)
@@ -113,7 +113,7 @@ def test_an_uncalibrated_project_is_taken_in_the_runs_recovered_rig(project, run
     shutil.copytree(project, root, ignore=shutil.ignore_patterns(".jaxpose_cache"))
     calibration = read_rig_calibration(root / "calibration.toml")
     (root / "calibration.toml").unlink()
-    with pytest.raises(SystemExit, match=RECOVERED_CAMERAS):
+    with pytest.raises(SystemExit, match=RECOVERED_CAMERAS_FILE):
         _reconstruct(run_dir, root, tmp_path / "refused", "--up-axis", "+z")
     recovered_run = tmp_path / "recovered_run"
     shutil.copytree(run_dir, recovered_run)
@@ -121,9 +121,9 @@ def test_an_uncalibrated_project_is_taken_in_the_runs_recovered_rig(project, run
     turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     cameras = calibration.cameras
     moved = dataclasses.replace(cameras, R=np.asarray(cameras.R) @ turn.T, t=np.asarray(cameras.t) + np.asarray(cameras.R) @ [0.0, 0.0, 100.0])
-    save_cameras(recovered_run / RECOVERED_CAMERAS, {"rig": (list(calibration.camera_names), moved)})
+    save_cameras(recovered_run / RECOVERED_CAMERAS_FILE, {"rig": (list(calibration.camera_names), moved)})
     report = _reconstruct(recovered_run, root, tmp_path / "out", "--up-axis", "+z")
-    assert report["calibration"].endswith(RECOVERED_CAMERAS)
+    assert report["calibration"].endswith(RECOVERED_CAMERAS_FILE)
     calibrated = _reconstruct(run_dir, project, tmp_path / "calibrated", "--up-axis", "+z")
     for row in calibrated["recordings"]:
         in_calibration = np.load(tmp_path / "calibrated" / f"{row['recording']}.npz")["points_mm"]
