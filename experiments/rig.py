@@ -27,11 +27,11 @@ import pathlib
 
 from experiments import cli, h36m
 from jaxpose.training.experiment import ExperimentConfig, RunConfig
-from jaxpose.training.run_directory import RECOVERED_CAMERAS_FILE, RunDirectory
+from jaxpose.training.run_directory import RECOVERED_CAMERAS_FILE, RunDirectory, RunRecord
 from jaxpose.training.splits import Splits
 from jaxpose.training.config import InputAugmentation
 from jaxpose.formats.camera_file import save_cameras
-from jaxpose.rig.project import RigProject, RigProjectConfig, load_rig_project
+from jaxpose.rig.project import RigProject, RigProjectConfig, load_rig_project, recorded_settings
 
 log = logging.getLogger("jaxpose")
 
@@ -58,6 +58,7 @@ def load_splits(data: RigProjectConfig, progress: bool = True, window: int = 1) 
             save_cameras(run.recovered_cameras, {"rig": (list(calibration.camera_names), calibration.cameras)}, sizes, comment)
 
         artifacts = (write_calibration,)
+    record = RunRecord(min_confidence=data.min_confidence, layout=project.layout, project=recorded_settings(data, project.layout))
     return Splits(
         train=project.train,
         test=project.validation,
@@ -65,6 +66,7 @@ def load_splits(data: RigProjectConfig, progress: bool = True, window: int = 1) 
         camera_names=project.camera_names,
         notes=project_notes(project, data),
         artifacts=artifacts,
+        record=record,
     )
 
 

@@ -68,6 +68,7 @@ from jaxpose.training.checkpoint import CheckpointError
 from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.formats import detection_file, intrinsics, pose_files
 from jaxpose.formats.outputs import OutputError, check_output, check_output_folder
+from jaxpose.training.run_directory import RECORD_FILE, read_record
 from jaxpose.layouts import LAYOUTS, infer_layout, layout_joint_names, layout_of, to_skeleton
 from jaxpose.logs import show_logs
 
@@ -127,8 +128,10 @@ class PredictArgs:
     figures); without it the command stops before any work.  A file the command reads is never replaced."""
     batch_size: int = inference.DEFAULT_BATCH_SIZE
     """Most poses per jitted lifter call."""
-    min_confidence: float = inference.DEFAULT_MIN_CONFIDENCE
-    """Keypoints scored below this are lifted as missing (0 keeps every keypoint with a positive score)."""
+    min_confidence: float | None = None
+    """Keypoints scored below this are lifted as missing (0 keeps every keypoint with a positive score).
+    Default: the threshold the run was trained with (its run.json; a rig project's --data.min-confidence),
+    else 0.05."""
     outside_margin: float | None = inference.DEFAULT_OUTSIDE_MARGIN
     """Keypoints more than this fraction of the larger image side outside the image are lifted as missing
     (needs the image size: --image-size or a calibration that has it); None disables the check."""
@@ -154,6 +157,7 @@ def run(args: PredictArgs) -> np.ndarray:
     if detections.clipped_scores:
         print(f"{detections.clipped_scores} scores above 1 clipped to 1 (docs/files.md)", file=sys.stderr)
     lifter = inference.load(args.checkpoint, batch_size=args.batch_size)
+    args = dataclasses.replace(args, min_confidence=score_threshold(args.checkpoint, args.min_confidence))
     camera = input_camera(args, detections)
     layout = args.format or input_layout(lifter.skeleton, detections)
     scores = detections.scores if detections.scores is not None else np.ones(detections.keypoints.shape[:2], np.float32)
@@ -219,12 +223,24 @@ def check_args(args: PredictArgs) -> None:
             viz.check_animation_path(args.animation, args.fps)
         except ValueError as error:
             raise ValueError(f"--animation {error}") from None
-    if not 0.0 <= args.min_confidence <= 1.0:
+    if args.min_confidence is not None and not 0.0 <= args.min_confidence <= 1.0:
         raise ValueError(f"--min-confidence must lie in [0, 1], got {args.min_confidence}")
     if args.outside_margin is not None and not args.outside_margin >= 0:
         raise ValueError(f"--outside-margin must be >= 0, got {args.outside_margin}")
     if args.reject_inconsistent is not None and not args.reject_inconsistent > 0:
         raise ValueError(f"--reject-inconsistent must be > 0, got {args.reject_inconsistent}")
+
+
+def score_threshold(run: pathlib.Path, given: float | None) -> float:
+    """--min-confidence, else the threshold the run recorded it was trained with, else the default; an
+    override that differs from the run's is said in one line."""
+    record = read_record(run)
+    trained = None if record is None else record.min_confidence
+    if given is None:
+        return inference.DEFAULT_MIN_CONFIDENCE if trained is None else trained
+    if trained is not None and given != trained:
+        print(f"--min-confidence {given:g} differs from the run's {trained:g} ({run}/{RECORD_FILE}): using {given:g}", file=sys.stderr)
+    return given
 
 
 def check_outputs(args: PredictArgs) -> list[pathlib.Path]:

@@ -46,7 +46,8 @@ from jaxpose.logs import show_logs
 from jaxpose.reconstruction import motion_files, recording
 from jaxpose.reconstruction.fusion import FusionConfig, Provenance
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP
-from jaxpose.rig.project import RigProjectConfig
+from jaxpose.rig.project import RigProjectConfig, with_recorded_settings
+from jaxpose.training.run_directory import RECORD_FILE, read_record
 from jaxpose.rig.recordings import recording_folders
 
 REPORT_FILES = ("report.md", "report.json")
@@ -99,6 +100,7 @@ def run(args: ReconstructArgs) -> dict:
             import ezc3d  # noqa: F401 - missing, refused before any work
         except ImportError:
             raise ImportError("--c3d needs ezc3d: pip install 'jaxpose[reconstruct]' (or pip install ezc3d)") from None
+    args = with_the_runs_settings(args)
     names = [folder.name for folder in recording_folders(args.data.root, args.data.recordings)]
     earlier = check_outputs(args, names)
     lifter = inference.load(args.checkpoint)
@@ -146,6 +148,21 @@ def run(args: ReconstructArgs) -> dict:
         temporary.write_text(markdown)
     print(markdown, file=sys.stderr)
     return report
+
+
+def with_the_runs_settings(args: ReconstructArgs) -> ReconstructArgs:
+    """The project read as the run was trained on it: the settings its record holds (sync, frame offsets,
+    calibration and unit, score threshold, layout, ...) wherever a --data flag is left at its default; a
+    flag given that differs from the record is said in one line and used."""
+    record = read_record(args.checkpoint)
+    if record is None or record.project is None:
+        print(f"{args.checkpoint} records no project settings (a run from before run.json): the --data flags as given", file=sys.stderr)
+        return args
+    data, notes = with_recorded_settings(args.data, dict(record.project), f"{args.checkpoint}/{RECORD_FILE}")
+    for note in notes:
+        print(note, file=sys.stderr)
+    print(f"project settings of the run ({args.checkpoint}/{RECORD_FILE}): --data flags override them", file=sys.stderr)
+    return dataclasses.replace(args, data=data)
 
 
 def check_outputs(args: ReconstructArgs, names: Sequence[str]) -> list[pathlib.Path]:

@@ -255,3 +255,31 @@ def test_reconstruct_never_writes_into_its_inputs(small_project, tmp_path, insid
         r"--output .*motion: is inside this command's input folder",
     )
     assert _snapshot(small_project) | _snapshot(run) == before and not output.exists()
+
+
+def test_the_run_record_carries_the_project_settings_to_the_commands_that_use_the_run(tmp_path, capsys):
+    """Issue 42 case 8 / issue 41's run record: a run trained with --data.sync auto, offsets, a calibration in
+    metres and a score threshold of 0.2 is read back so by reconstruct (flags left at their defaults), and
+    predict takes its threshold; a flag given that differs is said in one line and used."""
+    from jaxpose.predict import score_threshold
+    from jaxpose.rig.project import recorded_settings, with_recorded_settings
+    from jaxpose.training.run_directory import RunRecord, prepare_run_dir, read_record, write_record
+
+    trained = RigProjectConfig(
+        root=tmp_path / "project", calibration=tmp_path / "rig.toml", calibration_unit="m", sync="auto", frame_offsets=("cam02=3",),
+        min_confidence=0.2, image_size=(1920, 1080), validation_fraction=0.3, train_stride=2,
+    )
+    run_dir = tmp_path / "run"
+    prepare_run_dir(_experiment(run_dir, overwrite=False))
+    write_record(run_dir, RunRecord(min_confidence=0.2, layout="coco17", project=recorded_settings(trained, "coco17")))
+    record = read_record(run_dir / "checkpoints")  # the checkpoints folder names the same run
+    applied, notes = with_recorded_settings(RigProjectConfig(), record.project, "run.json")
+    assert notes == []
+    expected = dataclasses.replace(trained, skeleton="coco17", validation_fraction=0.2, train_stride=1)  # the split is not carried
+    assert applied == expected
+    overridden, notes = with_recorded_settings(RigProjectConfig(sync="given", min_confidence=0.3), record.project, "run.json")
+    assert overridden.min_confidence == 0.3 and overridden.sync == "auto"  # sync "given" is the default: the run's wins
+    assert notes == ["--data.min-confidence 0.3 differs from the run's 0.2 (run.json): using 0.3"]
+    assert score_threshold(run_dir, None) == 0.2 and score_threshold(tmp_path / "elsewhere", None) == 0.05
+    assert score_threshold(run_dir, 0.05) == 0.05
+    assert "--min-confidence 0.05 differs from the run's 0.2" in capsys.readouterr().err

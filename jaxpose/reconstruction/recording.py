@@ -37,15 +37,12 @@ from jaxpose.formats.calibration_files import find_calibration
 from jaxpose.serving.inference import Lifter3D
 from jaxpose.reconstruction.fusion import MIN_DEPTH_MM, Fusion, FusionConfig, Provenance, fuse
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, fill_gaps
-from jaxpose.rig.project import RigProject, RigProjectConfig, load_rig_project
+from jaxpose.rig.project import SPLIT_FIELDS, RigProject, RigProjectConfig, load_rig_project
 from jaxpose.training.run_directory import RunDirectory
 from jaxpose.rig.recordings import recording_folders
 from jaxpose.skeleton import ROOT, Skeleton
 
 log = logging.getLogger(__name__)
-
-SPLIT_FIELDS = ("validation_recordings", "validation_fraction", "train_stride", "validation_stride")
-"""RigProjectConfig's fields of a training split: a reconstruction takes every instant of every recording."""
 
 
 def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: bool = True) -> RigProject:

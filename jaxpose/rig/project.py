@@ -85,6 +85,10 @@ from jaxpose.rig.timeline import (
 
 log = logging.getLogger(__name__)
 
+SPLIT_FIELDS = ("validation_recordings", "validation_fraction", "train_stride", "validation_stride")
+"""RigProjectConfig's fields of a training split (a reconstruction takes every instant of every recording)."""
+_NOT_RECORDED = ("recordings", *SPLIT_FIELDS)  # which recordings a command reads is its own choice
+
 
 @dataclasses.dataclass(frozen=True)
 class RigProjectConfig:
@@ -357,6 +361,35 @@ def _dataset(meta: dict, arrays: dict[str, dict[str, np.ndarray]], part: str) ->
         context_row=None if context is None else get["context_row"],
         context_span=None if context is None else get["context_span"],
     )  # fmt: skip
+
+
+def recorded_settings(config: RigProjectConfig, layout: str) -> dict:
+    """The settings a run records of its project (`RunRecord.project`): every field but the recordings and
+    the split, JSON-ready, with the layout the loader resolved."""
+    settings = {field.name: getattr(config, field.name) for field in dataclasses.fields(config) if field.name not in _NOT_RECORDED}
+    settings["skeleton"] = layout
+    return {name: str(value) if isinstance(value, pathlib.Path) else list(value) if isinstance(value, tuple) else value for name, value in settings.items()}
+
+
+def with_recorded_settings(config: RigProjectConfig, recorded: dict, source: str) -> tuple[RigProjectConfig, list[str]]:
+    """`config` with each field left at its default taken from the run's recorded settings; and one line for
+    each field given that differs from the record (the given value is used)."""
+    defaults, changes, notes = RigProjectConfig(), {}, []
+    for field in dataclasses.fields(config):
+        if field.name not in recorded or field.name in _NOT_RECORDED:
+            continue
+        value = recorded[field.name]
+        if isinstance(value, list):
+            value = tuple(tuple(v) if isinstance(v, list) else v for v in value)
+        if field.name in ("root", "calibration") and value is not None:
+            value = pathlib.Path(value)
+        given = getattr(config, field.name)
+        if given == getattr(defaults, field.name):
+            changes[field.name] = value
+        elif given != value:
+            flag = "--data." + field.name.replace("_", "-")
+            notes.append(f"{flag} {given} differs from the run's {value} ({source}): using {given}")
+    return dataclasses.replace(config, **changes), notes
 
 
 def _recovered_type(cached: pathlib.Path) -> type | None:

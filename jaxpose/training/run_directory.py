@@ -20,10 +20,12 @@ import pathlib
 import shutil
 import socket
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
+from typing import Any
 
 import jax
 
+from jaxpose.formats.outputs import atomic_output
 from jaxpose.training.experiment import ExperimentConfig, TrainConfig, dumps, to_json_dict
 
 log = logging.getLogger("jaxpose")
@@ -80,6 +82,44 @@ class RunDirectory:
 
     def plot(self, name: str) -> pathlib.Path:
         return self.plots / name
+
+
+@dataclasses.dataclass(frozen=True)
+class RunRecord:
+    """What a run was trained on beyond its config, kept in run.json for the commands that use the run
+    (`jaxpose.predict`, `reconstruct`, `export`): how a detection became the lifter's input, and a rig
+    project's settings.  Each applies them unless overridden, and says in one line where an override differs."""
+
+    min_confidence: float | None = None
+    """Keypoints scored below this were missing in training (None: the data set's 2D taken as given)."""
+    layout: str | None = None
+    """The detector keypoint layout trained on (a `jaxpose.layouts` name; None: the data set's own joints)."""
+    project: Mapping[str, Any] | None = None
+    """A rig project's settings (`RigProjectConfig` as JSON, its split left out: sync, frame offsets,
+    calibration and its unit, score threshold, ...)."""
+
+
+def write_record(run_dir: pathlib.Path, record: RunRecord) -> None:
+    """Add `record` to the run's run.json (atomically: a failed write keeps the marker as it was)."""
+    path = RunDirectory(run_dir).record
+    content = json.loads(path.read_text()) if path.exists() else {"jaxpose_run": 1}
+    content["trained_on"] = dataclasses.asdict(record)
+    with atomic_output(path) as temporary:
+        temporary.write_text(json.dumps(content, indent=1, default=str) + "\n")
+
+
+def read_record(run_dir: pathlib.Path) -> RunRecord | None:
+    """The record of the run `run_dir` (or of its checkpoints/ folder), or None for a run written before
+    records existed."""
+    run_dir = run_dir.parent if run_dir.name == "checkpoints" else run_dir
+    path = RunDirectory(run_dir).record
+    if not path.is_file():
+        return None
+    try:
+        fields = json.loads(path.read_text()).get("trained_on")
+        return None if fields is None else RunRecord(**fields)
+    except (ValueError, TypeError, AttributeError) as error:
+        raise ValueError(f"{path}: not a run record jaxpose wrote ({error})") from None
 
 
 # What a run writes into its folder, and what --run.overwrite may remove.

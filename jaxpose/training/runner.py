@@ -27,7 +27,7 @@ import numpy as np
 
 from jaxpose.training.experiment import ExperimentConfig
 from jaxpose.training.report import evaluate_and_report
-from jaxpose.training.run_directory import RunDirectory, check_resumable, exclusive, prepare_run_dir
+from jaxpose.training.run_directory import RunDirectory, check_resumable, exclusive, prepare_run_dir, write_record
 from jaxpose.training.splits import Splits
 from jaxpose.training.loop import Interrupted, train, training_budget
 from jaxpose.training import parallel, pseudo_labelling
@@ -88,6 +88,7 @@ def _run_holding_the_directory(
     splits = dataclasses.replace(splits, train=train_set, train_samples=samples)
     run_dir = prepare_run_dir(config)
     if jax.process_index() == 0:
+        write_record(run_dir, splits.record)
         for write in splits.artifacts:
             write(RunDirectory(run_dir))
     try:

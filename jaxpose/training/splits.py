@@ -8,7 +8,7 @@ from collections.abc import Callable
 import numpy as np
 
 from jaxpose.data.dataset import MultiViewDataset
-from jaxpose.training.run_directory import RunDirectory
+from jaxpose.training.run_directory import RunDirectory, RunRecord
 
 
 @dataclasses.dataclass(frozen=True)
@@ -31,6 +31,8 @@ class Splits:
     artifacts: tuple[Callable[[RunDirectory], None], ...] = ()
     """Files the loader made for the run directory: functions writing each into it (e.g. the rig
     `jaxpose.calibrate` recovered, to `RunDirectory.recovered_cameras`)."""
+    record: RunRecord = RunRecord()
+    """What the run records of its input for the commands that use it (`run_directory.RunRecord`)."""
     train_samples: np.ndarray | None = None
     """The rows of `train` trained on (None: all of them).  The runner leaves out the samples with too
     few usable views this way, so a memory-mapped training set is never copied."""

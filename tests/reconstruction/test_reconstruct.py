@@ -98,7 +98,7 @@ def test_every_seen_instant_is_reconstructed_and_the_files_agree(project, run_di
     with pytest.raises(SystemExit, match="--overwrite"):
         _reconstruct(run_dir, project, out)
     assert {path: path.read_bytes() for path in out.iterdir()} == before
-    with pytest.raises(SystemExit, match="lies in the project"):
+    with pytest.raises(SystemExit, match="is inside this command's input folder"):
         _reconstruct(run_dir, project, project / "motion")
     again = _reconstruct(run_dir, project, out, "--overwrite", "--max-gap", "40")  # the gap is bridged now
     assert again["recordings"][0]["segments"] == 1 and again["recordings"][0]["dropped_frames"] < first["dropped_frames"]
