@@ -283,3 +283,23 @@ def test_the_run_record_carries_the_project_settings_to_the_commands_that_use_th
     assert score_threshold(run_dir, None) == 0.2 and score_threshold(tmp_path / "elsewhere", None) == 0.05
     assert score_threshold(run_dir, 0.05) == 0.05
     assert "--min-confidence 0.05 differs from the run's 0.2" in capsys.readouterr().err
+
+
+@pytest.mark.trains
+def test_a_nan_learning_rate_stops_training_with_a_message_and_no_nonfinite_checkpoint(tmp_path):
+    """Issue 42 case 5: trained with --optimizer.learning-rate nan, the job exits non-zero with one line
+    (it exited 0 with a NaN report), and no checkpoint with a non-finite weight exists for a resume to load."""
+    from experiments import synthetic
+
+    run_dir = tmp_path / "run"
+    argv = [
+        "--preset", "tiny", "--train.epochs", "1", "--train.batch-size", "64", "--train.checkpoint-every", "2",
+        "--train.log-every", "3", "--data.generator.samples-per-subject", "150", "--optimizer.learning-rate", "nan",
+        "--run.run-dir", str(run_dir), "--run.no-progress",
+    ]  # fmt: skip
+    with pytest.raises(SystemExit) as stop:
+        synthetic.main(argv)
+    message = str(stop.value.code)
+    assert "\n" not in message and re.search(r"training diverged at step \d+: (the loss is nan|the weights are not finite)", message), message
+    checkpoints = run_dir / "checkpoints"
+    assert not checkpoints.exists() or not any(entry.name.isdigit() for entry in checkpoints.iterdir())

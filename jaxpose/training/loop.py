@@ -111,6 +111,25 @@ def budget_batches(
                 break
 
 
+class Diverged(Exception):
+    """Training produced a non-finite loss or weights; the message says where and what is kept."""
+
+
+def _variables_finite(state: TrainState) -> bool:
+    """Whether every weight and batch statistic is finite (read to the host before each checkpoint: no program compiled)."""
+    return all(np.isfinite(leaf).all() for leaf in jax.tree.leaves(jax.device_get(state.variables)))
+
+
+def _diverged(done: int, what: str, manager, config: ExperimentConfig) -> Diverged:
+    manager.wait_until_finished()
+    kept = manager.latest_step()
+    where = f"the last checkpoint, step {kept}, is finite and kept" if kept is not None else "no checkpoint was written"
+    return Diverged(
+        f"training diverged at step {done}: {what}; {where}. Lower --optimizer.learning-rate"
+        f" ({config.optimizer.learning_rate:g}) or check the data, then start again with --run.overwrite"
+    )
+
+
 class Interrupted(Exception):
     """Raised inside the loop when SIGINT/SIGTERM arrived; the checkpoint is already saved."""
 
@@ -224,6 +243,10 @@ def train(
             bar.update(1)
             if done % cfg.log_every == 0 or done == stop_step:
                 metrics = {k: float(v) for k, v in jax.device_get(metrics).items()}
+                if not np.isfinite(metrics["loss"]):
+                    bar.close()
+                    run_log.close()
+                    raise _diverged(done, f"the loss is {metrics['loss']}", manager, config)
                 now = time.perf_counter()
                 rate = (done - last_step) * cfg.batch_size / max(now - last_time, 1e-9)
                 last_time, last_step = now, done
@@ -233,6 +256,10 @@ def train(
             if evaluate is not None and (done % cfg.eval_every == 0 or done == stop_step):
                 run_log.write("eval", {"step": done, **evaluate(parallel.local_replica(state).variables)})
             if done % cfg.checkpoint_every == 0 or done == stop_step or interrupt.received is not None:
+                if not _variables_finite(state):  # never a non-finite checkpoint, so a resume cannot load one
+                    bar.close()
+                    run_log.close()
+                    raise _diverged(done, "the weights are not finite", manager, config)
                 checkpoint.save(manager, state, lifter)
             if interrupt.received is not None:
                 manager.wait_until_finished()
@@ -241,6 +268,8 @@ def train(
                 raise Interrupted(f"stopped by signal {interrupt.received} at step {done}; checkpoint saved in {run_dir}")
     bar.close()
     run_log.close()
+    if not _variables_finite(state):
+        raise _diverged(int(jax.device_get(state.step)), "the weights are not finite", manager, config)
     checkpoint.save(manager, state, lifter)
     manager.wait_until_finished()
     return parallel.local_replica(state), model

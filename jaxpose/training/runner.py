@@ -29,7 +29,7 @@ from jaxpose.training.experiment import ExperimentConfig
 from jaxpose.training.report import evaluate_and_report
 from jaxpose.training.run_directory import RunDirectory, check_resumable, exclusive, prepare_run_dir, write_record
 from jaxpose.training.splits import Splits
-from jaxpose.training.loop import Interrupted, train, training_budget
+from jaxpose.training.loop import Diverged, Interrupted, train, training_budget
 from jaxpose.training import parallel, pseudo_labelling
 from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.data.batch import validate_batch
@@ -96,6 +96,8 @@ def _run_holding_the_directory(
     except Interrupted as stop:
         log.warning("%s", stop)
         raise SystemExit(130) from None
+    except Diverged as error:
+        raise SystemExit(f"error: {error}") from None
     method = "Lifter, supervised (3D ground truth)" if config.loss.supervision == "full" else "Lifter, self-supervised (ours)"
     report = evaluate_and_report(config, splits, state, model, run_dir, method, time.perf_counter() - begin)
     if jax.process_index() == 0:

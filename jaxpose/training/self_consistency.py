@@ -14,6 +14,11 @@ losses use, several calibrated views of each instant, so three measures need no 
 - **triangulation_p_mpjpe_mm**: P-MPJPE against the held-out triangulation of all views (in the
   lifted view's camera frame), the pseudo-label the lifter would have been trained towards.
 
+What a measure cannot score counts as a failure, never as left out: a prediction that is not finite, or a
+joint it places behind a camera it is projected into, scores `FAILED` (1000 mm or px, far beyond any working
+lifter), so a diverged model ranks last instead of first.  A healthy lifter has no such cells, and its
+values are unchanged by the rule.
+
 Which one to select models by is measured on Human3.6M, where the ground truth is known: docs/rig.md
 ("Train on your own rig") gives the rank correlations with the true P-MPJPE.
 """
@@ -28,6 +33,8 @@ from jaxpose.training.evaluation import compute_metrics, poses_in_views
 
 METRICS = ("disagreement_mm", "reprojection_px", "triangulation_p_mpjpe_mm")
 CHUNK = 2048  # instants per block of the pairwise measures
+FAILED = 1000.0
+"""The score (mm or px) of what cannot be scored: a non-finite prediction, a joint behind a camera."""
 
 
 def self_consistency(pred: np.ndarray, dataset: MultiViewDataset, triangulated: np.ndarray, labelled: np.ndarray) -> dict:
@@ -48,8 +55,10 @@ def self_consistency(pred: np.ndarray, dataset: MultiViewDataset, triangulated: 
     # (c) Against the triangulation, where every joint of the instant has a label.
     target = poses_in_views(dataset, triangulated)
     complete = labelled.all(-1)
-    per_pose, _ = compute_metrics(pred.reshape(N * C, J, 3), target.reshape(N * C, J, 3).astype(np.float32))
-    against_triangulation = np.where(complete[:, None], per_pose["p_mpjpe"].reshape(N, C), np.nan)
+    finite = np.isfinite(pred).all((-2, -1))  # [N, C]
+    per_pose, _ = compute_metrics(np.where(finite[..., None, None], pred, 0.0).reshape(N * C, J, 3), target.reshape(N * C, J, 3).astype(np.float32))
+    against_triangulation = np.where(finite, per_pose["p_mpjpe"].reshape(N, C), FAILED)
+    against_triangulation = np.where(complete[:, None], against_triangulation, np.nan)
 
     measures = {"disagreement_mm": disagreement, "reprojection_px": reprojection, "triangulation_p_mpjpe_mm": against_triangulation}
     return {name: _summary(values, lifted) for name, values in measures.items()}
@@ -63,11 +72,12 @@ def _view_agreement(pred, dataset: MultiViewDataset, rows, triangulated, labelle
     lifted = dataset.confidence[rows, :, 0] > 0
     world = np.einsum("ncij,ncki->nckj", R, pred.astype(np.float64))  # R^T p: camera axes -> world axes
 
-    # (a) Each lifted view against the other lifted views of its instant.
+    # (a) Each lifted view against the other lifted views of its instant (a non-finite pair scores FAILED).
     pairwise = np.linalg.norm(world[:, :, None] - world[:, None], axis=-1).mean(-1)  # [n, C, C]
     others = lifted[:, None, :] & lifted[:, :, None] & ~np.eye(C, dtype=bool)
+    pairwise = np.where(others & ~np.isfinite(pairwise), FAILED, pairwise)
     with np.errstate(invalid="ignore", divide="ignore"):
-        disagreement = (pairwise * others).sum(-1) / others.sum(-1)  # NaN without another view
+        disagreement = np.where(others, pairwise, 0.0).sum(-1) / others.sum(-1)  # NaN without another view
 
     # (b) Placed at the triangulated root, into the other views.
     placed = world + triangulated[:, None, :1].astype(np.float64)  # [n, C, J, 3] world
@@ -78,15 +88,17 @@ def _view_agreement(pred, dataset: MultiViewDataset, rows, triangulated, labelle
     with np.errstate(invalid="ignore", divide="ignore"):
         pixels = projected[..., :2] / depth[..., None]
     distance = np.linalg.norm(pixels - dataset.keypoints2d[rows][:, None].astype(np.float64), axis=-1)  # [n, C, C', J]
-    seen = (dataset.confidence[rows][:, None] > 0) & (depth > 0) & labelled[:, None, None, :1]
-    seen &= ~np.eye(C, dtype=bool)[None, :, :, None]
+    distance = np.where((depth > 0) & np.isfinite(distance), distance, FAILED)  # behind the camera, or not finite
+    seen = (dataset.confidence[rows][:, None] > 0) & labelled[:, None, None, :1]
+    seen = seen & ~np.eye(C, dtype=bool)[None, :, :, None]
     with np.errstate(invalid="ignore", divide="ignore"):
         reprojection = np.where(seen, distance, 0.0).sum((2, 3)) / seen.sum((2, 3))
     return disagreement, reprojection
 
 
 def _summary(values: np.ndarray, lifted: np.ndarray) -> dict:
-    """{"overall": mean, "per_camera": [mean per camera]} over the lifted views where the value is defined."""
+    """{"overall": mean, "per_camera": [mean per camera]} over the lifted views where the value is defined
+    (NaN only where the measure does not apply: no other view, no label; failures are already `FAILED`)."""
     defined = lifted & np.isfinite(values)
     per_camera = [float(values[defined[:, c], c].mean()) if defined[:, c].any() else float("nan") for c in range(values.shape[1])]
     return {"overall": float(values[defined].mean()) if defined.any() else float("nan"), "per_camera": per_camera}

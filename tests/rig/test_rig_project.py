@@ -192,6 +192,13 @@ def test_ground_truth_free_measures_against_an_oracle(project):
     assert worse["disagreement_mm"]["per_camera"][1] > 50 > exact["disagreement_mm"]["per_camera"][1]
     assert worse["reprojection_px"]["per_camera"][1] > 2 * exact["reprojection_px"]["per_camera"][1]
     assert worse["reprojection_px"]["per_camera"][0] == pytest.approx(exact["reprojection_px"]["per_camera"][0])
+    # A broken lifter (issue 42 case 5): what cannot be scored counts as a failure, never as left out.
+    diverged = self_consistency.self_consistency(np.full_like(truth, np.nan), test, test.pseudo3d, test.pseudo3d_weight > 0)
+    for name in self_consistency.METRICS:
+        assert diverged[name]["overall"] == self_consistency.FAILED > 10 * exact[name]["overall"], name
+    behind = truth.copy()
+    behind[:, 0] += np.asarray([0.0, 0.0, -1e5])  # view 0's lifts placed 100 m behind the other cameras
+    assert self_consistency.self_consistency(behind, test, test.pseudo3d, test.pseudo3d_weight > 0)["reprojection_px"]["per_camera"][0] > 100
 
 
 def _raises(match, root, **config):
