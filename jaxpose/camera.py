@@ -198,17 +198,27 @@ def undistort_points(cameras: Cameras, pixels: jax.Array, iterations: int = 20) 
     return undistort_lens(cameras.K, cameras.dist, pixels, cameras.distortion_model, iterations)
 
 
+UNDISTORTION_TOLERANCE = 1e-3
+"""Normalized image units (about 1 px at a focal length of 1000 px): a point whose undistortion, distorted
+again, lands farther than this from where it was detected has no undistorted position (far outside the
+image, where the lens polynomial folds back) and comes out NaN, so that it counts as undetected."""
+
+
 def undistort_lens(K: jax.Array, dist: jax.Array, pixels: jax.Array, model: str = "opencv", iterations: int = 20) -> jax.Array:
-    """`undistort_points` of the lens K [..., 3, 3], dist [..., 5] of `model`: pixels [..., N, 2]."""
+    """`undistort_points` of the lens K [..., 3, 3], dist [..., 5] of `model`: pixels [..., N, 2]; NaN
+    where the inversion does not converge (`UNDISTORTION_TOLERANCE`)."""
     distorted = _remove_intrinsics(K, pixels)
     if model == "fisheye":
-        return _apply_intrinsics(K, _undistort_fisheye(distorted, dist, iterations))
+        undistorted = _undistort_fisheye(distorted, dist, iterations)
+    else:
 
-    def refine(_, estimate):
-        return distorted - (_distort(estimate, dist, model) - estimate)
+        def refine(_, estimate):
+            return distorted - (_distort(estimate, dist, model) - estimate)
 
-    undistorted = jax.lax.fori_loop(0, iterations, refine, distorted)
-    return _apply_intrinsics(K, undistorted)
+        undistorted = jax.lax.fori_loop(0, iterations, refine, distorted)
+    error = jnp.linalg.norm(_distort(undistorted, dist, model) - distorted, axis=-1)
+    converged = (error <= UNDISTORTION_TOLERANCE)[..., None]  # False for NaN too
+    return _apply_intrinsics(K, jnp.where(converged, undistorted, jnp.nan))
 
 
 # `undistort_lens` compiled once per shape and model, the lens an argument: the loaders undistort

@@ -303,3 +303,41 @@ def test_a_nan_learning_rate_stops_training_with_a_message_and_no_nonfinite_chec
     assert "\n" not in message and re.search(r"training diverged at step \d+: (the loss is nan|the weights are not finite)", message), message
     checkpoints = run_dir / "checkpoints"
     assert not checkpoints.exists() or not any(entry.name.isdigit() for entry in checkpoints.iterdir())
+
+
+def test_a_point_the_lens_cannot_undistort_is_nan_and_the_others_match_opencv():
+    """The lens inversion converges (OpenCV's undistortPoints, iterated to convergence, as the oracle) inside
+    the image and says NaN far outside it, where the fixed-point iteration does not converge."""
+    import cv2
+    import jax.numpy as jnp
+
+    from jaxpose.camera import undistort_points
+
+    K = np.array([[1000.0, 0, 960], [0, 1000.0, 540], [0, 0, 1]])
+    dist = np.array([-0.3, 0.08, 0.0, 0.0, 0.0])
+    inside = np.array([[10.0, 20.0], [960.0, 540.0], [1900.0, 1060.0], [100.0, 900.0]])
+    cameras = Cameras(K=jnp.asarray(K[None]), R=jnp.eye(3)[None], t=jnp.zeros((1, 3)), dist=jnp.asarray(dist[None]))
+    ours = np.asarray(undistort_points(cameras, jnp.asarray(np.concatenate([inside, [[5000.0, 540.0], [1e6, 1e6]]])[None])))[0]
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+    oracle = cv2.undistortPoints(inside[:, None], K, dist, None, K, criteria=criteria)[:, 0]
+    np.testing.assert_allclose(ours[:4], oracle, atol=0.05)
+    assert np.isnan(ours[4:]).all()
+
+
+@pytest.mark.parametrize("far", [5000.0, 1e6])
+def test_one_far_off_keypoint_is_undetected_and_the_project_loads(small_project, tmp_path, far):
+    """Issue 42 case 6: one keypoint at 5,000 px (or 1e6) in one frame of one camera made the rig path's
+    undistortion diverge ("cannot convert float NaN to integer"); it is now undetected, as predict's
+    --outside-margin makes it, and everything prepared is finite."""
+    import json
+
+    project = tmp_path / "project"
+    shutil.copytree(small_project, project, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    frame = sorted(project.glob("*/cam02_json/*.json"))[5]
+    content = json.loads(frame.read_text())
+    content["people"][0]["pose_keypoints_2d"][27:29] = [far, far / 2]  # joint 9 (left wrist, COCO-17)
+    frame.write_text(json.dumps(content))
+    data = load_rig_project(RigProjectConfig(root=project), progress=False)
+    for part in (data.train, data.validation):
+        assert np.isfinite(np.asarray(part.keypoints2d)).all() and np.isfinite(np.asarray(part.confidence)).all()
+    assert (np.asarray(data.train.keypoints2d) < 3000).all()

@@ -223,13 +223,21 @@ class MultiViewDataset:
         if self.rigs.dist is None:
             return self
         points = _undistort(self.rigs, self.rig_index, self.keypoints2d)
-        dataset = dataclasses.replace(self, keypoints2d=points, rigs=self.rigs.without_distortion())
+        # A detection the lens model cannot undistort (far outside the image: NaN) is undetected.
+        placed = np.isfinite(points).all(-1)
+        confidence = np.where(placed, self.confidence, 0.0).astype(self.confidence.dtype) if not placed.all() else self.confidence
+        points = np.where(placed[..., None], points, 0.0).astype(np.float32) if not placed.all() else points
+        dataset = dataclasses.replace(self, keypoints2d=points, confidence=confidence, rigs=self.rigs.without_distortion())
         if self.context is None:
             return dataset
         # Only the frames some sample's window can reach, each through the rig of a sample that reaches it.
         dataset = self._compact_context(dataset)
         context = _undistort(self.rigs, self._context_rig_index(dataset), dataset.context.keypoints2d)
-        return dataclasses.replace(dataset, context=dataclasses.replace(dataset.context, keypoints2d=context))
+        placed = np.isfinite(context).all(-1)
+        fields = {"keypoints2d": np.where(placed[..., None], context, 0.0).astype(np.float32)}
+        if not placed.all():
+            fields["confidence"] = np.where(placed, dataset.context.confidence, 0.0).astype(dataset.context.confidence.dtype)
+        return dataclasses.replace(dataset, context=dataclasses.replace(dataset.context, **fields))
 
     @staticmethod
     def _compact_context(dataset: "MultiViewDataset") -> "MultiViewDataset":

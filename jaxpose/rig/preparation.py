@@ -139,9 +139,9 @@ class Preparation:
         def drain(final: bool = False):
             nonlocal added
             while added in waiting and waiting[added][1] is not None:
-                part, (undistorted, found) = waiting.pop(added)
+                part, (undistorted, confidence, found) = waiting.pop(added)
                 with self.phases("people chosen"):
-                    self._finish(part, undistorted, people.Proposals(*found), units)
+                    self._finish(dataclasses.replace(part, confidence=confidence), undistorted, people.Proposals(*found), units)
                 self.phases.advance("people chosen", len(part.rows))
                 added += 1
             blocked = sum(output is not None for _, output in waiting.values())
@@ -167,10 +167,16 @@ class Preparation:
             units.finish()
 
     def _propose(self, rig_rows, keypoints, confidence):
-        """One chunk: undistorted keypoints and the person's proposals (`jaxpose.rig.people.proposals`)."""
+        """One chunk: undistorted keypoints, their confidence, and the person's proposals
+        (`jaxpose.rig.people.proposals`).  A keypoint with no undistorted position (a detector's point far
+        outside the image, where the lens model folds back: `jaxpose.camera.UNDISTORTION_TOLERANCE`) is
+        undetected, as predict's --outside-margin makes it."""
         undistorted = geometry.undistort(self.rigs, rig_rows, keypoints)
+        placed = np.isfinite(undistorted).all(-1)
+        confidence = np.where(placed, confidence, 0.0).astype(confidence.dtype)
+        undistorted = np.where(placed[..., None], undistorted, 0.0).astype(undistorted.dtype)
         found = people.proposals(self.rigs.P[rig_rows], undistorted, confidence, self.threshold_px)
-        return undistorted, dataclasses.astuple(found)
+        return undistorted, confidence, dataclasses.astuple(found)
 
     def _finish(self, part: Aligned, undistorted: np.ndarray, found: people.Proposals, units: "_UnitCheck | None") -> None:
         """One recording's person chosen, its ground truth attached, its rows appended."""

@@ -317,7 +317,9 @@ class Lifter3D:
                 raise ValueError("distortion needs the calibrated intrinsics it belongs to; pass intrinsics= too")
             dist = _check_per_pose("distortion", distortion, (5,), count)
             keypoints = np.asarray(_undistort(K, dist, keypoints))
-            # Missing joints were zeroed, and undistorting (0, 0) may diverge: keep them at zero.
+            # Missing joints were zeroed, and undistorting (0, 0) may diverge: keep them at zero; a joint the lens
+            # model cannot undistort (far outside the image: NaN, `camera.UNDISTORTION_TOLERANCE`) is missing too.
+            confidence = np.where(np.isfinite(keypoints).all(-1), confidence, 0.0).astype(np.float32)
             keypoints = np.where(confidence[..., None] > 0, keypoints, 0.0).astype(np.float32)
         return keypoints, K, confidence
 
