@@ -300,6 +300,40 @@ def infer_layout(values_per_person: int, where: str, flag: str = "--data.skeleto
     )
 
 
+MIDHIP_TOLERANCE = 0.1
+"""BODY_25's joint 8 (MidHip) lies at the midpoint of its hips (9, 12) to a few pixels; BODY_25B's joint 8
+(the right elbow) lies nowhere near the midpoint of its 9 and 12 (left wrist, right hip).  The median, over
+poses with the three detected, of that distance divided by the pose's size (its bounding box diagonal)
+tells them apart: measured 0.002 on real OpenPose BODY_25 (SPIN's example) and 0.16-0.32 per camera on
+Pose2Sim's BODY_25B demo (single poses 0.06-0.44, hence the median)."""
+
+
+def check_body25_layout(layout: str, keypoints: np.ndarray, scores: np.ndarray, where: str, flag: str) -> None:
+    """Refuse 75-value keypoints named `layout` ("body25" or "body25b") whose joint 8 says otherwise: a
+    ValueError naming `where`, the evidence and `flag`.  Other layouts, and input without a pose that
+    detects joints 8, 9 and 12, pass unchecked."""
+    if layout not in ("body25", "body25b") or keypoints.shape[-2] != 25:
+        return
+    points = np.asarray(keypoints, np.float64).reshape(-1, 25, 2)
+    seen = (np.asarray(scores).reshape(-1, 25) > 0) & np.isfinite(points).all(-1)
+    poses = seen[:, [8, 9, 12]].all(-1) & (seen.sum(-1) >= 4)
+    if not poses.any():
+        return
+    points, seen = points[poses], seen[poses]
+    low = np.where(seen[..., None], points, np.inf).min(1)
+    high = np.where(seen[..., None], points, -np.inf).max(1)
+    size = np.maximum(np.linalg.norm(high - low, axis=-1), 1e-6)
+    offset = np.linalg.norm(points[:, 8] - (points[:, 9] + points[:, 12]) / 2, axis=-1) / size
+    midhip = float(np.median(offset)) < MIDHIP_TOLERANCE
+    if midhip != (layout == "body25"):
+        actual = "body25" if midhip else "body25b"
+        raise ValueError(
+            f"{where}: read as {layout}, but joint 8 is {'' if midhip else 'not '}the midpoint of joints 9 and 12"
+            f" (median {np.median(offset):.2f} of the pose's size over {int(poses.sum())} poses): this is {actual.upper()}"
+            f" output; pass {flag} {actual}"
+        )
+
+
 def to_skeleton(layout: str, skeleton: Skeleton, keypoints: np.ndarray, scores: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """Detections in `layout` as the input of a lifter of `skeleton`: the layout's own lifting skeleton
     (`to_lifting_skeleton`), or H36M_17 through the recipes of this module's docstring (`FORMATS`)."""

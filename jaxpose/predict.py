@@ -69,7 +69,7 @@ from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.formats import detection_file, intrinsics, pose_files
 from jaxpose.formats.outputs import OutputError, check_output, check_output_folder
 from jaxpose.training.run_directory import RECORD_FILE, read_record
-from jaxpose.layouts import LAYOUTS, infer_layout, layout_joint_names, layout_of, to_skeleton
+from jaxpose.layouts import LAYOUTS, check_body25_layout, infer_layout, layout_joint_names, layout_of, to_skeleton
 from jaxpose.logs import show_logs
 
 # Poses per `Lifter3D.predict` call; inputs larger than this get a progress bar.
@@ -161,6 +161,8 @@ def run(args: PredictArgs) -> np.ndarray:
     camera = input_camera(args, detections)
     layout = args.format or input_layout(lifter.skeleton, detections)
     scores = detections.scores if detections.scores is not None else np.ones(detections.keypoints.shape[:2], np.float32)
+    if layout is not None:
+        check_body25_layout(layout, detections.keypoints, scores, str(args.input), "--format")
     names = input_joint_names(layout, lifter.joint_names, detections.keypoints.shape[1])
     scores, message = drop_implausible(
         detections.keypoints, scores, names, camera.image_size, args.min_confidence, args.outside_margin

@@ -341,3 +341,25 @@ def test_one_far_off_keypoint_is_undetected_and_the_project_loads(small_project,
     for part in (data.train, data.validation):
         assert np.isfinite(np.asarray(part.keypoints2d)).all() and np.isfinite(np.asarray(part.confidence)).all()
     assert (np.asarray(data.train.keypoints2d) < 3000).all()
+
+
+@pytest.mark.skipif(not paths.FORMATS.is_dir(), reason="needs ../shared/data/formats (real sample files)")
+def test_body25_and_body25b_are_told_apart_by_their_joint_8():
+    """Issue 42 case 7: Pose2Sim's default BODY_25B frames read as BODY_25 (as a BODY_25 lifter read them,
+    152 mm per joint off) are refused naming the layout, and real BODY_25 output read as BODY_25B too; each
+    read as what it is passes."""
+    from jaxpose.formats.keypoint_files import read_openpose_folder
+    from jaxpose.layouts import check_body25_layout
+
+    body25b = read_openpose_folder(paths.FORMATS / "openpose-json" / "pose2sim_demo_balancing_body25b" / "cam03_json")
+    keypoints, scores = body25b.keypoints.reshape(-1, 25, 2), body25b.scores.reshape(-1, 25)
+    check_body25_layout("body25b", keypoints, scores, "cam03_json", "--format")
+    with pytest.raises(ValueError, match=r"cam03_json: read as body25, but joint 8 is not the midpoint .* this is BODY25B output; pass --format body25b"):
+        check_body25_layout("body25", keypoints, scores, "cam03_json", "--format")
+    import json
+
+    spin = json.loads((paths.FORMATS / "openpose-json" / "spin_im1010_single_image" / "im1010_openpose.json").read_text())
+    values = np.asarray(spin["people"][0]["pose_keypoints_2d"], np.float32).reshape(1, 25, 3)
+    check_body25_layout("body25", values[..., :2], values[..., 2], "im1010", "--format")
+    with pytest.raises(ValueError, match=r"read as body25b, but joint 8 is the midpoint .* this is BODY25 output"):
+        check_body25_layout("body25b", values[..., :2], values[..., 2], "im1010", "--format")

@@ -27,6 +27,7 @@ from jaxpose.formats.rig_folder import (
 )
 from jaxpose.layouts import (
     LAYOUTS,
+    check_body25_layout,
     infer_layout,
     layout_joint_names,
     to_lifting_skeleton,
@@ -223,6 +224,7 @@ def lifting_views(recording: Recording, cameras: Mapping[str, CameraDetections],
             order = np.argsort(-np.nan_to_num(scores).sum(-1), axis=1, kind="stable")[:, :MAX_PEOPLE]
             keypoints = np.take_along_axis(keypoints, order[..., None, None], axis=1)
             scores = np.take_along_axis(scores, order[..., None], axis=1)
+        check_body25_layout(recording.layout, keypoints, scores, printable(recording.folder / name), "--data.skeleton")
         keypoints, confidence = to_lifting_skeleton(recording.layout, keypoints, scores)
         confidence = np.where(confidence >= min_confidence, confidence, 0.0).astype(np.float32)
         views[name] = (detections.frames, keypoints, confidence)

@@ -73,7 +73,7 @@ def _refused(checkpoint_dir: Path, folder: Path, output: Path, *flags: str) -> s
 
 
 def _check_layouts(folder: Path, people: int, h36m_run: Path, body25b_run: Path, tmp_path: Path) -> np.ndarray:
-    """Refused by an H36M_17 lifter, unless --format body25 (read as BODY_25); --format body25b converts
+    """Refused by an H36M_17 lifter, and with --format body25 (its joint 8 is no mid-hip); --format body25b converts
     where a conversion exists (the BODY_25B lifter) and says so where none does (the H36M_17 lifter)."""
     message = _refused(h36m_run, folder, tmp_path / "refused.npz")
     assert f"{folder}: 75 values per person are OpenPose BODY_25 or BODY_25B" in message
@@ -81,7 +81,9 @@ def _check_layouts(folder: Path, people: int, h36m_run: Path, body25b_run: Path,
     assert not (tmp_path / "refused.npz").exists()
     message = _refused(h36m_run, folder, tmp_path / "refused.npz", "--format", "body25b")
     assert "a lifter of skeleton 'h36m17' cannot take keypoints in layout 'body25b'" in message
-    assert _predict(h36m_run, folder, tmp_path / "as_body25.npz", "--format", "body25").shape == (people, 17, 3)
+    # BODY_25B named BODY_25: joint 8 is no mid-hip, so the data refuse it (issue 42 case 7: it was lifted as BODY_25).
+    message = _refused(h36m_run, folder, tmp_path / "as_body25.npz", "--format", "body25")
+    assert "read as body25, but joint 8 is not the midpoint of joints 9 and 12" in message and message.endswith("pass --format body25b")
     own = _predict(body25b_run, folder, tmp_path / "own.npz")
     assert own.shape == (people, 26, 3) and np.isfinite(own).all((1, 2)).any()
     np.testing.assert_array_equal(_predict(body25b_run, folder, tmp_path / "named.npz", "--format", "body25b"), own)
