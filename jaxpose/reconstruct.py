@@ -120,6 +120,11 @@ def run(args: ReconstructArgs) -> dict:
                disable=not args.progress)  # fmt: skip
     for inputs in bar:
         bar.set_postfix_str(inputs.name)
+        if not inputs.seen.any():  # nothing to fuse or lift: said, listed, and the other recordings go on
+            print(f"recording {inputs.name}: no camera detects the person at any instant (scores below --data.min-confidence"
+                  f" {args.data.min_confidence:g}, or no detection): no file written", file=sys.stderr)  # fmt: skip
+            rows.append({"recording": inputs.name, "frames": len(inputs.frames), "skipped": "no detection", "files": []})
+            continue
         motion, _ = recording.lift_and_reconstruct(lifter, inputs, args.fusion, args.max_gap, args.bridge_lifted)
         written = motion_files.write_motion(args.output, motion, lifter.joint_names, args.fps, up_axis, args.c3d)
         files += [str(path) for path in written]
@@ -218,6 +223,9 @@ def report_markdown(report: dict) -> str:
         "|---" * (6 + len(names)) + "|",
     ]
     for row in report["recordings"]:
+        if "skipped" in row:
+            lines.append(f"| {row['recording']} | {row['frames']} | 0 | skipped: {row['skipped']} |" + " |" * (len(names) + 2))
+            continue
         counts = " | ".join(str(row["joints_by_provenance"][name]) for name in names)
         lines.append(
             f"| {row['recording']} | {row['frames']} | {row['instants_seen']} | {counts} | {row['interpolated_frames']}"

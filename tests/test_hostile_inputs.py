@@ -363,3 +363,37 @@ def test_body25_and_body25b_are_told_apart_by_their_joint_8():
     check_body25_layout("body25", values[..., :2], values[..., 2], "im1010", "--format")
     with pytest.raises(ValueError, match=r"read as body25b, but joint 8 is the midpoint .* this is BODY25 output"):
         check_body25_layout("body25b", values[..., :2], values[..., 2], "im1010", "--format")
+
+
+@pytest.mark.parametrize("number", ["000100000000", "200000", "9223372036854775808"])
+def test_a_stray_frame_number_is_refused_naming_its_file(small_project, tmp_path, number):
+    """Issue 42 cases 8 and 9: one stray frame file numbered 000100000000 made the loader allocate 53.6 GiB
+    (200000: a 70 MB file of empty rows), and 2^63 ended in an OverflowError traceback; each is one line
+    naming the file, and the project is left as it was."""
+    project = tmp_path / "project"
+    shutil.copytree(small_project, project, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    folder = next(project.glob("*/cam02_json"))
+    first = sorted(folder.glob("*.json"))[0]
+    stray = folder / first.name.replace("000000000000", number.rjust(12, "0"))
+    shutil.copy(first, stray)
+    before = _snapshot(project)
+    with pytest.raises(ValueError, match=rf"{stray.name}|frame number {int(number)}") as refusal:
+        load_rig_project(RigProjectConfig(root=project), progress=False)
+    assert "\n" not in str(refusal.value)
+    assert _snapshot(project) == before
+
+
+def test_coco_and_npz_frame_numbers_are_checked_too(tmp_path):
+    import json
+
+    from jaxpose.formats import detections_npz
+    from jaxpose.formats.keypoint_files import read_coco_results
+
+    entries = [{"image_id": image, "category_id": 1, "keypoints": [1.0, 2.0, 0.9] * 17, "score": 0.9} for image in ("f1.jpg", "f2.jpg", f"f{2**63}.jpg")]
+    (tmp_path / "coco.json").write_text(json.dumps(entries))
+    with pytest.raises(ValueError, match=r"coco.json: .*9223372036854775808"):
+        read_coco_results(tmp_path / "coco.json")
+    np.savez(tmp_path / "detections.npz", keypoints=np.zeros((3, 2, 17, 2), np.float32), confidence=np.ones((3, 2, 17), np.float32),
+             frames=np.array([0, 1, 10**9]), camera_names=np.array(["a", "b"]), skeleton="coco17")  # fmt: skip
+    with pytest.raises(ValueError, match=r"field 'frames'.*row 2 \(frame 1,000,000,000\) lies"):
+        detections_npz.read(tmp_path / "detections.npz")

@@ -32,6 +32,7 @@ import numpy as np
 from jaxpose.formats.camera_file import DISTORTION_MODELS
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.files import read_npz_arrays
+from jaxpose.formats.keypoint_files import check_frame_numbers
 from jaxpose.layouts import LAYOUTS, layout_joint_names
 
 REQUIRED = ("keypoints", "camera_names")
@@ -148,6 +149,7 @@ def read(path: str | Path, required: Sequence[str] = ()) -> MultiViewDetections:
     frames = np.asarray(arrays.get("frames", np.arange(N)), np.int64)
     if frames.shape != (N,) or len(np.unique(frames)) != N:
         raise DataFormatError(f"{path}, field 'frames'", f"{N} distinct frame numbers", f"shape {frames.shape}")
+    check_frame_numbers(frames, f"{path}, field 'frames'", [f"row {row}" for row in range(N)])
     return MultiViewDetections(
         keypoints=keypoints, confidence=confidence, camera_names=camera_names, frames=frames, image_size=image_size,
         skeleton=skeleton, K=K, dist=dist, distortion_model=distortion_model, source=str(path),
