@@ -286,23 +286,38 @@ def test_the_run_record_carries_the_project_settings_to_the_commands_that_use_th
 
 
 @pytest.mark.trains
-def test_a_nan_learning_rate_stops_training_with_a_message_and_no_nonfinite_checkpoint(tmp_path):
-    """Issue 42 case 5: trained with --optimizer.learning-rate nan, the job exits non-zero with one line
-    (it exited 0 with a NaN report), and no checkpoint with a non-finite weight exists for a resume to load."""
+def test_a_diverging_run_stops_with_a_message_and_no_nonfinite_checkpoint(tmp_path):
+    """Issue 42 case 5: --optimizer.learning-rate nan is refused before anything is read or written (it trained
+    and exited 0 with a NaN report), and a finite rate that diverges (1e30) stops the job with one line and a
+    non-zero exit, leaving no checkpoint with a non-finite weight for a resume to load."""
     from experiments import synthetic
 
-    run_dir = tmp_path / "run"
-    argv = [
-        "--preset", "tiny", "--train.epochs", "1", "--train.batch-size", "64", "--train.checkpoint-every", "2",
-        "--train.log-every", "3", "--data.generator.samples-per-subject", "150", "--optimizer.learning-rate", "nan",
-        "--run.run-dir", str(run_dir), "--run.no-progress",
-    ]  # fmt: skip
-    with pytest.raises(SystemExit) as stop:
-        synthetic.main(argv)
-    message = str(stop.value.code)
-    assert "\n" not in message and re.search(r"training diverged at step \d+: (the loss is nan|the weights are not finite)", message), message
-    checkpoints = run_dir / "checkpoints"
-    assert not checkpoints.exists() or not any(entry.name.isdigit() for entry in checkpoints.iterdir())
+    def job(rate: str, run_dir):
+        argv = [
+            "--preset", "tiny", "--train.epochs", "1", "--train.batch-size", "64", "--train.checkpoint-every", "2",
+            "--train.log-every", "3", "--data.generator.samples-per-subject", "150", "--optimizer.learning-rate", rate,
+            "--run.run-dir", str(run_dir), "--run.no-progress",
+        ]  # fmt: skip
+        with pytest.raises(SystemExit) as stop:
+            synthetic.main(argv)
+        message = str(stop.value.code)
+        assert "\n" not in message
+        return message
+
+    assert job("nan", tmp_path / "nan") == "error: --optimizer.learning-rate must be a positive finite number, got nan"
+    assert not (tmp_path / "nan").exists()
+    message = job("1e30", tmp_path / "diverged")
+    assert re.search(r"training diverged at step \d+: (the loss is (nan|inf)|the weights are not finite)", message), message
+    kept = re.search(r"the last checkpoint, step (\d+), is finite and kept", message)
+    if kept:  # what a resume would load: every weight finite
+        import jax
+
+        from jaxpose.serving import inference
+
+        lifter = inference.load(tmp_path / "diverged")
+        assert all(np.isfinite(leaf).all() for leaf in jax.tree.leaves(jax.device_get(lifter.variables)))
+    else:
+        assert "no checkpoint was written" in message
 
 
 def test_a_point_the_lens_cannot_undistort_is_nan_and_the_others_match_opencv():
@@ -397,3 +412,23 @@ def test_coco_and_npz_frame_numbers_are_checked_too(tmp_path):
              frames=np.array([0, 1, 10**9]), camera_names=np.array(["a", "b"]), skeleton="coco17")  # fmt: skip
     with pytest.raises(ValueError, match=r"field 'frames'.*row 2 \(frame 1,000,000,000\) lies"):
         detections_npz.read(tmp_path / "detections.npz")
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--train.batch-size", "0"], "--train.batch-size must be >= 1, got 0"),
+        (["--train.batch-size", "-1"], "--train.batch-size must be >= 1, got -1"),
+        (["--model.width", "0"], "--model.width must be >= 1, got 0"),
+        (["--optimizer.learning-rate", "inf"], "--optimizer.learning-rate must be a positive finite number, got inf"),
+    ],
+)
+def test_numbers_no_run_can_take_are_one_line_before_anything_is_written(tmp_path, flags, message):
+    """Issue 42 case 9: --train.batch-size 0 or -1 and --model.width 0 ended in tracebacks (-1 after writing
+    config.json)."""
+    from experiments import synthetic
+
+    with pytest.raises(SystemExit) as stop:
+        synthetic.main(["--preset", "tiny", "--run.run-dir", str(tmp_path / "run"), *flags])
+    assert str(stop.value.code) == f"error: {message}"
+    assert not (tmp_path / "run").exists()

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import pathlib
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Generic, TypeVar
@@ -178,6 +179,29 @@ def calibration_lines(training: pathlib.Path | None, reference: pathlib.Path, ki
         f"  cameras (--data.cameras-path):  {training or reference}{kind}",
         f"  reference cameras (--data.reference-cameras-path):  {reference}",
     ]
+
+
+# (section, field, the least value) of the numbers a run cannot start without: checked before anything is read or written.
+_AT_LEAST = (
+    ("train", "batch_size", 1), ("train", "epochs", 1), ("train", "max_samples", 0), ("train", "max_steps", 0),
+    ("train", "log_every", 1), ("train", "checkpoint_every", 1), ("train", "keep_checkpoints", 1),
+    ("train", "eval_batch_size", 1), ("train", "eval_every", 0), ("train", "eval_samples", 1), ("train", "eval_max_samples", 0),
+    ("model", "width", 1), ("model", "stages", 1), ("model", "blocks_per_stage", 0), ("model", "temporal_window", 1),
+)  # fmt: skip
+
+
+def check_config(config: "ExperimentConfig") -> None:
+    """A ValueError naming the first flag whose value no run can take (a batch of 0, a width of 0, a NaN or
+    non-positive learning rate, a dropout outside [0, 1))."""
+    for section, name, least in _AT_LEAST:
+        value = getattr(getattr(config, section), name)
+        if not value >= least:
+            raise ValueError(f"--{section}.{name.replace('_', '-')} must be >= {least}, got {value}")
+    rate = config.optimizer.learning_rate
+    if not (math.isfinite(rate) and rate > 0):
+        raise ValueError(f"--optimizer.learning-rate must be a positive finite number, got {rate}")
+    if not 0.0 <= config.model.dropout_rate < 1.0:
+        raise ValueError(f"--model.dropout-rate must lie in [0, 1), got {config.model.dropout_rate}")
 
 
 def to_json_dict(config: Any) -> Any:

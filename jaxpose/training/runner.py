@@ -25,7 +25,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from jaxpose.training.experiment import ExperimentConfig
+from jaxpose.training.experiment import ExperimentConfig, check_config
 from jaxpose.training.report import evaluate_and_report
 from jaxpose.training.run_directory import RunDirectory, check_resumable, exclusive, prepare_run_dir, write_record
 from jaxpose.training.splits import Splits
@@ -52,6 +52,10 @@ def run(
     studies of what the labels cost (`experiments.label_bias`), never part of a method.
     """
     show_logs()
+    try:
+        check_config(config)
+    except ValueError as error:
+        raise SystemExit(f"error: {error}") from None
     enable_compilation_cache()  # the train step's programs come from disk on the next run
     # Before anything touches a device: a multi-host run connects its processes first.
     parallel.initialize(config.parallel.coordinator_address, config.parallel.num_processes, config.parallel.process_id)
