@@ -48,6 +48,7 @@ import jax
 import numpy as np
 import tyro
 
+from benchmarks.peers_scores import BUCKETS, Scores, limb_spread
 from experiments.reconstruction_study import Occlusion, occlude
 from jaxpose import inference
 from jaxpose.camera import Cameras
@@ -55,7 +56,6 @@ from jaxpose.formats.anipose_toml import write_anipose_toml
 from jaxpose.formats.calibrated_rig import RigCalibration
 from jaxpose.formats.outputs import atomic_output, check_output
 from jaxpose.formats.rig_calibration import find_calibration, read_rig_calibration
-from jaxpose.metrics import p_mpjpe
 from jaxpose.reconstruction.recording import RecordingInput, lift_and_reconstruct, recording_inputs
 from jaxpose.rig.project import RigProjectConfig, load_rig_project
 from jaxpose.skeleton import H36M_17, Skeleton
@@ -81,7 +81,6 @@ def per_instant(lifter: inference.Lifter3D, inputs: RecordingInput) -> np.ndarra
 JAXPOSE_METHODS: dict[str, Callable[[inference.Lifter3D, RecordingInput], np.ndarray]] = {
     "jaxpose per-instant fusion": per_instant,
 }
-BUCKETS = ("0", "1", "2", "3+")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -131,89 +130,6 @@ class PeersArgs:
 
 
 # ----------------------------------------------------------------------------------------------
-# Scores
-
-
-def acceleration_error(points: np.ndarray, truth: np.ndarray) -> tuple[float, int]:
-    """(sum, count) of |a - a_truth| (mm/frame^2) over joints and instants whose neighbours the method
-    and the truth both have; a = x[t+1] - 2 x[t] + x[t-1]."""
-    second = lambda x: x[2:] - 2 * x[1:-1] + x[:-2]  # noqa: E731
-    error = np.linalg.norm(second(points) - second(truth), axis=-1)
-    known = np.isfinite(error)
-    return float(error[known].sum()), int(known.sum())
-
-
-def limb_spread(points: np.ndarray, limbs: Sequence[tuple[int, int]]) -> np.ndarray:
-    """f64[L]: each limb's length's standard deviation over the instants that have both ends (NaN below 2)."""
-    spreads = []
-    for a, b in limbs:
-        length = np.linalg.norm(points[:, a] - points[:, b], axis=-1)
-        length = length[np.isfinite(length)]
-        spreads.append(float(length.std()) if len(length) >= 2 else np.nan)
-    return np.array(spreads)
-
-
-class Scores:
-    """One method's sums over recordings (module docstring)."""
-
-    def __init__(self, agreeing: np.ndarray):
-        self.agreeing = agreeing  # bool[J]
-        self.sums = dict.fromkeys(("error", "cells", "covered", "agreeing_error", "agreeing_covered", "pa", "pa_frames", "accel", "accel_count", "gaps", "seen"), 0.0)
-        self.bucket = {name: np.zeros(len(BUCKETS)) for name in ("cells", "covered", "error")}
-        self.spreads: list[np.ndarray] = []
-
-    def add(self, points: np.ndarray, truth: np.ndarray, views: np.ndarray, seen: np.ndarray, limbs) -> None:
-        error = np.linalg.norm(points - truth, axis=-1)  # [F, J]
-        labelled = np.isfinite(truth).all(-1)
-        covered = labelled & np.isfinite(error)
-        s = self.sums
-        s["cells"] += labelled.sum()
-        s["covered"] += covered.sum()
-        s["error"] += error[covered].sum()
-        s["agreeing_covered"] += covered[:, self.agreeing].sum()
-        s["agreeing_error"] += error[:, self.agreeing][covered[:, self.agreeing]].sum()
-        complete = covered.all(-1)
-        if complete.any():
-            s["pa"] += float(np.asarray(p_mpjpe(points[complete], truth[complete])).sum())
-            s["pa_frames"] += complete.sum()
-        total, count = acceleration_error(points, truth)
-        s["accel"] += total
-        s["accel_count"] += count
-        s["gaps"] += (seen & ~np.isfinite(points).all((-1, -2))).sum()
-        s["seen"] += seen.sum()
-        bucket = np.minimum(views, 3)
-        for b in range(len(BUCKETS)):
-            cells = labelled & (bucket == b)
-            self.bucket["cells"][b] += cells.sum()
-            self.bucket["covered"][b] += (cells & covered).sum()
-            self.bucket["error"][b] += error[cells & covered].sum()
-        self.spreads.append(limb_spread(points, limbs))
-
-    def summary(self) -> dict:
-        s = self.sums
-        ratio = lambda a, b: float(a / b) if b else None  # noqa: E731
-        return {
-            "mpjpe_mm": ratio(s["error"], s["covered"]),
-            "covered_pct": ratio(100 * s["covered"], s["cells"]),
-            "mpjpe_agreeing_mm": ratio(s["agreeing_error"], s["agreeing_covered"]),
-            "p_mpjpe_mm": ratio(s["pa"], s["pa_frames"]),
-            "complete_frames": int(s["pa_frames"]),
-            "accel_error_mm_per_frame2": ratio(s["accel"], s["accel_count"]),
-            "limb_spread_mm": float(np.nanmean(np.stack(self.spreads))) if self.spreads else None,
-            "instants_with_a_gap": int(s["gaps"]),
-            "instants_seen": int(s["seen"]),
-            "buckets": {
-                label: {
-                    "cells": int(self.bucket["cells"][b]),
-                    "covered_pct": ratio(100 * self.bucket["covered"][b], self.bucket["cells"][b]),
-                    "mpjpe_mm": ratio(self.bucket["error"][b], self.bucket["covered"][b]),
-                }
-                for b, label in enumerate(BUCKETS)
-            },
-        }
-
-
-# ----------------------------------------------------------------------------------------------
 # The peers' environment and driver
 
 
@@ -231,7 +147,10 @@ def peer_python(args: PeersArgs) -> tuple[pathlib.Path | None, str]:
             if done.returncode:
                 last = (done.stderr.strip().splitlines() or ["(no output)"])[-1]
                 return None, f"{' '.join(command[:4])} failed: {last}"
-    check = "import importlib.metadata as m, Pose2Sim, aniposelib; print(', '.join(p + ' ' + m.version(p) for p in ('pose2sim', 'aniposelib')))"
+    check = (
+        "import importlib.metadata as m, Pose2Sim, aniposelib;"
+        " print(', '.join(p + ' ' + m.version(p) for p in ('pose2sim', 'aniposelib')))"
+    )
     try:
         done = subprocess.run([str(python), "-c", check], capture_output=True, text=True, env=peer_environment())
     except OSError as error:
@@ -258,7 +177,8 @@ def run_peer(python: pathlib.Path, family: str, methods: list[str], work: pathli
     listed = []
     for index, (name, inputs) in enumerate(recordings.items()):
         np.savez(work / f"inputs_{index}.npz", keypoints=inputs.keypoints, confidence=inputs.confidence)
-        listed.append({"name": name, "inputs": str(work / f"inputs_{index}.npz"), "output": str(work / f"output_{index}.npz"), "work": str(work / f"trial_{index}")})
+        files = {"inputs": f"inputs_{index}.npz", "output": f"output_{index}.npz", "work": f"trial_{index}"}
+        listed.append({"name": name, **{key: str(work / value) for key, value in files.items()}})
     request = {
         "family": family, "methods": methods, "calibration": str(calibration), "fps": args.fps,
         "joint_names": [name.replace("/", "_") for name in skeleton.joint_names], "parents": list(skeleton.parents),
@@ -286,8 +206,10 @@ def run_peer(python: pathlib.Path, family: str, methods: list[str], work: pathli
 
 def write_calibration(path: pathlib.Path, names: Sequence[str], cameras: Cameras, image_size: np.ndarray, source: str) -> pathlib.Path:
     """The rig as the peers read it: Anipose / Pose2Sim TOML in metres."""
-    fields = {name: None if getattr(cameras, name) is None else np.asarray(getattr(cameras, name), np.float64) for name in ("K", "R", "t", "dist")}
-    rig = RigCalibration(tuple(names), Cameras(**fields, distortion_model=cameras.distortion_model), np.asarray(image_size), source, "mm")
+    fields = {name: getattr(cameras, name) for name in ("K", "R", "t", "dist")}
+    fields = {name: None if value is None else np.asarray(value, np.float64) for name, value in fields.items()}
+    cameras = Cameras(**fields, distortion_model=cameras.distortion_model)
+    rig = RigCalibration(tuple(names), cameras, np.asarray(image_size), source, "mm")
     write_anipose_toml(path, rig, unit="m")
     return path
 
@@ -321,7 +243,8 @@ def accuracy(args: PeersArgs, lifter: inference.Lifter3D, python: pathlib.Path |
     if project.recovered_calibration is not None or dataset.target3d is None:
         raise SystemExit(f"{args.data.root}: the benchmark needs a calibrated project with ground_truth.npz (world mm)")
     if len(np.unique(dataset.rig_index)) != 1:
-        raise SystemExit(f"{args.data.root}: {len(np.unique(dataset.rig_index))} rigs among the held-out recordings; the benchmark takes one")
+        rigs = len(np.unique(dataset.rig_index))
+        raise SystemExit(f"{args.data.root}: {rigs} rigs among the held-out recordings; the benchmark takes one")
     source = args.data.calibration or find_calibration(args.data.root)
     rig = read_rig_calibration(source).select(project.camera_names, f"cameras of {args.data.root}")
     if rig.image_size is None:
@@ -343,7 +266,10 @@ def accuracy(args: PeersArgs, lifter: inference.Lifter3D, python: pathlib.Path |
                 occlusion = dataclasses.replace(args.occlusion, seed=seed)
                 raw, inputs = (occlude(x, occlusion, args.fps, (index,)) for x in (raw, inputs))
             detected[inputs.name], undistorted[inputs.name] = raw, inputs
-        results = {name: {method: function(lifter, inputs) for method, function in JAXPOSE_METHODS.items()} for name, inputs in undistorted.items()}
+        results = {
+            name: {method: function(lifter, inputs) for method, function in JAXPOSE_METHODS.items()}
+            for name, inputs in undistorted.items()
+        }
         for family, methods in (families.items() if python else ()):
             started = time.perf_counter()
             work = args.output / "work" / condition.replace(" ", "_").replace(",", "") / family
@@ -355,8 +281,9 @@ def accuracy(args: PeersArgs, lifter: inference.Lifter3D, python: pathlib.Path |
                 results[name].update({PEER_METHODS[family][method]: values for method, values in points.items()})
         scores: dict[str, Scores] = {}
         for name, inputs in undistorted.items():
+            views = (inputs.confidence > 0).sum(1)
             for method, points in results[name].items():
-                scores.setdefault(method, Scores(agreeing)).add(points, inputs.target3d, (inputs.confidence > 0).sum(1), inputs.seen, skeleton.bones)
+                scores.setdefault(method, Scores(agreeing)).add(points, inputs.target3d, views, inputs.seen, skeleton.bones)
         truth = Scores(agreeing)
         for inputs in undistorted.values():
             truth.spreads.append(limb_spread(inputs.target3d, skeleton.bones))
@@ -381,7 +308,7 @@ def synthetic_recording(args: PeersArgs, cameras: int, joints: Sequence[str]) ->
     try:
         select = [H36M_17.index(name) for name in joints]
     except KeyError as error:
-        raise SystemExit(f"--checkpoint {args.checkpoint}: the lifter's joints {tuple(joints)} are not the simulator's ({error})") from None
+        raise SystemExit(f"--checkpoint {args.checkpoint}: lifts {tuple(joints)}, not the simulator's joints ({error})") from None
     inputs = RecordingInput("synthetic", np.arange(args.timing_frames), rig, detections.keypoints2d[:, :, select],
                             detections.confidence[:, :, select], motion.poses[:, select])  # fmt: skip
     return inputs, config
@@ -405,7 +332,8 @@ def timing(args: PeersArgs, lifter: inference.Lifter3D, python: pathlib.Path | N
         names = [f"cam{c + 1:02d}" for c in range(count)]
         work = args.output / "timing" / f"{count}_cameras"
         work.mkdir(parents=True, exist_ok=True)
-        calibration = write_calibration(work / "calibration.toml", names, inputs.cameras, np.tile(config.image_size, (count, 1)), "synthetic")
+        sizes = np.tile(config.image_size, (count, 1))
+        calibration = write_calibration(work / "calibration.toml", names, inputs.cameras, sizes, "synthetic")
         row = {}
         error = lambda points: float(np.nanmean(np.linalg.norm(points - inputs.target3d, axis=-1)))  # noqa: E731
         for method, function in JAXPOSE_METHODS.items():
@@ -415,8 +343,9 @@ def timing(args: PeersArgs, lifter: inference.Lifter3D, python: pathlib.Path | N
             groups = [methods] if family == "pose2sim" else [[method] for method in methods]  # filtering reads the triangulation
             for group in groups:
                 started = time.perf_counter()
-                found, times, problem = run_peer(python, family, group, work / f"{family}_{'_'.join(group)}", calibration,
-                                                 {"synthetic": inputs}, lifter.skeleton, args, 1 + args.repeats, args.peer_limit_s)  # fmt: skip
+                folder = work / f"{family}_{'_'.join(group)}"
+                found, times, problem = run_peer(python, family, group, folder, calibration, {"synthetic": inputs},
+                                                 lifter.skeleton, args, 1 + args.repeats, args.peer_limit_s)  # fmt: skip
                 print(f"{count} cameras: {family} {group} {time.perf_counter() - started:.0f} s {problem}", file=sys.stderr)
                 for method in group:
                     points = found.get("synthetic", {}).get(method)
@@ -477,14 +406,16 @@ def timing_table(result: dict) -> list[str]:
     lines = [f"Synthetic rig, one recording of {result['frames']} frames, detector noise x{result['noise_scale']:g},"
              f" outliers {result['outlier_rate']:.0%}; frames per second (wall / process CPU time), first call with"
              " compilation, then the median of the warm calls:", "",
-             "| cameras | method | first call fps | warm fps (median) | warm calls | MPJPE mm | note |", "|---|---|---|---|---|---|---|"]  # fmt: skip
+             "| cameras | method | first call fps | warm fps (median) | warm calls | MPJPE mm | note |",
+             "|---|---|---|---|---|---|---|"]  # fmt: skip
     for count, row in result["cameras"].items():
         for method, entry in row.items():
             times = np.array(entry["times"], float).reshape(-1, 2)
             frames = result["frames"]
             first = f"{frames / times[0, 0]:.1f} / {frames / times[0, 1]:.1f}" if len(times) else "-"
             warm = f"{frames / np.median(times[1:, 0]):.1f} / {frames / np.median(times[1:, 1]):.1f}" if len(times) > 1 else "-"
-            lines.append(f"| {count} | {method} | {first} | {warm} | {max(len(times) - 1, 0)} | {_number(entry['mpjpe_mm'])} | {entry['problem']} |")
+            cells = [str(count), method, first, warm, str(max(len(times) - 1, 0)), _number(entry["mpjpe_mm"]), entry["problem"]]
+            lines.append("| " + " | ".join(cells) + " |")
     return lines
 
 
@@ -510,7 +441,8 @@ def run(args: PeersArgs) -> dict:
     lifter = inference.load(args.checkpoint)
     load = os.getloadavg()
     report = {"setup": (f"{os.cpu_count()} CPU cores (load average {load[0]:.1f} at the start), jax {jax.__version__};"
-                        f" peers: {peers if python else 'skipped, ' + peers}; lifter {args.checkpoint} (step {lifter.step}).")}  # fmt: skip
+                        f" peers: {peers if python else 'skipped, ' + peers};"
+                        f" lifter {args.checkpoint} (step {lifter.step}).")}  # fmt: skip
     if "accuracy" in args.part:
         report["accuracy"] = accuracy(args, lifter, python, families)
     if "timing" in args.part:

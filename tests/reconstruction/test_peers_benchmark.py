@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from benchmarks import peers, peers_driver
+from benchmarks import peers, peers_driver, peers_scores
 from jaxpose.camera import Cameras
 from jaxpose.reconstruction.recording import RecordingInput
 from jaxpose.skeleton import H36M_17
@@ -31,7 +31,7 @@ def test_the_acceleration_error_of_an_added_constant_acceleration_is_its_size():
     truth = walk()
     acceleration = np.array([3.0, -4.0, 12.0])  # |a| = 13 mm/frame^2
     t = np.arange(len(truth))[:, None, None]
-    total, count = peers.acceleration_error(truth + 0.5 * acceleration * t**2, truth)
+    total, count = peers_scores.acceleration_error(truth + 0.5 * acceleration * t**2, truth)
     assert count == (len(truth) - 2) * truth.shape[1]
     np.testing.assert_allclose(total / count, 13.0, rtol=1e-9)
 
@@ -47,7 +47,7 @@ def test_the_acceleration_error_matches_a_loop_and_skips_triples_with_a_missing_
         for t in range(1, len(truth) - 1) for j in range(truth.shape[1])
     ]  # fmt: skip
     known = [e for e in errors if np.isfinite(e)]
-    total, count = peers.acceleration_error(points, truth)
+    total, count = peers_scores.acceleration_error(points, truth)
     assert count == len(errors) - 6  # each missing cell is in three triples
     np.testing.assert_allclose(total, np.sum(known), rtol=1e-9)
 
@@ -57,12 +57,12 @@ def test_limb_spread_is_the_standard_deviation_of_each_limbs_length_over_the_ins
     points = walk(40, 17) + rng.normal(0, 5, (40, 17, 3))
     points[3, 2] = np.nan
     limbs = H36M_17.bones
-    found = peers.limb_spread(points, limbs)
+    found = peers_scores.limb_spread(points, limbs)
     for (a, b), spread in zip(limbs, found):
         lengths = [np.linalg.norm(points[t, a] - points[t, b]) for t in range(40) if np.isfinite(points[t, [a, b]]).all()]
         np.testing.assert_allclose(spread, np.std(lengths), rtol=1e-9)
     rigid = np.broadcast_to(points[:1], points.shape)  # the same pose at every instant: no spread
-    np.testing.assert_allclose(peers.limb_spread(rigid[:, :3], [(0, 1), (1, 2)]), 0.0, atol=1e-9)
+    np.testing.assert_allclose(peers_scores.limb_spread(rigid[:, :3], [(0, 1), (1, 2)]), 0.0, atol=1e-9)
 
 
 def test_scores_of_a_rotated_scaled_copy_have_no_procrustes_error_and_count_buckets_and_gaps():
@@ -72,7 +72,7 @@ def test_scores_of_a_rotated_scaled_copy_have_no_procrustes_error_and_count_buck
     moved[5, 3] = np.nan  # one gap at an instant a camera sees
     views = np.tile(np.arange(17) % 5, (20, 1))  # 0, 1, 2, 3, 4 views -> buckets 0, 1, 2, 3+
     seen = np.ones(20, bool)
-    scores = peers.Scores(np.array([name not in ("Spine", "Head") for name in H36M_17.joint_names]))
+    scores = peers_scores.Scores(np.array([name not in ("Spine", "Head") for name in H36M_17.joint_names]))
     scores.add(moved, truth, views, seen, H36M_17.bones)
     summary = scores.summary()
     error = np.linalg.norm(moved - truth, axis=-1)
@@ -80,7 +80,7 @@ def test_scores_of_a_rotated_scaled_copy_have_no_procrustes_error_and_count_buck
     assert summary["covered_pct"] == pytest.approx(100 * (1 - 1 / (20 * 17)))
     assert summary["p_mpjpe_mm"] == pytest.approx(0.0, abs=1e-2)  # float32 Procrustes on world mm
     assert summary["complete_frames"] == 19 and summary["instants_with_a_gap"] == 1
-    for b, label in enumerate(peers.BUCKETS):
+    for b, label in enumerate(peers_scores.BUCKETS):
         cells = np.minimum(views, 3) == b
         assert summary["buckets"][label]["cells"] == cells.sum()
         np.testing.assert_allclose(summary["buckets"][label]["mpjpe_mm"], np.nanmean(error[cells]), rtol=1e-6)
