@@ -5,7 +5,6 @@ give back the truth from noise-free detections through the driver)."""
 from __future__ import annotations
 
 import dataclasses
-import pathlib
 import sys
 
 import numpy as np
@@ -86,7 +85,7 @@ def test_scores_of_a_rotated_scaled_copy_have_no_procrustes_error_and_count_buck
         np.testing.assert_allclose(summary["buckets"][label]["mpjpe_mm"], np.nanmean(error[cells]), rtol=1e-6)
 
 
-def test_the_driver_reads_a_pose2sim_trc_back_into_the_world_it_turned_to_y_up():
+def test_the_driver_reads_a_pose2sim_trc_back_into_the_world_it_turned_to_y_up(tmp_path):
     names = ["Hip", "RHip", "Neck_Nose"]
     world = np.arange(4 * 3 * 3, dtype=float).reshape(4, 3, 3) * 10.0  # mm
     rows = ["PathFileType\t4\t(X/Y/Z)\tx.trc", "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits", "50\t50\t3\t3\tm",
@@ -94,12 +93,9 @@ def test_the_driver_reads_a_pose2sim_trc_back_into_the_world_it_turned_to_y_up()
     for frame in (1, 2, 3):  # Pose2Sim trims: frame 0 absent
         yup = world[frame][:, [1, 2, 0]] / 1000.0  # its zup2yup: X=y, Y=z, Z=x
         rows.append(f"{frame}\t{frame / 50}\t" + "\t".join(f"{v:.6f}" for v in yup.ravel()))
-    path = pathlib.Path(__file__).parent / "_peers_test.trc"
-    try:
-        path.write_text("\n".join(rows) + "\n")
-        found = peers_driver.read_trc(path, ["Neck_Nose", "Hip", "RHip"], 4)
-    finally:
-        path.unlink(missing_ok=True)
+    path = tmp_path / "trial_0-3.trc"
+    path.write_text("\n".join(rows) + "\n")
+    found = peers_driver.read_trc(path, ["Neck_Nose", "Hip", "RHip"], 4)
     assert np.isnan(found[0]).all()
     np.testing.assert_allclose(found[1:], world[1:][:, [2, 0, 1]], atol=1e-3)
 
