@@ -39,7 +39,6 @@ import os
 import pathlib
 import subprocess
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Sequence
 from typing import Annotated
@@ -284,11 +283,9 @@ def accuracy(args: PeersArgs, lifter: inference.Lifter3D, python: pathlib.Path |
             views = (inputs.confidence > 0).sum(1)
             for method, points in results[name].items():
                 scores.setdefault(method, Scores(agreeing)).add(points, inputs.target3d, views, inputs.seen, skeleton.bones)
-        truth = Scores(agreeing)
-        for inputs in undistorted.values():
-            truth.spreads.append(limb_spread(inputs.target3d, skeleton.bones))
+        truth = np.stack([limb_spread(inputs.target3d, skeleton.bones) for inputs in undistorted.values()])
         found[condition] = {"methods": {method: score.summary() for method, score in scores.items()},
-                            "ground_truth_limb_spread_mm": truth.summary()["limb_spread_mm"],
+                            "ground_truth_limb_spread_mm": float(np.nanmean(truth)),
                             "instants": int(sum(len(x.frames) for x in undistorted.values()))}  # fmt: skip
     return {"conditions": found, "problems": problems, "recordings": [x.name for x in pinhole], "joints": list(skeleton.joint_names)}
 
