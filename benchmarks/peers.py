@@ -49,12 +49,12 @@ import tyro
 
 from benchmarks.peers_scores import BUCKETS, Scores, limb_spread
 from experiments.reconstruction_study import Occlusion, occlude
-from jaxpose import inference
+from jaxpose.serving import inference
 from jaxpose.camera import Cameras
 from jaxpose.formats.anipose_toml import write_anipose_toml
-from jaxpose.formats.calibrated_rig import RigCalibration
+from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.formats.outputs import atomic_output, check_output
-from jaxpose.formats.rig_calibration import find_calibration, read_rig_calibration
+from jaxpose.formats.calibration_files import find_calibration, read_rig_calibration
 from jaxpose.reconstruction.recording import RecordingInput, lift_and_reconstruct, recording_inputs
 from jaxpose.rig.project import RigProjectConfig, load_rig_project
 from jaxpose.skeleton import H36M_17, Skeleton
