@@ -258,6 +258,9 @@ def check_outputs(args: PredictArgs) -> list[pathlib.Path]:
         check_output(args.animation, args.overwrite, [*inputs, args.output], flag="--animation")
     if args.plot is not None:
         check_output_folder(args.plot, inputs, flag="--plot")
+        for other, flag in ((args.output, "--output"), (args.animation, "--animation")):
+            if other is not None and args.plot.resolve() == other.resolve():
+                raise OutputError(f"--plot {args.plot}: is also the {flag} file; give the figures a folder of their own")
         figures = sorted(args.plot.glob(lifting_figures.PLOT_PATTERN)) if args.plot.is_dir() else []
         if figures and not args.overwrite:
             raise OutputError(

@@ -9,7 +9,10 @@ directory pointed at a folder of other files was emptied by --run.overwrite (or 
 from __future__ import annotations
 
 import ast
+import contextlib
 import dataclasses
+import os
+import pathlib
 import pickle
 import re
 import shutil
@@ -432,3 +435,83 @@ def test_numbers_no_run_can_take_are_one_line_before_anything_is_written(tmp_pat
         synthetic.main(["--preset", "tiny", "--run.run-dir", str(tmp_path / "run"), *flags])
     assert str(stop.value.code) == f"error: {message}"
     assert not (tmp_path / "run").exists()
+
+
+# The property: whatever inputs, outputs and flags point into each other, a command changes nothing but its
+# named outputs (and its own cache).  The run is a trained one (the synthetic tiny preset), so predict and
+# export do their whole work where their outputs are allowed; reconstruct, given a lifter of other joints,
+# stops once the project is read.
+def _command_argv(command: str, paths: dict, output, extra, overwrite: bool) -> tuple[list[str], list, list]:
+    """(argv, the outputs it names, its inputs) of `command` with `output` (and `extra`, a second output) from the pool."""
+    flag = ["--overwrite"] if overwrite else []
+    if command == "predict":
+        argv = ["--checkpoint", paths["run"], "--input", paths["frames"], "--output", output, "--plot", extra, "--plot-count", "1",
+                "--image-size", "1920", "1080", *flag]  # fmt: skip
+        return argv, [output, extra], [paths["frames"], paths["run"]]
+    if command == "export":
+        return [paths["run"], "--output", output, "--no-onnx", *flag], [output], [paths["run"]]
+    if command == "calibrate":
+        return ["--input", paths["npz"], "--output", output, *flag], [output], [paths["npz"]]
+    return ["--checkpoint", paths["run"], "--data.root", paths["project"], "--output", extra, "--fps", "50", "--no-progress", *flag], [extra], [paths["project"], paths["run"]]
+
+
+def _allowed(path, named) -> bool:
+    """A named output, a file beside a named file output with its stem (a report, a figure), inside a named
+    folder output, or a cache."""
+    for output in map(lambda p: p.resolve(), named):
+        if path == output or path.is_relative_to(output) or (path.parent == output.parent and path.stem.split(".")[0] == output.stem):
+            return True
+    return ".jaxpose_cache" in path.parts
+
+
+@pytest.fixture(scope="module")
+def workspace(tmp_path_factory, small_project, trained_run):
+    root = tmp_path_factory.mktemp("property")
+    shutil.copytree(small_project, root / "project", ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    shutil.copytree(trained_run[0], root / "run")
+    (root / "out").mkdir()
+    (root / "out" / "poses.json").write_text("earlier")
+    np.savez(root / "detections.npz", keypoints=np.zeros((2, 2, 17, 2), np.float32), confidence=np.ones((2, 2, 17), np.float32))
+    return root
+
+
+@pytest.mark.trains  # the shared tiny run (tests/conftest.py)
+def test_no_command_touches_a_path_outside_its_named_outputs(workspace, tmp_path):
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    from jaxpose import calibrate, export, predict, reconstruct
+
+    mains = {"predict": predict.main, "export": export.main, "calibrate": calibrate.main, "reconstruct": reconstruct.main}
+    frames = next((workspace / "project").glob("*/cam01_json"))
+    pool = [
+        workspace / "new.json", workspace / "out" / "poses.json", workspace / "out", workspace / "out" / "plots", workspace / "project",
+        workspace / "project" / "poses.json", frames, frames / "poses.json", next(frames.glob("*.json")), workspace / "run",
+        workspace / "run" / "config.json", workspace / "run" / "lifter.onnx", workspace / "detections.npz", workspace / "cameras.json",
+        workspace / "motion", workspace / "project" / "motion", workspace,
+    ]  # fmt: skip
+    paths = {"run": workspace / "run", "frames": frames, "npz": workspace / "detections.npz", "project": workspace / "project"}
+
+    @settings(max_examples=int(os.environ.get("HARDEN_EXAMPLES", 40)), deadline=None, suppress_health_check=list(HealthCheck))
+    @given(st.sampled_from(sorted(mains)), st.sampled_from(pool), st.sampled_from(pool), st.booleans())
+    def check(command, output, extra, overwrite):
+        argv, named, inputs = _command_argv(command, paths, output, extra, overwrite)
+        before = _snapshot(workspace)
+        with contextlib.suppress(SystemExit):
+            mains[command]([str(a) for a in argv])
+        after = _snapshot(workspace)
+        touched = {name for name in before.keys() | after.keys() if before.get(name) != after.get(name)}
+        outside = sorted(name for name in touched if not _allowed((workspace / name).resolve(), named))
+        assert outside == [], f"{command} {argv}: touched {outside}"
+        into_inputs = sorted(
+            name for name in touched
+            if ".jaxpose_cache" not in pathlib.Path(name).parts and any((workspace / name).resolve().is_relative_to(i.resolve()) for i in inputs)
+        )  # fmt: skip
+        assert into_inputs == [], f"{command} {argv}: wrote into its inputs {into_inputs}"
+        for name in touched:  # each example starts from the same workspace: what was written is removed
+            if name in before and before[name] is not None:
+                (workspace / name).write_bytes(before[name])
+            else:
+                (workspace / name).unlink(missing_ok=True)
+
+    check()
