@@ -36,7 +36,8 @@ from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.formats.rig_calibration import find_calibration
 from jaxpose.inference import Lifter3D
 from jaxpose.reconstruction.fusion import MIN_DEPTH_MM, Fusion, FusionConfig, Provenance, fuse
-from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, fill_gaps
+from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, complete_segments, fill_gaps
+from jaxpose.reconstruction.trajectory import TrajectoryConfig, solve_trajectory
 from jaxpose.rig.project import RigProject, RigProjectConfig, load_rig_project
 from jaxpose.rig.recordings import recording_folders
 from jaxpose.skeleton import ROOT, Skeleton
@@ -238,6 +239,8 @@ def lift_and_reconstruct(
     config: FusionConfig = FusionConfig(),
     max_gap: int = DEFAULT_MAX_GAP,
     bridge_lifted: bool = True,
+    trajectory: TrajectoryConfig | None = None,
+    fps: float | None = None,
 ) -> tuple[RecordingMotion, np.ndarray]:
     """The recording's motion and the lifts it fused (f32[F, C, J, 3]), in two passes.
 
@@ -250,7 +253,12 @@ def lift_and_reconstruct(
     Then the joints no view detects are re-anchored where views detect them (`anchored_lifts`), and
     `fill_recording` bridges the short runs of them: on the Human3.6M development split's training
     recordings with simulated occlusion (docs/reconstruction.md), such joints 124.5 mm from the truth,
-    against 147.8 bridged only, 140.4 anchored only and 175.6 with neither."""
+    against 147.8 bridged only, 140.4 anchored only and 175.6 with neither.
+
+    With `trajectory` (and the recordings' `fps`), `smooth_recording` solves the motion over time
+    instead of `fill_recording`'s per-instant points (`bridge_lifted` then does not apply)."""
+    if trajectory is not None and not (fps and fps > 0):
+        raise ValueError(f"recording {inputs.name}: the trajectory needs the recording's fps, got {fps!r}")
     lifted = lift_views(lifter, inputs)
     fusion = fuse_recording(inputs, lifted, config)
     unlifted = np.isnan(lifted[..., ROOT, 0]) & (inputs.confidence > 0).any(-1)
@@ -265,7 +273,10 @@ def lift_and_reconstruct(
                 for name, value in dataclasses.asdict(fusion).items()
             })  # fmt: skip
     anchored = anchored_lifts(fusion.points, fusion.provenance, placed_lifts(inputs.cameras, lifted, fusion.placement))
-    return fill_recording(inputs, dataclasses.replace(fusion, points=anchored), max_gap, bridge_lifted), lifted
+    fusion = dataclasses.replace(fusion, points=anchored)
+    if trajectory is None:
+        return fill_recording(inputs, fusion, max_gap, bridge_lifted), lifted
+    return smooth_recording(inputs, fusion, lifter.skeleton.bones, fps, trajectory, max_gap), lifted
 
 
 def fuse_recording(
@@ -278,7 +289,7 @@ def fuse_recording(
     fused = fuse(
         inputs.cameras, inputs.keypoints[rows], inputs.confidence[rows], None if lifted is None else lifted[rows], config
     )
-    shapes = {"points": (J, 3), "provenance": (J,), "uncertainty": (J,), "views": (J,), "placement": (C, 4)}
+    shapes = {"points": (J, 3), "provenance": (J,), "uncertainty": (J,), "views": (J,), "placement": (C, 4), "covariance": (J, 3, 3)}
     whole = {}
     for name, shape in shapes.items():
         values = getattr(fused, name)
@@ -340,4 +351,29 @@ def fill_recording(inputs: RecordingInput, fusion: Fusion, max_gap: int = DEFAUL
     uncertainty = np.where(bridged, np.nan, fusion.uncertainty).astype(np.float32)
     return RecordingMotion(
         inputs.name, inputs.frames, filling.values, provenance, uncertainty, fusion.views, filling.segments, inputs.seen, fusion
+    )
+
+
+def smooth_recording(
+    inputs: RecordingInput, fusion: Fusion, bones, fps: float, config: TrajectoryConfig = TrajectoryConfig(), max_gap: int = DEFAULT_MAX_GAP
+) -> RecordingMotion:
+    """The recording's motion solved over time (`jaxpose.reconstruction.trajectory`) from its per-instant
+    evidence (`fuse_recording`, the lifted-only cells re-anchored): every cell with evidence keeps its
+    provenance, a missing one (no camera sees the person) that a gap of at most `max_gap` frames holds
+    is the smoother's bridge (INTERPOLATED), and a longer gap splits the recording as `fill_recording`
+    does.  The uncertainty is the trajectory's posterior RMS error, bridges included."""
+    solved = solve_trajectory(fusion.points, fusion.covariance, fusion.provenance, bones, fps, config)
+    missing = fusion.provenance == Provenance.NONE
+    bridged = fill_gaps(np.where(missing[..., None], np.nan, fusion.points), max_gap).filled
+    kept = ~missing | bridged
+    return RecordingMotion(
+        inputs.name,
+        inputs.frames,
+        np.where(kept[..., None], solved.points, np.nan).astype(np.float32),
+        np.where(bridged, np.int8(Provenance.INTERPOLATED), fusion.provenance).astype(np.int8),
+        np.where(kept, solved.sigma, np.nan).astype(np.float32),
+        fusion.views,
+        complete_segments(kept.all(-1)),
+        inputs.seen,
+        fusion,
     )
