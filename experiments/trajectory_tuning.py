@@ -23,7 +23,7 @@ import numpy as np
 import tyro
 from tqdm.auto import tqdm
 
-from experiments.reconstruction_study import BUCKETS, Occlusion, occlude
+from experiments.reconstruction_study import BUCKETS, Occlusion, first_frames, occlude
 from jaxpose import inference
 from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.formats.outputs import atomic_output, check_output
@@ -116,12 +116,7 @@ def run(args: TuningArgs) -> dict:
         scores = {name: Scores() for name in configs}
         recordings = list(recording_inputs(project.validation))
         for index, inputs in enumerate(tqdm(recordings, desc="occluded" if occluded else "as it is", unit="recording")):
-            if args.max_frames:
-                keep = slice(0, args.max_frames)
-                inputs = dataclasses.replace(
-                    inputs, frames=inputs.frames[keep], keypoints=inputs.keypoints[keep], confidence=inputs.confidence[keep],
-                    target3d=inputs.target3d[keep],
-                )  # fmt: skip
+            inputs = first_frames(inputs, args.max_frames)
             if occluded:
                 inputs = occlude(inputs, args.occlusion, args.fps, (index,))
             motion, _ = lift_and_reconstruct(lifter, inputs)
