@@ -202,7 +202,8 @@ class RecordingMotion:
 
     points:      f32[F, J, 3]; gaps of at most max_gap frames interpolated, NaN where still missing.
     provenance:  i8[F, J] `Provenance` (INTERPOLATED where the gap filling filled the cell).
-    uncertainty: f32[F, J] mm, the fusion's posterior RMS error; NaN where not fused (interpolated or missing).
+    uncertainty: f32[F, J] mm, the posterior RMS error: the fusion's, NaN where not fused (interpolated or
+                 missing); the trajectory's (`smooth_recording`), its bridges included.
     views:       i8[F, J] detections that agree with the joint.
     segments:    i64[S, 2] (start, stop) frame indices, half-open, of the complete runs: one output file each.
     fusion:      the fusion before gap filling (with each view's placement).

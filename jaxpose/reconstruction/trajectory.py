@@ -219,10 +219,9 @@ class _System:
         matrix, factors = self._matrix(blocks, limbs, rows), self._factors(blocks)
         shape = rhs.shape
 
-        def precondition(r):
-            r = r.reshape(shape)
-            solved = [cho_solve_banded((factor, False), r[:, j].ravel(), check_finite=False) for j, factor in enumerate(factors)]
-            return np.stack([column.reshape(-1, 3) for column in solved], 1).ravel()
+        def precondition(r):  # the joints' systems side by side: one banded matrix, joint-major
+            solved = cho_solve_banded((factors, False), r.reshape(shape).swapaxes(0, 1).ravel(), check_finite=False)
+            return solved.reshape(shape[1], shape[0], 3).swapaxes(0, 1).ravel()
 
         rhs = rhs.ravel()
         x = precondition(rhs) if track is None else track.ravel().copy()
@@ -265,12 +264,16 @@ class _System:
             ab[:, BAND - 6, 6 + a :: 3] += self.motion_weight * second
         return ab
 
-    def _factors(self, blocks: np.ndarray) -> list[np.ndarray]:
-        return [cholesky_banded(band, lower=False, check_finite=False) for band in self._bands(blocks)]
+    def _factors(self, blocks: np.ndarray) -> np.ndarray:
+        """[BAND + 1, 3FJ]: the banded Cholesky factor of every joint's system, joint after joint (block
+        diagonal: `_bands` leaves the entries above each joint's first rows 0, so one banded matrix holds all)."""
+        bands = self._bands(blocks)
+        return cholesky_banded(bands.swapaxes(0, 1).reshape(BAND + 1, -1), lower=False, check_finite=False)
 
     def marginal_sigma(self, weight, limbs, track) -> np.ndarray:
         """f64[F, J]: sqrt(trace) of each cell's marginal covariance under its joint's own system."""
-        factors = np.stack(self._factors(self._diagonal_blocks(weight, limbs, self._limb_rows(limbs, track))))
+        factors = self._factors(self._diagonal_blocks(weight, limbs, self._limb_rows(limbs, track)))
+        factors = factors.reshape(BAND + 1, len(weight[0]), -1).swapaxes(0, 1)  # [J, BAND + 1, 3F]
         return np.sqrt(np.trace(_selected_blocks(factors), axis1=-2, axis2=-1)).T
 
 

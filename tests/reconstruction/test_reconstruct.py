@@ -76,7 +76,7 @@ def test_every_seen_instant_is_reconstructed_and_the_files_agree(project, run_di
         # The trajectory bridges the instants no camera sees (up to --max-gap) with an uncertainty of its own.
         assert np.isfinite(saved["uncertainty_mm"][np.isfinite(points).all(-1)]).all()
         assert row["mean_acceleration_mm_per_frame2"] > 0 and row["acceleration_error_mm_per_frame2"] > 0
-        assert len(row["limb_length_std_mm"]) == len(names) - 1
+        assert len(row["limb_length_std_mm"]) == len(saved["joint_names"]) - 1  # a limb per joint but the root
         # Near the ground truth (the detections alone triangulate to ~19 mm on this project).
         truth = np.load(project / row["recording"] / "ground_truth.npz")
         names = [str(name) for name in saved["joint_names"]]
