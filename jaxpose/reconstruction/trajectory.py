@@ -144,12 +144,13 @@ def solve_trajectory(
     limbs = [(b, c, p) for b, (c, p) in enumerate(bones) if np.isfinite(lengths[b]) and solved[c] and solved[p]]
     system = _System(precision, observed, has, 1.0 / (config.acceleration_mm_s2 / fps**2) ** 2, 1.0 / config.limb_sigma_mm**2)
 
-    weight = has.astype(np.float64)
+    dummy = np.broadcast_to(~solved, (F, J))  # held at 0 by unit weights, so that their systems stay regular
+    weight = (has | dummy).astype(np.float64)
     track = system.solve(weight, limbs, lengths, None)
     for _ in range(config.iterations):
         residual = observed - track
         mahalanobis = np.sqrt(np.maximum(np.einsum("fja,fjab,fjb->fj", residual, precision, residual), 0.0))
-        weight = np.where(has, 1.0 / (1.0 + (mahalanobis / config.robust_sigmas) ** 2), 0.0)
+        weight = np.where(dummy, 1.0, np.where(has, 1.0 / (1.0 + (mahalanobis / config.robust_sigmas) ** 2), 0.0))
         track = system.solve(weight, limbs, lengths, track)
     sigma = system.marginal_sigma(weight, limbs, track)
     track = np.where(solved[None, :, None], track, points)

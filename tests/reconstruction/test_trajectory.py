@@ -190,6 +190,23 @@ def test_the_banded_solve_is_the_dense_least_squares_minimum(seed):
     np.testing.assert_allclose(track.sigma, sigma_oracle, rtol=1e-4)
 
 
+def test_a_joint_with_too_little_evidence_keeps_its_values():
+    """A joint seen at one instant only (the prior fixes no line through one point) or never: its input
+    values, no limb held to it; the others solved as without it."""
+    scene = walk(6, frames=60)
+    fusion = fused(scene, pixel_noise=1.0, seed=6)
+    points, covariance = fusion.points.copy(), fusion.covariance.copy()
+    points[1:, 3], covariance[1:, 3] = np.nan, np.nan  # RFoot: one instant
+    points[:, 16], covariance[:, 16] = np.nan, np.nan  # RWrist: never
+    provenance = np.where(np.isfinite(points).all(-1), fusion.provenance, Provenance.NONE)
+    track = solve_trajectory(points, covariance, provenance, BONES, FPS, WALKING)
+    np.testing.assert_array_equal(track.points[:, [3, 16]], points[:, [3, 16]].astype(np.float32))
+    assert np.isnan(track.sigma[:, [3, 16]]).all() and np.isfinite(track.sigma[:, :3]).all()
+    assert np.isnan(track.limb_lengths[[i for i, (c, _) in enumerate(BONES) if c in (3, 16)]]).all()
+    error = np.linalg.norm(track.points[:, :3] - scene.truth[:, :3], axis=-1)
+    assert error.mean() < np.linalg.norm(fusion.points[:, :3] - scene.truth[:, :3], axis=-1).mean()
+
+
 def test_bad_shapes_and_settings_are_refused():
     with pytest.raises(ValueError, match="covariance"):
         solve_trajectory(np.zeros((5, 3, 3)), np.zeros((5, 3, 3)), np.zeros((5, 3)), (), FPS)
