@@ -229,11 +229,11 @@ def report_markdown(report: dict) -> str:
         "|---|---|---|---|---|",
     ]
     for row in report["recordings"]:
-        spreads = [value for value in row["limb_length_std_mm"].values() if value is not None]
-        largest = max(row["limb_length_std_mm"].items(), key=lambda item: -1.0 if item[1] is None else item[1])
+        spreads = {name: value for name, value in row["limb_length_std_mm"].items() if value is not None}
+        largest = max(spreads, key=spreads.get) if spreads else None
         cells = [
             _number(row["mean_acceleration_mm_per_frame2"], 2), _number(row["mean_limb_length_std_mm"], 1),
-            f"{largest[1]:.1f} ({largest[0]})" if spreads else "-", _number(row.get("acceleration_error_mm_per_frame2"), 2),
+            f"{spreads[largest]:.1f} ({largest})" if spreads else "-", _number(row.get("acceleration_error_mm_per_frame2"), 2),
         ]  # fmt: skip
         lines.append(f"| {row['recording']} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
