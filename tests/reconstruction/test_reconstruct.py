@@ -207,18 +207,22 @@ def test_opensims_reader_takes_the_trc_files(project, run_dir, tmp_path, monkeyp
 
 
 def test_help_documents_every_flag(capsys):
-    from experiments import reconstruction_study
+    from experiments import reconstruction_study, trajectory_tuning
     from jaxpose.reconstruction.fusion import FusionConfig
     from jaxpose.reconstruction.trajectory import TrajectoryConfig
 
-    for main, args_type in ((reconstruct.main, reconstruct.ReconstructArgs), (reconstruction_study.main, reconstruction_study.StudyArgs)):
+    for main, args_type in (
+        (reconstruct.main, reconstruct.ReconstructArgs), (reconstruction_study.main, reconstruction_study.StudyArgs),
+        (trajectory_tuning.main, trajectory_tuning.TuningArgs),
+    ):  # fmt: skip
         with pytest.raises(SystemExit) as stop:
             main(["--help"])
         assert stop.value.code == 0
         nested = ("data", "fusion", "occlusion", "trajectory")
         flags = [f"--{f.name.replace('_', '-')}" for f in dataclasses.fields(args_type) if f.name not in nested]
-        flags += ["--fusion." + f.name.replace("_", "-") for f in dataclasses.fields(FusionConfig)]
-        flags += ["--trajectory." + f.name.replace("_", "-") for f in dataclasses.fields(TrajectoryConfig)]
+        if any(f.name == "fusion" for f in dataclasses.fields(args_type)):
+            flags += ["--fusion." + f.name.replace("_", "-") for f in dataclasses.fields(FusionConfig)]
+            flags += ["--trajectory." + f.name.replace("_", "-") for f in dataclasses.fields(TrajectoryConfig)]
         assert_every_flag_documented(capsys.readouterr().out, flags)
 
 
