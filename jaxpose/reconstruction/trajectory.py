@@ -170,8 +170,10 @@ class _System:
         self.precision, self.observed, self.has = precision, observed, has
         self.motion_weight, self.limb_weight = motion_weight, limb_weight
         F, J = has.shape
-        second = scipy.sparse.diags([1.0, -2.0, 1.0], [0, 1, 2], shape=(max(F - 2, 0), F))
-        self.motion = scipy.sparse.kron(motion_weight * (second.T @ second), scipy.sparse.identity(3 * J), "csr")
+        self.motion = scipy.sparse.csr_matrix((3 * F * J,) * 2)  # no second difference in fewer than 3 frames
+        if F >= 3:
+            second = scipy.sparse.diags([1.0, -2.0, 1.0], [0, 1, 2], shape=(F - 2, F))
+            self.motion = scipy.sparse.kron(motion_weight * (second.T @ second), scipy.sparse.identity(3 * J), "csr")
 
     def _limb_rows(self, limbs, track) -> np.ndarray:
         """[L, F, 3]: sqrt(limb weight) u, u each limb's unit direction at `track` (0 where degenerate, and

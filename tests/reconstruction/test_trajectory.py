@@ -207,6 +207,17 @@ def test_a_joint_with_too_little_evidence_keeps_its_values():
     assert error.mean() < np.linalg.norm(fusion.points[:, :3] - scene.truth[:, :3], axis=-1).mean()
 
 
+@pytest.mark.parametrize("frames", [1, 2])
+def test_a_recording_of_one_or_two_frames(frames):
+    """No second difference to penalise: one frame is kept as it is (too little evidence), two come back
+    as the evidence (every term 0 there, the limbs measured on no 10 instants)."""
+    rng = np.random.default_rng(frames)
+    points = rng.normal(0, 100, (frames, 3, 3))
+    covariance = np.broadcast_to(25.0 * np.eye(3), (frames, 3, 3, 3))
+    track = solve_trajectory(points, covariance, np.full((frames, 3), Provenance.TRIANGULATED), ((1, 0), (2, 1)), FPS)
+    np.testing.assert_allclose(track.points, points, atol=1e-3)
+
+
 def test_bad_shapes_and_settings_are_refused():
     with pytest.raises(ValueError, match="covariance"):
         solve_trajectory(np.zeros((5, 3, 3)), np.zeros((5, 3, 3)), np.zeros((5, 3)), (), FPS)
