@@ -37,7 +37,7 @@ from jaxpose.formats.rig_calibration import find_calibration
 from jaxpose.inference import Lifter3D
 from jaxpose.reconstruction.fusion import MIN_DEPTH_MM, Fusion, FusionConfig, Provenance, fuse
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, complete_segments, fill_gaps
-from jaxpose.reconstruction.trajectory import TrajectoryConfig, solve_trajectory
+from jaxpose.reconstruction.trajectory import TrajectoryConfig, limb_lengths, solve_trajectory
 from jaxpose.rig.project import RigProject, RigProjectConfig, load_rig_project
 from jaxpose.rig.recordings import recording_folders
 from jaxpose.skeleton import ROOT, Skeleton
@@ -362,17 +362,28 @@ def smooth_recording(
     evidence (`fuse_recording`, the lifted-only cells re-anchored): every cell with evidence keeps its
     provenance, a missing one (no camera sees the person) that a gap of at most `max_gap` frames holds
     is the smoother's bridge (INTERPOLATED), and a longer gap splits the recording as `fill_recording`
-    does.  The uncertainty is the trajectory's posterior RMS error, bridges included."""
-    solved = solve_trajectory(fusion.points, fusion.covariance, fusion.provenance, bones, fps, config)
+    does.  The parts a gap of more than `max_gap` frames without any evidence separates are solved apart
+    (nothing is bridged across it; a bridge of thousands of frames would only slow the solve), with the
+    limb lengths of the whole recording.  The uncertainty is the trajectory's posterior RMS error,
+    bridges included."""
     missing = fusion.provenance == Provenance.NONE
+    lengths = limb_lengths(fusion.points, fusion.provenance, bones)
+    points = np.full(fusion.points.shape, np.nan, np.float32)
+    sigma = np.full(missing.shape, np.nan, np.float32)
+    evidence = ~missing.all(-1)  # [F] frames with something to go by
+    bridgeable = fill_gaps(np.where(evidence, 0.0, np.nan)[:, None, None], max_gap).filled[:, 0]
+    for start, stop in complete_segments(evidence | bridgeable):
+        part = slice(start, stop)
+        solved = solve_trajectory(fusion.points[part], fusion.covariance[part], fusion.provenance[part], bones, fps, config, lengths)
+        points[part], sigma[part] = solved.points, solved.sigma
     bridged = fill_gaps(np.where(missing[..., None], np.nan, fusion.points), max_gap).filled
     kept = ~missing | bridged
     return RecordingMotion(
         inputs.name,
         inputs.frames,
-        np.where(kept[..., None], solved.points, np.nan).astype(np.float32),
+        np.where(kept[..., None], points, np.nan).astype(np.float32),
         np.where(bridged, np.int8(Provenance.INTERPOLATED), fusion.provenance).astype(np.int8),
-        np.where(kept, solved.sigma, np.nan).astype(np.float32),
+        np.where(kept, sigma, np.nan).astype(np.float32),
         fusion.views,
         complete_segments(kept.all(-1)),
         inputs.seen,

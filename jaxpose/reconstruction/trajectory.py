@@ -113,6 +113,7 @@ def solve_trajectory(
     bones: Sequence[tuple[int, int]],
     fps: float,
     config: TrajectoryConfig = TrajectoryConfig(),
+    lengths: np.ndarray | None = None,
 ) -> Trajectory:
     """The track (module docstring) of one recording's per-instant evidence.
 
@@ -122,6 +123,8 @@ def solve_trajectory(
                 LIFTED cells' covariance scaled by `lifted_sigma_scale`^2.
     bones:      (child, parent) joint pairs (`Skeleton.bones`), the limbs held at constant length.
     fps:        frames per second (the process noise is per second^2).
+    lengths:    [B] mm, the limbs' lengths (NaN: free) where measured on more than these frames (a part of
+                a recording); None: `limb_lengths` of this evidence.
     """
     points = np.asarray(points, np.float64)
     covariance = np.asarray(covariance, np.float64)
@@ -140,7 +143,7 @@ def solve_trajectory(
     observed = np.where(has[..., None], points, 0.0)
     solved = has.sum(0) >= MIN_EVIDENCE_CELLS  # [J]
     precision[:, ~solved] = np.eye(3)  # a dummy system for the joints left as they are, replaced below
-    lengths = limb_lengths(points, provenance, bones)
+    lengths = limb_lengths(points, provenance, bones) if lengths is None else np.asarray(lengths, np.float64)
     limbs = [(b, c, p) for b, (c, p) in enumerate(bones) if np.isfinite(lengths[b]) and solved[c] and solved[p]]
     system = _System(precision, observed, has, 1.0 / (config.acceleration_mm_s2 / fps**2) ** 2, 1.0 / config.limb_sigma_mm**2)
 

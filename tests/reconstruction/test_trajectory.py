@@ -4,6 +4,7 @@ rig and fused per instant as `jaxpose.reconstruct` fuses it, and against a dense
 from __future__ import annotations
 
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -13,6 +14,7 @@ from scipy.optimize import least_squares
 from jaxpose.camera import Cameras
 from jaxpose.reconstruction.fusion import FusionConfig, Provenance, fuse
 from jaxpose.reconstruction.motion_quality import acceleration_error, limb_length_spread
+from jaxpose.reconstruction.recording import smooth_recording
 from jaxpose.reconstruction.trajectory import TrajectoryConfig, limb_lengths, solve_trajectory
 from jaxpose.skeleton import H36M_17
 from jaxpose.synthetic import SyntheticConfig, sample_bone_lengths, sample_motion
@@ -225,3 +227,23 @@ def test_bad_shapes_and_settings_are_refused():
         solve_trajectory(np.zeros((5, 3, 3)), np.zeros((5, 3, 3, 3)), np.zeros((5, 3)), (), 0.0)
     with pytest.raises(ValueError, match="acceleration_mm_s2"):
         TrajectoryConfig(acceleration_mm_s2=-1.0)
+
+
+def test_a_recording_is_solved_apart_across_a_long_absence():
+    """`smooth_recording`: the parts a gap longer than --max-gap separates are solved apart, each as alone
+    (with the whole recording's limb lengths); a short gap is bridged, a long one left missing."""
+    scene = walk(8, frames=120)
+    confidence = np.ones(scene.pixels.shape[:-1])
+    confidence[30:36] = 0.0  # 6 frames: bridged
+    confidence[70:90] = 0.0  # 20 frames: the recording splits
+    fusion = fused(scene, pixel_noise=1.0, seed=8, confidence=confidence)
+    inputs = SimpleNamespace(name="walk", frames=np.arange(120), seen=(confidence > 0).any((1, 2)))
+    motion = smooth_recording(inputs, fusion, BONES, FPS, WALKING, max_gap=10)
+    assert (motion.provenance[30:36] == Provenance.INTERPOLATED).all() and np.isfinite(motion.points[30:36]).all()
+    assert np.isnan(motion.points[70:90]).all() and np.isnan(motion.uncertainty[70:90]).all()
+    np.testing.assert_array_equal(motion.segments, [[0, 70], [90, 120]])
+    lengths = limb_lengths(fusion.points, fusion.provenance, BONES)
+    for start, stop in motion.segments:
+        part = slice(start, stop)
+        alone = solve_trajectory(fusion.points[part], fusion.covariance[part], fusion.provenance[part], BONES, FPS, WALKING, lengths)
+        np.testing.assert_allclose(motion.points[part], alone.points, atol=1e-4)
