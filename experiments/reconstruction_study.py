@@ -7,8 +7,10 @@ ground truth, split by the number of views that detected each joint (0, 1, 2, 3+
 
 Methods, on the same detections (each recording on its whole frame axis, every instant of the held-out
 part: keep --data.validation-stride 1):
-- fused: `jaxpose.reconstruction` as `jaxpose.reconstruct` runs it (gaps up to --max-gap interpolated, and
-  joints no view detects for that long);
+- fused: `jaxpose.reconstruction` as `jaxpose.reconstruct --no-smoothing` runs it, each instant alone (gaps
+  up to --max-gap interpolated, and joints no view detects for that long);
+- trajectory: the same per-instant evidence solved over time (`jaxpose.reconstruction.trajectory`, as
+  `jaxpose.reconstruct` runs it by default, --trajectory.* its settings);
 - triangulation: the confidence-weighted DLT of the views scored at least --threshold, where two or more
   are (Pose2Sim's likelihood threshold 0.3); gaps left;
 - triangulation, gaps filled: the same, gaps up to --max-gap interpolated linearly, then the last value
@@ -23,7 +25,8 @@ second, a whole camera dropped for such stretches at --occlusion.camera-rate per
 of the occluded detections.  Each table gives, per method and view-count bucket, the share of the cells
 (instant x joint with ground truth) it has a value for, its MPJPE there, and the fused MPJPE on the same
 cells (a paired comparison); then per joint; then the gaps (instants a camera sees the person but some
-joint has no value).  Written to DIR/report.md and DIR/report.json.
+joint has no value), the acceleration error against the ground truth's (mm/frame^2, over the cells with three
+consecutive frames of both) and the limbs' length spread over time (std, mm, the mean over limbs and recordings).  Written to DIR/report.md and DIR/report.json.
 """
 
 from __future__ import annotations
@@ -52,11 +55,13 @@ from jaxpose.formats.outputs import atomic_output, check_output
 from jaxpose.logs import show_logs
 from jaxpose.reconstruction.fusion import FusionConfig
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, fill_gaps
-from jaxpose.reconstruction.recording import RecordingInput, lift_and_reconstruct, placed_lifts, recording_inputs
+from jaxpose.reconstruction.motion_quality import acceleration_error, limb_length_spread
+from jaxpose.reconstruction.recording import RecordingInput, lift_and_reconstruct, placed_lifts, recording_inputs, smooth_recording
+from jaxpose.reconstruction.trajectory import TrajectoryConfig
 from jaxpose.rig.project import RigProjectConfig, load_rig_project
 from jaxpose.triangulation import triangulate
 
-METHODS = ("fused", "triangulation", "triangulation, gaps filled", "RANSAC pseudo-labels", "most confident view")
+METHODS = ("fused", "trajectory", "triangulation", "triangulation, gaps filled", "RANSAC pseudo-labels", "most confident view")
 BUCKETS = ("0", "1", "2", "3+")
 CHUNK = 4096  # instants per triangulation call: one compilation per method
 
@@ -97,10 +102,25 @@ class StudyArgs:
     """The fusion's model (`jaxpose.reconstruction.fusion`)."""
     bridge_lifted: bool = True
     """Fused: a joint no view detects for at most --max-gap frames is interpolated (`jaxpose.reconstruct`'s flag)."""
+    trajectory: TrajectoryConfig = TrajectoryConfig()
+    """The trajectory's model (`jaxpose.reconstruction.trajectory`)."""
     occlusion: Occlusion = Occlusion()
     """The simulated occlusion of the second condition."""
+    max_frames: int = 0
+    """Evaluate the first this many frames of each recording (0: all): a shorter run."""
     overwrite: bool = False
     """Replace DIR/report.md and report.json."""
+
+
+def first_frames(inputs: RecordingInput, count: int) -> RecordingInput:
+    """The recording's first `count` frames (all of them where count is 0)."""
+    if not count:
+        return inputs
+    keep = slice(0, count)
+    target = None if inputs.target3d is None else inputs.target3d[keep]
+    return dataclasses.replace(
+        inputs, frames=inputs.frames[keep], keypoints=inputs.keypoints[keep], confidence=inputs.confidence[keep], target3d=target
+    )
 
 
 def occlude(inputs: RecordingInput, config: Occlusion, fps: float, seed: Sequence[int]) -> RecordingInput:
@@ -181,9 +201,11 @@ class Tally:
         self.common_fused = {m: np.zeros((len(BUCKETS), joints)) for m in METHODS}
         self.cells = np.zeros((len(BUCKETS), joints))
         self.gaps = dict.fromkeys(METHODS, 0)
+        self.acceleration = {m: np.zeros(2) for m in METHODS}  # summed error, cells
+        self.spreads = {m: [] for m in METHODS}  # per recording, the mean limb-length std
         self.seen = 0
 
-    def add(self, results: dict[str, np.ndarray], truth: np.ndarray, views: np.ndarray, seen: np.ndarray) -> None:
+    def add(self, results: dict[str, np.ndarray], truth: np.ndarray, views: np.ndarray, seen: np.ndarray, bones) -> None:
         bucket = np.minimum(views, 3)  # [F, J]
         labelled = np.isfinite(truth).all(-1)
         fused_error = np.linalg.norm(results["fused"] - truth, axis=-1)
@@ -202,6 +224,10 @@ class Tally:
                 self.common_fused[method][b] += np.where(common, fused_error, 0.0).sum(0)
         for method, points in results.items():
             self.gaps[method] += int((seen & ~np.isfinite(points).all((-1, -2))).sum())
+            self.acceleration[method] += acceleration_error(points, truth)
+            spread = limb_length_spread(points, bones)
+            if np.isfinite(spread).any():
+                self.spreads[method].append(float(np.nanmean(spread)))
 
     def summary(self, joint_names: Sequence[str]) -> dict:
         def mean(total, count):
@@ -227,6 +253,8 @@ class Tally:
                     name: mean(self.error[method][:, j], self.covered[method][:, j]) for j, name in enumerate(joint_names)
                 },
                 "instants_with_a_gap": self.gaps[method],
+                "acceleration_error_mm_per_frame2": mean(*self.acceleration[method]),
+                "limb_length_std_mm": float(np.mean(self.spreads[method])) if self.spreads[method] else None,
             }
         return {"instants_seen": self.seen, "methods": table}
 
@@ -236,12 +264,15 @@ def evaluate(args: StudyArgs, lifter: inference.Lifter3D, dataset, occluded: boo
     tally = Tally(dataset.skeleton.num_joints)
     recordings = list(recording_inputs(dataset))
     for index, inputs in enumerate(tqdm(recordings, desc="occluded" if occluded else "as it is", unit="recording")):
+        inputs = first_frames(inputs, args.max_frames)
         if occluded:
             inputs = occlude(inputs, args.occlusion, args.fps, (index,))
         motion, lifted = lift_and_reconstruct(lifter, inputs, args.fusion, args.max_gap, args.bridge_lifted)
-        results = {"fused": motion.points, **triangulations(inputs, args.threshold, args.max_gap)}
+        smooth = smooth_recording(inputs, motion.fusion, lifter.skeleton.bones, args.fps, args.trajectory, args.max_gap)
+        results = {"fused": motion.points, "trajectory": smooth.points, **triangulations(inputs, args.threshold, args.max_gap)}
         results["most confident view"] = most_confident_view(inputs, lifted, motion.fusion.placement)
-        tally.add({m: results[m] for m in METHODS}, inputs.target3d, (inputs.confidence > 0).sum(1), inputs.seen)
+        views = (inputs.confidence > 0).sum(1)
+        tally.add({m: results[m] for m in METHODS}, inputs.target3d, views, inputs.seen, lifter.skeleton.bones)
     return tally.summary(dataset.skeleton.joint_names)
 
 
@@ -250,7 +281,8 @@ def report_markdown(report: dict) -> str:
     for condition, result in report["conditions"].items():
         lines += [f"## {condition}", "", f"Instants some camera sees: {result['instants_seen']}.", ""]
         header = "| method | " + " | ".join(f"{b} views: covered %, MPJPE / fused's (common cells)" for b in BUCKETS)
-        lines += [header + " | overall MPJPE (covered %) | instants with a gap |", "|---" * (len(BUCKETS) + 3) + "|"]
+        lines += [header + " | overall MPJPE (covered %) | instants with a gap | accel. error (mm/frame^2) | limb length std (mm) |",
+                  "|---" * (len(BUCKETS) + 5) + "|"]  # fmt: skip
         for method, row in result["methods"].items():
             cells = []
             for bucket in row["buckets"].values():
@@ -262,7 +294,8 @@ def report_markdown(report: dict) -> str:
                     paired = f"{bucket['mpjpe_on_common_cells_mm']:.1f} / {bucket['fused_on_common_cells_mm']:.1f}"
                     cells.append(f"{bucket['covered_pct']:.0f}%, {paired}")
             overall = "-" if row["overall_mm"] is None else f"{row['overall_mm']:.1f}"
-            lines.append(f"| {method} | " + " | ".join(cells) + f" | {overall} ({row['covered_pct']:.0f}%) | {row['instants_with_a_gap']} |")
+            motion = " | ".join("-" if row[key] is None else f"{row[key]:.2f}" for key in ("acceleration_error_mm_per_frame2", "limb_length_std_mm"))
+            lines.append(f"| {method} | " + " | ".join(cells) + f" | {overall} ({row['covered_pct']:.0f}%) | {row['instants_with_a_gap']} | {motion} |")
         counts = ", ".join(f"{b} views {bucket['cells']}" for b, bucket in zip(BUCKETS, result["methods"]["fused"]["buckets"].values()))
         lines += ["", f"Cells (instant x joint with ground truth): {counts}.", ""]
         joints = list(result["methods"]["fused"]["per_joint_mm"])
@@ -285,11 +318,12 @@ def run(args: StudyArgs) -> dict:
     held_out = ", ".join(args.data.validation_recordings) or f"the last {args.data.validation_fraction:.0%} of every recording"
     setup = (
         f"Lifter {args.checkpoint} (step {lifter.step}); project {args.data.root}, held-out part ({held_out}), every"
-        f" {args.data.validation_stride} instant(s), {len(dataset)} instants; world-frame MPJPE (mm, no alignment) over the"
+        f" {args.data.validation_stride} instant(s), {len(dataset)} instants"
+        f"{f' (the first {args.max_frames} frames of each recording evaluated)' if args.max_frames else ''}; world-frame MPJPE (mm, no alignment) over the"
         f" joints with ground truth ({', '.join(project.ground_truth_joints)}); views = detections with confidence > 0;"
         f" triangulation threshold {args.threshold}; gaps up to {args.max_gap} frames interpolated (lifted-only joints"
         f" {'too' if args.bridge_lifted else 'not'}); fusion"
-        f" {dataclasses.asdict(args.fusion)}; occlusion {dataclasses.asdict(args.occlusion)} at {args.fps:g} fps."
+        f" {dataclasses.asdict(args.fusion)}; trajectory {dataclasses.asdict(args.trajectory)}; occlusion {dataclasses.asdict(args.occlusion)} at {args.fps:g} fps."
     )
     conditions = {"As it is": evaluate(args, lifter, dataset, False), "Occluded": evaluate(args, lifter, dataset, True)}
     report = {"setup": setup, "conditions": conditions}

@@ -11,9 +11,13 @@ taken in the rig recovered in RUN (RUN/recovered_cameras.json), never recovered 
 Per recording and instant: each camera's detection and lifted pose, fused in one robust weighted least
 squares (`jaxpose.reconstruction.fusion`); each joint gets its provenance (triangulated: two or more
 views agree; fused: one view, the lifts give the depth; lifted: no view, the lifts alone) and an
-uncertainty.  Instants no camera sees are interpolated up to --max-gap frames, and so is a joint no
-camera detects for that long (--no-bridge-lifted keeps its lifts); a longer gap splits the recording
-into segments (`jaxpose.reconstruction.gaps`).  Files per recording in DIR
+uncertainty.  Then each recording's motion is solved over time (`jaxpose.reconstruction.trajectory`:
+the instants' evidence with a constant-velocity prior and each limb's length held constant, robustly;
+--trajectory.* its settings): an instant no camera sees is bridged by it up to --max-gap frames, with its
+uncertainty.  --no-smoothing keeps each instant's own estimate instead, as before: such instants
+interpolated up to --max-gap frames, and so is a joint no camera detects for that long
+(--no-bridge-lifted keeps its lifts).  A longer gap splits the recording into segments
+(`jaxpose.reconstruction.gaps`).  Files per recording in DIR
 (`jaxpose.reconstruction.motion_files`): <recording>.trc (OpenSim, Pose2Sim's layout, metres, Y up; a
 later segment <recording>.seg<S>.trc; with --c3d a .c3d beside each), <recording>.csv and
 <recording>.npz (calibration's world, mm, with provenance, uncertainty and views per joint), and
@@ -46,6 +50,8 @@ from jaxpose.logs import show_logs
 from jaxpose.reconstruction import motion_files, recording
 from jaxpose.reconstruction.fusion import FusionConfig, Provenance
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP
+from jaxpose.reconstruction.motion_quality import motion_summary
+from jaxpose.reconstruction.trajectory import TrajectoryConfig
 from jaxpose.rig.project import RigProjectConfig, with_recorded_settings
 from jaxpose.training.run_directory import RECORD_FILE, read_record
 from jaxpose.rig.recordings import recording_folders
@@ -69,10 +75,15 @@ class ReconstructArgs:
     max_gap: int = DEFAULT_MAX_GAP
     """Up to this many frames in a row where a joint is missing (no camera sees the person) are filled by
     linear interpolation (Pose2Sim's default, 10); a longer gap splits the recording into segments."""
+    smoothing: bool = True
+    """Solve each recording's motion over time (smooth, limb lengths kept, gaps bridged: --trajectory.*);
+    --no-smoothing keeps each instant's own estimate (for fast motion and impacts, docs/reconstruction.md)."""
+    trajectory: TrajectoryConfig = TrajectoryConfig()
+    """The trajectory's model: process noise, limb-length sigma, robust loss (`jaxpose.reconstruction.trajectory`)."""
     bridge_lifted: bool = True
-    """A joint no camera detects for at most --max-gap frames, between frames where cameras fix it, is
-    interpolated between them rather than taken from the lifts alone (measured better on Human3.6M:
-    docs/reconstruction.md); --no-bridge-lifted keeps the lifts."""
+    """With --no-smoothing: a joint no camera detects for at most --max-gap frames, between frames where
+    cameras fix it, is interpolated between them rather than taken from the lifts alone (measured better on
+    Human3.6M: docs/reconstruction.md); --no-bridge-lifted keeps the lifts."""
     up_axis: Literal[motion_files.UP_AXES] = "auto"  # type: ignore[valid-type]
     """The calibration's up axis (Human3.6M: +z); the .trc turns it to OpenSim's Y.  auto: the world axis
     the cameras' image up points along on average (refused if none is within 30 degrees); printed and
@@ -125,10 +136,14 @@ def run(args: ReconstructArgs) -> dict:
                   f" {args.data.min_confidence:g}, or no detection): no file written", file=sys.stderr)  # fmt: skip
             rows.append({"recording": inputs.name, "frames": len(inputs.frames), "skipped": "no detection", "files": []})
             continue
-        motion, _ = recording.lift_and_reconstruct(lifter, inputs, args.fusion, args.max_gap, args.bridge_lifted)
+        trajectory = args.trajectory if args.smoothing else None
+        motion, _ = recording.lift_and_reconstruct(
+            lifter, inputs, args.fusion, args.max_gap, args.bridge_lifted, trajectory=trajectory, fps=args.fps
+        )
         written = motion_files.write_motion(args.output, motion, lifter.joint_names, args.fps, up_axis, args.c3d)
         files += [str(path) for path in written]
-        rows.append(recording_summary(motion) | {"files": [path.name for path in written]})
+        quality = motion_summary(motion.points, lifter.skeleton.bones, lifter.joint_names, inputs.target3d)
+        rows.append(recording_summary(motion) | quality | {"files": [path.name for path in written]})
     left = sorted(str(path) for path in set(earlier) - {pathlib.Path(file) for file in files})
     if left:  # as jaxpose.predict does: an earlier run's segments that this run has not
         print(f"files of an earlier run not written now, left as they were: {', '.join(left)}", file=sys.stderr)
@@ -139,6 +154,8 @@ def run(args: ReconstructArgs) -> dict:
         "fps": args.fps,
         "max_gap": args.max_gap,
         "bridge_lifted": args.bridge_lifted,
+        "smoothing": args.smoothing,
+        "trajectory": dataclasses.asdict(args.trajectory) if args.smoothing else None,
         "up_axis": up_axis,
         "trc_axes": motion_files.rotation_note(motion_files.opensim_rotation(up_axis), up_axis),
         "joint_names": list(lifter.joint_names),
@@ -231,7 +248,28 @@ def report_markdown(report: dict) -> str:
             f"| {row['recording']} | {row['frames']} | {row['instants_seen']} | {counts} | {row['interpolated_frames']}"
             f" | {row['segments']} | {row['dropped_frames']} |"
         )
+    smoothing = "solved over time (the trajectory)" if report["smoothing"] else "each instant alone (--no-smoothing)"
+    lines += [
+        "",
+        f"The motion, {smoothing}: its mean acceleration (mm/frame^2), each limb's length spread over time (std, mm;"
+        " report.json has every limb's) and, with ground truth, the acceleration error (mm/frame^2).",
+        "",
+        "| recording | mean acceleration | mean limb length std | largest limb length std | acceleration error |",
+        "|---|---|---|---|---|",
+    ]
+    for row in (row for row in report["recordings"] if "skipped" not in row):
+        spreads = {name: value for name, value in row["limb_length_std_mm"].items() if value is not None}
+        largest = max(spreads, key=spreads.get) if spreads else None
+        cells = [
+            _number(row["mean_acceleration_mm_per_frame2"], 2), _number(row["mean_limb_length_std_mm"], 1),
+            f"{spreads[largest]:.1f} ({largest})" if spreads else "-", _number(row.get("acceleration_error_mm_per_frame2"), 2),
+        ]  # fmt: skip
+        lines.append(f"| {row['recording']} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def _number(value: float | None, digits: int) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
 
 
 def main(argv: Sequence[str] | None = None) -> dict:

@@ -124,6 +124,9 @@ class Fusion:
     views:       i8[N, J] detections that agree with the joint (within `agree_px`).
     placement:   f32[N, C, 4] each lifted view's root (world mm) and scale; NaN for a view whose lift
                  did not count (none, or none of its joints agreed).
+    covariance:  f32[N, J, 3, 3] mm^2, each joint's posterior covariance (its trace is uncertainty^2); a
+                 joint kept at the mean of disagreeing lifts gets an isotropic one; NaN where NONE.  What
+                 `jaxpose.reconstruction.trajectory` weighs each instant's evidence by.
     """
 
     points: np.ndarray
@@ -131,6 +134,7 @@ class Fusion:
     uncertainty: np.ndarray
     views: np.ndarray
     placement: np.ndarray
+    covariance: np.ndarray
 
 
 def fuse(
@@ -381,7 +385,10 @@ def _fuse_rows(K, R, t, keypoints, confidence, lifted, *, config: FusionConfig):
     spread = np.sqrt(np.trace(covariance[0], axis1=-2, axis2=-1))
     known = spread <= UNOBSERVABLE_MM
     placement = np.where(lifts.any(-1)[..., None], placement, np.nan)  # views whose lift counted
+    solved = known
     points, spread, known = _disagreeing_lifts(ev, points, placement, spread, known, trust[..., 0], config)
+    isotropic = (spread**2 / 3.0)[..., None, None] * np.eye(3)
+    covariance = np.where((known & ~solved)[..., None, None], isotropic, covariance[0])
     provenance = np.select(
         [~known, views >= 2, views == 1], [Provenance.NONE, Provenance.TRIANGULATED, Provenance.FUSED], Provenance.LIFTED
     )
@@ -391,4 +398,5 @@ def _fuse_rows(K, R, t, keypoints, confidence, lifted, *, config: FusionConfig):
         np.where(known, spread, np.nan).astype(np.float32),
         views.astype(np.int8),
         placement.astype(np.float32),
+        np.where(known[..., None, None], covariance, np.nan).astype(np.float32),
     )

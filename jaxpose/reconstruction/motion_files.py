@@ -10,7 +10,8 @@ Per recording (RecordingMotion, `jaxpose.reconstruction.recording`), in the outp
   (`jaxpose.formats.c3d`, the optional ezc3d): the same markers and axes in millimetres, C3D's usual unit.
 - ``<recording>.csv`` and ``<recording>.npz``: every frame of the recording, in the calibration's world
   frame in millimetres, with each joint's provenance (triangulated / fused / lifted / interpolated /
-  none), uncertainty (the fusion's posterior RMS error, mm; empty where not fused) and agreeing views.
+  none), uncertainty (the posterior RMS error, mm: the trajectory's, or with --no-smoothing the fusion's,
+  empty where not fused) and agreeing views.
 """
 
 from __future__ import annotations

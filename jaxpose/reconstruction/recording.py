@@ -36,7 +36,8 @@ from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.formats.calibration_files import find_calibration
 from jaxpose.serving.inference import Lifter3D
 from jaxpose.reconstruction.fusion import MIN_DEPTH_MM, Fusion, FusionConfig, Provenance, fuse
-from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, fill_gaps
+from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, complete_segments, fill_gaps
+from jaxpose.reconstruction.trajectory import TrajectoryConfig, limb_lengths, solve_trajectory
 from jaxpose.rig.project import SPLIT_FIELDS, RigProject, RigProjectConfig, load_rig_project
 from jaxpose.training.run_directory import RunDirectory
 from jaxpose.rig.recordings import recording_folders
@@ -198,7 +199,8 @@ class RecordingMotion:
 
     points:      f32[F, J, 3]; gaps of at most max_gap frames interpolated, NaN where still missing.
     provenance:  i8[F, J] `Provenance` (INTERPOLATED where the gap filling filled the cell).
-    uncertainty: f32[F, J] mm, the fusion's posterior RMS error; NaN where not fused (interpolated or missing).
+    uncertainty: f32[F, J] mm, the posterior RMS error: the fusion's, NaN where not fused (interpolated or
+                 missing); the trajectory's (`smooth_recording`), its bridges included.
     views:       i8[F, J] detections that agree with the joint.
     segments:    i64[S, 2] (start, stop) frame indices, half-open, of the complete runs: one output file each.
     fusion:      the fusion before gap filling (with each view's placement).
@@ -235,6 +237,8 @@ def lift_and_reconstruct(
     config: FusionConfig = FusionConfig(),
     max_gap: int = DEFAULT_MAX_GAP,
     bridge_lifted: bool = True,
+    trajectory: TrajectoryConfig | None = None,
+    fps: float | None = None,
 ) -> tuple[RecordingMotion, np.ndarray]:
     """The recording's motion and the lifts it fused (f32[F, C, J, 3]), in two passes.
 
@@ -247,7 +251,12 @@ def lift_and_reconstruct(
     Then the joints no view detects are re-anchored where views detect them (`anchored_lifts`), and
     `fill_recording` bridges the short runs of them: on the Human3.6M development split's training
     recordings with simulated occlusion (docs/reconstruction.md), such joints 124.5 mm from the truth,
-    against 147.8 bridged only, 140.4 anchored only and 175.6 with neither."""
+    against 147.8 bridged only, 140.4 anchored only and 175.6 with neither.
+
+    With `trajectory` (and the recordings' `fps`), `smooth_recording` solves the motion over time
+    instead of `fill_recording`'s per-instant points (`bridge_lifted` then does not apply)."""
+    if trajectory is not None and not (fps and fps > 0):
+        raise ValueError(f"recording {inputs.name}: the trajectory needs the recording's fps, got {fps!r}")
     lifted = lift_views(lifter, inputs)
     fusion = fuse_recording(inputs, lifted, config)
     unlifted = np.isnan(lifted[..., ROOT, 0]) & (inputs.confidence > 0).any(-1)
@@ -262,7 +271,10 @@ def lift_and_reconstruct(
                 for name, value in dataclasses.asdict(fusion).items()
             })  # fmt: skip
     anchored = anchored_lifts(fusion.points, fusion.provenance, placed_lifts(inputs.cameras, lifted, fusion.placement))
-    return fill_recording(inputs, dataclasses.replace(fusion, points=anchored), max_gap, bridge_lifted), lifted
+    fusion = dataclasses.replace(fusion, points=anchored)
+    if trajectory is None:
+        return fill_recording(inputs, fusion, max_gap, bridge_lifted), lifted
+    return smooth_recording(inputs, fusion, lifter.skeleton.bones, fps, trajectory, max_gap), lifted
 
 
 def fuse_recording(
@@ -275,7 +287,7 @@ def fuse_recording(
     fused = fuse(
         inputs.cameras, inputs.keypoints[rows], inputs.confidence[rows], None if lifted is None else lifted[rows], config
     )
-    shapes = {"points": (J, 3), "provenance": (J,), "uncertainty": (J,), "views": (J,), "placement": (C, 4)}
+    shapes = {"points": (J, 3), "provenance": (J,), "uncertainty": (J,), "views": (J,), "placement": (C, 4), "covariance": (J, 3, 3)}
     whole = {}
     for name, shape in shapes.items():
         values = getattr(fused, name)
@@ -337,4 +349,40 @@ def fill_recording(inputs: RecordingInput, fusion: Fusion, max_gap: int = DEFAUL
     uncertainty = np.where(bridged, np.nan, fusion.uncertainty).astype(np.float32)
     return RecordingMotion(
         inputs.name, inputs.frames, filling.values, provenance, uncertainty, fusion.views, filling.segments, inputs.seen, fusion
+    )
+
+
+def smooth_recording(
+    inputs: RecordingInput, fusion: Fusion, bones, fps: float, config: TrajectoryConfig = TrajectoryConfig(), max_gap: int = DEFAULT_MAX_GAP
+) -> RecordingMotion:
+    """The recording's motion solved over time (`jaxpose.reconstruction.trajectory`) from its per-instant
+    evidence (`fuse_recording`, the lifted-only cells re-anchored): every cell with evidence keeps its
+    provenance, a missing one (no camera sees the person) that a gap of at most `max_gap` frames holds
+    is the smoother's bridge (INTERPOLATED), and a longer gap splits the recording as `fill_recording`
+    does.  The parts a gap of more than `max_gap` frames without any evidence separates are solved apart
+    (nothing is bridged across it; a bridge of thousands of frames would only slow the solve), with the
+    limb lengths of the whole recording.  The uncertainty is the trajectory's posterior RMS error,
+    bridges included."""
+    missing = fusion.provenance == Provenance.NONE
+    lengths = limb_lengths(fusion.points, fusion.provenance, bones)
+    points = np.full(fusion.points.shape, np.nan, np.float32)
+    sigma = np.full(missing.shape, np.nan, np.float32)
+    evidence = ~missing.all(-1)  # [F] frames with something to go by
+    bridgeable = fill_gaps(np.where(evidence, 0.0, np.nan)[:, None, None], max_gap).filled[:, 0]
+    for start, stop in complete_segments(evidence | bridgeable):
+        part = slice(start, stop)
+        solved = solve_trajectory(fusion.points[part], fusion.covariance[part], fusion.provenance[part], bones, fps, config, lengths)
+        points[part], sigma[part] = solved.points, solved.sigma
+    bridged = fill_gaps(np.where(missing[..., None], np.nan, fusion.points), max_gap).filled
+    kept = ~missing | bridged
+    return RecordingMotion(
+        inputs.name,
+        inputs.frames,
+        np.where(kept[..., None], points, np.nan).astype(np.float32),
+        np.where(bridged, np.int8(Provenance.INTERPOLATED), fusion.provenance).astype(np.int8),
+        np.where(kept, sigma, np.nan).astype(np.float32),
+        fusion.views,
+        complete_segments(kept.all(-1)),
+        inputs.seen,
+        fusion,
     )

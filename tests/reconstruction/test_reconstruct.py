@@ -12,6 +12,7 @@ from help_text import assert_every_flag_documented
 
 from experiments import rig as rig_job
 from jaxpose import reconstruct
+from jaxpose.serving import inference
 from jaxpose.formats.camera_file import save_cameras
 from jaxpose.formats.calibration_files import read_rig_calibration
 from jaxpose.formats.trc import read_trc
@@ -21,6 +22,8 @@ from jaxpose.reconstruction.motion_files import (
     camera_up_axis,
     opensim_rotation,
 )
+from jaxpose.reconstruction import recording
+from jaxpose.rig.project import RigProjectConfig
 from jaxpose.training.run_directory import RECOVERED_CAMERAS_FILE
 from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
 
@@ -71,7 +74,10 @@ def test_every_seen_instant_is_reconstructed_and_the_files_agree(project, run_di
         # No gap where a camera sees the person; nothing invented where none does, beyond --max-gap.
         assert np.isfinite(points[seen]).all()
         assert (provenance[~np.isfinite(points).any(-1)] == Provenance.NONE).all()
-        assert np.isnan(saved["uncertainty_mm"][provenance == Provenance.INTERPOLATED]).all()
+        # The trajectory bridges the instants no camera sees (up to --max-gap) with an uncertainty of its own.
+        assert np.isfinite(saved["uncertainty_mm"][np.isfinite(points).all(-1)]).all()
+        assert row["mean_acceleration_mm_per_frame2"] > 0 and row["acceleration_error_mm_per_frame2"] > 0
+        assert len(row["limb_length_std_mm"]) == len(saved["joint_names"]) - 1  # a limb per joint but the root
         # Near the ground truth (the detections alone triangulate to ~19 mm on this project).
         truth = np.load(project / row["recording"] / "ground_truth.npz")
         names = [str(name) for name in saved["joint_names"]]
@@ -92,6 +98,7 @@ def test_every_seen_instant_is_reconstructed_and_the_files_agree(project, run_di
             np.testing.assert_allclose(trc.markers, points[rows] @ rotation.T / 1000.0, atol=1e-6)
             assert np.isfinite(trc.markers).all()
     assert "| triangulated | fused | lifted | interpolated | none |" in (out / "report.md").read_text()
+    assert "solved over time (the trajectory)" in (out / "report.md").read_text()
 
     # A second run refuses before any work and changes nothing; --overwrite replaces.
     before = {path: path.read_bytes() for path in out.iterdir()}
@@ -103,6 +110,26 @@ def test_every_seen_instant_is_reconstructed_and_the_files_agree(project, run_di
     again = _reconstruct(run_dir, project, out, "--overwrite", "--max-gap", "40")  # the gap is bridged now
     assert again["recordings"][0]["segments"] == 1 and again["recordings"][0]["dropped_frames"] < first["dropped_frames"]
     assert again["earlier_files_left"] == [str(out / f"{first['recording']}.seg1.trc")]  # named, as predict does
+
+
+@pytest.mark.trains
+def test_no_smoothing_gives_each_instants_own_estimate(project, run_dir, tmp_path):
+    """--no-smoothing writes the per-instant motion (`lift_and_reconstruct` without a trajectory) as it is;
+    the trajectory's motion accelerates less and its limbs keep their length better."""
+    smooth = _reconstruct(run_dir, project, tmp_path / "smooth")
+    plain = _reconstruct(run_dir, project, tmp_path / "plain", "--no-smoothing")
+    assert plain["trajectory"] is None and "each instant alone" in (tmp_path / "plain" / "report.md").read_text()
+    lifter = inference.load(run_dir)
+    dataset = recording.load_every_instant(RigProjectConfig(root=project), run_dir, progress=False).validation
+    for inputs, row, smoothed in zip(recording.recording_inputs(dataset), plain["recordings"], smooth["recordings"]):
+        motion, _ = recording.lift_and_reconstruct(lifter, inputs)
+        saved = np.load(tmp_path / "plain" / f"{inputs.name}.npz")
+        np.testing.assert_array_equal(saved["points_mm"], motion.points)
+        np.testing.assert_array_equal(saved["provenance"], motion.provenance)
+        assert np.isnan(saved["uncertainty_mm"][saved["provenance"] == Provenance.INTERPOLATED]).all()
+        assert smoothed["mean_acceleration_mm_per_frame2"] < row["mean_acceleration_mm_per_frame2"]
+        assert smoothed["acceleration_error_mm_per_frame2"] < row["acceleration_error_mm_per_frame2"]
+        assert smoothed["mean_limb_length_std_mm"] < row["mean_limb_length_std_mm"]
 
 
 @pytest.mark.trains
@@ -181,15 +208,22 @@ def test_opensims_reader_takes_the_trc_files(project, run_dir, tmp_path, monkeyp
 
 
 def test_help_documents_every_flag(capsys):
-    from experiments import reconstruction_study
+    from experiments import reconstruction_study, trajectory_tuning
     from jaxpose.reconstruction.fusion import FusionConfig
+    from jaxpose.reconstruction.trajectory import TrajectoryConfig
 
-    for main, args_type in ((reconstruct.main, reconstruct.ReconstructArgs), (reconstruction_study.main, reconstruction_study.StudyArgs)):
+    for main, args_type in (
+        (reconstruct.main, reconstruct.ReconstructArgs), (reconstruction_study.main, reconstruction_study.StudyArgs),
+        (trajectory_tuning.main, trajectory_tuning.TuningArgs),
+    ):  # fmt: skip
         with pytest.raises(SystemExit) as stop:
             main(["--help"])
         assert stop.value.code == 0
-        flags = [f"--{f.name.replace('_', '-')}" for f in dataclasses.fields(args_type) if f.name not in ("data", "fusion", "occlusion")]
-        flags += ["--fusion." + f.name.replace("_", "-") for f in dataclasses.fields(FusionConfig)]
+        nested = ("data", "fusion", "occlusion", "trajectory")
+        flags = [f"--{f.name.replace('_', '-')}" for f in dataclasses.fields(args_type) if f.name not in nested]
+        if any(f.name == "fusion" for f in dataclasses.fields(args_type)):
+            flags += ["--fusion." + f.name.replace("_", "-") for f in dataclasses.fields(FusionConfig)]
+            flags += ["--trajectory." + f.name.replace("_", "-") for f in dataclasses.fields(TrajectoryConfig)]
         assert_every_flag_documented(capsys.readouterr().out, flags)
 
 
