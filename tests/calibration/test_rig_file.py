@@ -1,0 +1,108 @@
+"""A recovered rig written as an Anipose/Pose2Sim calibration TOML (`jaxpose.calibration.rig_file`), and a
+Pose2Sim calibration read back as intrinsics only (`jaxpose.formats.intrinsics.read_rig_intrinsics`).
+
+The file is checked twice: by jaxpose's own reader, and by `tomllib` with scipy's Rodrigues vectors as an
+independent oracle of what Pose2Sim sees (metres, world-to-camera rotation vectors, [W, H] sizes).
+"""
+
+from __future__ import annotations
+
+import tomllib
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from jaxpose.calibration import CalibrationConfig, calibrate, from_dataset
+from jaxpose.calibration.rig_file import SOURCE, write_recovered_rig
+from jaxpose.calibration.world import WORLD_FRAME, points_to_world, world_frame
+from jaxpose.camera import project
+from jaxpose.formats.intrinsics import read_rig_intrinsics
+from jaxpose.formats.outputs import OutputError
+from jaxpose.formats.rig_calibration import read_rig_calibration
+from jaxpose.synthetic import SyntheticConfig, generate
+import paths
+
+QUALISYS = paths.FORMATS / "pose2sim-calib-toml" / "pose2sim_demo_Calib_qualisys.toml"
+NAMES = ("c0", "c1", "c2", "c3")
+
+
+@pytest.fixture(scope="module")
+def recovered():
+    """(the data set, the rig `calibrate` recovers from its one synthetic subject with K withheld)."""
+    dataset = generate(SyntheticConfig(num_train_subjects=1, num_test_subjects=0, samples_per_subject=600))
+    detections = from_dataset(dataset, "S1", NAMES, np.full((4, 2), 1000)).without_intrinsics()
+    return dataset, calibrate(detections, CalibrationConfig(max_frames=150))
+
+
+def assert_file_holds(path, cameras, names, image_size, unit_mm: float) -> dict:
+    """`tomllib`'s reading of the file against the cameras (t in mm); returns the document."""
+    document = tomllib.loads(path.read_text(encoding="utf-8"))
+    tables = [key for key in document if key != "metadata"]
+    assert tables == [f"cam_{c}" for c in range(len(names))]
+    for c, key in enumerate(tables):
+        table = document[key]
+        assert table["name"] == names[c] and table["size"] == list(image_size[c]) and table["fisheye"] is False
+        np.testing.assert_allclose(table["matrix"], cameras.K[c], rtol=1e-15)
+        np.testing.assert_allclose(Rotation.from_rotvec(table["rotation"]).as_matrix(), cameras.R[c], atol=1e-12)
+        np.testing.assert_allclose(np.array(table["translation"]) * unit_mm, cameras.t[c], rtol=1e-12, atol=1e-9)
+        assert table["distortions"] == [0.0] * 5  # the recovered pinhole (no lens estimated)
+    return document
+
+
+def test_a_recovered_rig_reads_back_the_same_through_jaxpose_and_tomllib(recovered, tmp_path):
+    _, calibration = recovered
+    cameras = calibration.cameras
+    path = write_recovered_rig(tmp_path / "calibration.toml", calibration)
+    document = assert_file_holds(path, cameras, NAMES, calibration.image_size, 1000.0)
+    metadata = document["metadata"]
+    assert metadata["unit"] == "m" and metadata["source"] == SOURCE and "view 0's camera frame" in metadata["world"]
+    np.testing.assert_allclose(metadata["reprojection_median_px"], calibration.reprojection_median_px, atol=1e-3)
+    assert metadata["focal_estimated"] is True and metadata["scale"].startswith("limb prior (upper arm 290 mm")
+
+    again = read_rig_calibration(path)
+    assert again.camera_names == NAMES and again.unit == "m" and again.cameras.dist is None
+    np.testing.assert_array_equal(again.image_size, calibration.image_size)
+    for name in ("K", "R", "t"):
+        np.testing.assert_allclose(getattr(again.cameras, name), getattr(cameras, name), rtol=1e-12, atol=1e-9)
+
+
+def test_the_rig_in_the_upright_world_projects_as_before(recovered, tmp_path):
+    """Written in the upright world (mm in the file too): the same pixels for the same points."""
+    dataset, calibration = recovered
+    # The subject's true joints in view 0's camera frame: about where the recovered world (that frame) has them.
+    rig = dataset.rigs[0]
+    points = dataset.target3d[:300].astype(np.float64) @ np.asarray(rig.R[0], np.float64).T + np.asarray(rig.t[0], np.float64)
+    frame = world_frame(points, np.ones(points.shape[:2], bool), dataset.skeleton, height_mm=1750.0)
+    path = write_recovered_rig(tmp_path / "upright.toml", calibration, frame, unit="mm")
+    document = tomllib.loads(path.read_text(encoding="utf-8"))
+    assert document["metadata"]["world"] == WORLD_FRAME and document["metadata"]["unit"] == "mm"
+    assert document["metadata"]["scale"] == "the subject's height" and document["metadata"]["ankle_height_mm"] > 0
+    world = read_rig_calibration(path).cameras
+    before = np.asarray(project(calibration.cameras, np.broadcast_to(points[:5].reshape(1, -1, 3), (4, 85, 3))))
+    after = np.asarray(project(world, np.broadcast_to(points_to_world(frame, points[:5]).reshape(1, -1, 3), (4, 85, 3))))
+    np.testing.assert_allclose(after, before, atol=1e-2)
+
+
+def test_an_existing_file_is_replaced_only_when_asked(recovered, tmp_path):
+    _, calibration = recovered
+    path = tmp_path / "calibration.toml"
+    path.write_text("# the user's own file\n")
+    with pytest.raises(OutputError, match=r"calibration.toml: exists; pass overwrite=True"):
+        write_recovered_rig(path, calibration)
+    assert path.read_text() == "# the user's own file\n"
+    write_recovered_rig(path, calibration, overwrite=True)
+    assert read_rig_calibration(path).camera_names == NAMES
+    assert sorted(entry.name for entry in tmp_path.iterdir()) == ["calibration.toml"]  # no partial file left
+
+
+@pytest.mark.skipif(not QUALISYS.is_file(), reason=f"{QUALISYS} (a real sample) is absent")
+def test_pose2sims_demo_calibration_read_as_intrinsics_only():
+    intrinsics = read_rig_intrinsics(QUALISYS, ["cam_04", "cam_01"], "the test's cameras")
+    document = tomllib.loads(QUALISYS.read_text())
+    assert intrinsics.camera_names == ("cam_04", "cam_01") and intrinsics.distortion_model == "opencv"
+    for c, key in enumerate(("cam_04", "cam_01")):
+        np.testing.assert_array_equal(intrinsics.K[c], document[key]["matrix"])
+        np.testing.assert_array_equal(intrinsics.dist[c], [*document[key]["distortions"], 0.0])  # k3 = 0
+        np.testing.assert_array_equal(intrinsics.image_size[c], document[key]["size"])
+    assert not hasattr(intrinsics, "R") and "intrinsics only" in intrinsics.source
