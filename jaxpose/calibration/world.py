@@ -173,6 +173,8 @@ def world_frame(
 
     # The axes and the origin, from the subject's hips over the first frames.
     first = np.flatnonzero(hips_ok)[:start_frames]
+    if not len(first):
+        raise ValueError("world_frame: no frame sees both hips, which set the origin and the facing direction")
     left = points[first][:, joints["hip"][0]] - points[first][:, joints["hip"][1]]
     forward = _unit(np.cross(left.mean(0), up))
     R = np.stack([forward, up, np.cross(forward, up)])
