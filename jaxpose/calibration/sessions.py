@@ -9,9 +9,11 @@ A session is a set of recordings one rig explains.  Two ways to find them:
   then every recording's detections are triangulated through every recovered rig (robust IRLS) and
   re-projected.  A rig explains a recording when, in every camera, the median re-projection error is
   at most `FIT_MARGIN_PX` above what the recording's own rig leaves (`rig_fit_px`): the detector's
-  noise is in both, a moved camera only in the first.  Recordings are grouped by complete linkage:
-  two groups merge only when every rig of either explains every recording of both, so that a chain
-  of near misses cannot join two rigs.  A recording whose own calibration fails (too short, too
+  noise is in both, a moved camera only in the first.  Two recordings share a rig when either's rig
+  explains the other (a rig recovered from a subject who stays on one spot can be degrees off and
+  fail on the other recordings of its cameras, while their rigs still explain it).  Recordings are
+  grouped by complete linkage: two groups merge only when every two of their recordings share a
+  rig, so that a chain of near misses cannot join two rigs.  A recording whose own calibration fails (too short, too
   still) joins the session whose rigs explain it best, if any does; otherwise it fits no rig and is
   named in `SessionGrouping.unfitted`.
 
@@ -147,6 +149,10 @@ def group_by_fit(names: Sequence[str], fit: np.ndarray, margin_px: float = FIT_M
     # leaves; for a recording without a rig of its own, of what rig i leaves on its own recording.
     explains = fit <= own[None, :] + margin_px  # [i, j] (NaN compares False)
     explains[:, ~has_rig] = (fit <= own[:, None] + margin_px)[:, ~has_rig]
+    # One rig filmed i and j when either recording's rig explains the other's detections: a rig
+    # recovered from a weak recording (a subject on one spot) can be off by degrees and fail on a
+    # recording of the same cameras, while the better rig still explains the weak recording.
+    together = explains | explains.T
 
     groups = [[i] for i in range(len(names)) if has_rig[i]]
     while True:  # complete linkage: merge the two groups of smallest worst fit whose rigs all explain each other
@@ -154,7 +160,7 @@ def group_by_fit(names: Sequence[str], fit: np.ndarray, margin_px: float = FIT_M
         for a in range(len(groups)):
             for b in range(a + 1, len(groups)):
                 members = groups[a] + groups[b]
-                if explains[np.ix_(members, members)].all():
+                if together[np.ix_(members, members)].all():
                     worst = np.max(fit[np.ix_(members, members)])
                     if best is None or worst < best[0]:
                         best = (worst, a, b)

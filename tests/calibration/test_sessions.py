@@ -75,6 +75,14 @@ def test_complete_linkage_does_not_chain_and_a_rigless_recording_joins_the_sessi
     assert group_by_fit("abcde", fit).unfitted == ("e",)
 
 
+def test_a_weak_rig_that_misses_a_recording_its_better_rig_explains_still_shares_it():
+    """w's rig (a subject on one spot: degrees off) leaves a's detections 6 px above a's own; a's rig explains w."""
+    fit = np.array([[3.0, 4.0, 50.0], [9.0, 4.0, 50.0], [50.0, 50.0, 3.0]])
+    assert [session.recordings for session in group_by_fit(["a", "w", "m"], fit).sessions] == [("a", "w"), ("m",)]
+    fit[0, 1] = 9.0  # neither explains the other
+    assert len(group_by_fit(["a", "w", "m"], fit).sessions) == 3
+
+
 def test_labels_are_taken_as_given():
     grouping = group_by_label(["walk1", "walk2", "run1"], ["day1", "day2", "day1"])
     assert grouping.method == "labels"
