@@ -13,18 +13,18 @@ A session is a set of recordings one rig explains.  Two ways to find them:
   explains the other (a rig recovered from a subject who stays on one spot can be degrees off and
   fail on the other recordings of its cameras, while their rigs still explain it).  Recordings are
   grouped by complete linkage: two groups merge only when every two of their recordings share a
-  rig, so that a chain of near misses cannot join two rigs.  A recording whose own calibration fails (too short, too
-  still) joins the session whose rigs explain it best, if any does; otherwise it fits no rig and is
-  named in `SessionGrouping.unfitted`.
+  rig, so that a chain of near misses cannot join two rigs.  A recording whose own calibration fails
+  (too short, too still) joins the session whose rigs explain it best, if any does; otherwise it fits
+  no rig and is named in `SessionGrouping.unfitted`.
 
-Why `FIT_MARGIN_PX` = 3 px: a camera turned by 1 degree moves its image points by f tan(1 deg), 17-21
-px for the 1,000-1,200 px focal lengths of HD cameras, and one moved 100 mm at 5 m by ~20 px; robust
-triangulation leaves most of that displacement in the moved camera's residuals (the other views
-agree on the point).  The same rig recovered from two recordings differs by its estimation error
-(~0.1 degree and a few mm: under 1 px).  On the synthetic sessions of the tests (4 cameras, the
-default detector's 3-8 px noise) the own-rig medians are ~3 px, the same rig's from another
-recording within 0.5 px of them, and a rig moved by 100-500 mm and 1-3 degrees per camera adds
-6-30 px in its worst camera (docs/calibration.md has the command).
+Why `FIT_MARGIN_PX` = 3 px: the detector's noise is in both fits, a moved camera only in the other
+rig's.  A camera turned by 1 degree moves its image points by f tan(1 deg), 17-21 px at the
+1,000-1,200 px focal lengths of HD cameras, and one moved 100 mm at 5 m about as much; the same
+cameras recovered from two recordings differ by their estimation error, under 1 px where the
+subject moves about.  Measured on simulated two-rig projects (docs/calibration.md, "Sessions"): own
+fits 4.1-5.6 px with the default detector's 3-8 px noise, the same rig's from another recording
+within 0.3 px of them (3.0 px for a rig recovered from a subject reaching on one spot, hence the
+either-way rule), a rig moved by 100-500 mm and 1-3 degrees per camera over 100 px.
 """
 
 from __future__ import annotations
