@@ -106,3 +106,21 @@ def test_pose2sims_demo_calibration_read_as_intrinsics_only():
         np.testing.assert_array_equal(intrinsics.dist[c], [*document[key]["distortions"], 0.0])  # k3 = 0
         np.testing.assert_array_equal(intrinsics.image_size[c], document[key]["size"])
     assert not hasattr(intrinsics, "R") and "intrinsics only" in intrinsics.source
+
+
+def test_metadata_values_are_checked(tmp_path):
+    from jaxpose.camera import Cameras
+    from jaxpose.formats.anipose_toml import write_anipose_toml
+    from jaxpose.formats.calibrated_rig import RigCalibration
+
+    R = Rotation.random(2, random_state=0).as_matrix()
+    rig = RigCalibration(("a", "b"), Cameras(K=np.tile(np.diag([900.0, 900.0, 1.0]), (2, 1, 1)), R=R, t=np.array([[0.0, 0, 4000], [900, 0, 4000]])),
+                         np.array([[640, 480], [640, 480]]), "test", "mm")  # fmt: skip
+    with pytest.raises(ValueError, match="metadata 'unit' is the translations' unit"):
+        write_anipose_toml(tmp_path / "a.toml", rig, metadata={"unit": "cm"})
+    with pytest.raises(ValueError, match="not finite"):
+        write_anipose_toml(tmp_path / "a.toml", rig, metadata={"error_px": [1.0, float("nan")]})
+    assert not (tmp_path / "a.toml").exists()
+    write_anipose_toml(tmp_path / "a.toml", rig, metadata={"a key with spaces": "x \"quoted\"", "flag": True, "n": 3})
+    metadata = tomllib.loads((tmp_path / "a.toml").read_text())["metadata"]
+    assert metadata == {"unit": "m", "a key with spaces": 'x "quoted"', "flag": True, "n": 3.0}
