@@ -98,6 +98,26 @@ def rig_fit_px(cameras: Cameras, detections: RigDetections, min_confidence: floa
     return np.array([np.median(residual[:, c][seen[:, c]]) if seen[:, c].any() else np.nan for c in range(residual.shape[1])])
 
 
+def pooled_detections(recordings: Mapping[str, RigDetections], names: Sequence[str]) -> RigDetections:
+    """The detections of the recordings `names` (one session) as one `RigDetections`, frames one after
+    the other, to recover the session's rig from all of them (`calibrate`); cameras, image sizes,
+    skeleton and intrinsics are the first recording's, and the others must name the same cameras."""
+    chosen = [recordings[name] for name in names]
+    first = chosen[0]
+    for name, detections in zip(names, chosen):
+        if detections.camera_names != first.camera_names or detections.skeleton != first.skeleton:
+            raise ValueError(
+                f"pooled_detections: recording {name!r} has cameras {detections.camera_names} ({detections.skeleton.name}),"
+                f" {names[0]!r} has {first.camera_names} ({first.skeleton.name})"
+            )
+    return dataclasses.replace(
+        first,
+        keypoints=np.concatenate([detections.keypoints for detections in chosen]),
+        confidence=np.concatenate([detections.confidence for detections in chosen]),
+        source=f"session of {', '.join(names)}",
+    )
+
+
 @jax.jit
 def _residuals(cameras: Cameras, keypoints: jax.Array, confidence: jax.Array) -> jax.Array:
     """f32[N, C, J] re-projection errors (px) of the detections triangulated through `cameras` [C]."""

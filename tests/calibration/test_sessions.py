@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jaxpose.calibration import CalibrationConfig, RigDetections
-from jaxpose.calibration.sessions import FIT_MARGIN_PX, find_sessions, group_by_fit, group_by_label, rig_fit_px
+from jaxpose.calibration.sessions import FIT_MARGIN_PX, find_sessions, group_by_fit, group_by_label, pooled_detections, rig_fit_px
 from jaxpose.skeleton import H36M_17
 from jaxpose.synthetic import SyntheticConfig, make_rig, sample_bone_lengths, sample_motion
 from jaxpose.synthetic.sessions import moved_rig, record
@@ -55,6 +55,16 @@ def test_the_true_rigs_tell_the_moved_session_apart(seed):
     grouping = group_by_fit(names, fit)
     assert [session.recordings for session in grouping.sessions] == [("a1", "a2"), ("b1", "b2")]
     assert grouping.unfitted == () and grouping.session_of("b2") == "session2"
+
+
+def test_a_sessions_recordings_pooled():
+    data, _ = recordings(3, TWO_SESSIONS[:2], frames=40)
+    pooled = pooled_detections(data, ["a2", "a1"])
+    np.testing.assert_array_equal(pooled.keypoints, np.concatenate([data["a2"].keypoints, data["a1"].keypoints]))
+    assert pooled.confidence.shape == (80, 4, 17) and pooled.source == "session of a2, a1"
+    other = RigDetections(data["a1"].keypoints[:, :3], data["a1"].confidence[:, :3], NAMES[:3], np.full((3, 2), 1000), H36M_17)
+    with pytest.raises(ValueError, match=r"recording 'b' has cameras \('c0', 'c1', 'c2'\)"):
+        pooled_detections({"a": data["a1"], "b": other}, ["a", "b"])
 
 
 def test_complete_linkage_does_not_chain_and_a_rigless_recording_joins_the_session_it_fits():
