@@ -7,8 +7,10 @@ Per seed: a rig (the synthetic room) and the same rig with every camera moved by
 turned by 1-3 degrees; the same subject filmed in four recordings of 300 frames (two per rig, four
 different motions) through the default detector (3-8 px noise, outliers, swaps, missing joints),
 K given.  Printed: the sessions found, the fit matrix (px: the worst camera's median re-projection
-error of each recording, column, through each recording's own recovered rig, row), and each
-recovered rig against the rig that filmed it after a similarity alignment.
+error of each recording, column, through each recording's own recovered rig, row; "no rig" where
+that recording's calibration failed, "behind" where most points triangulate behind a camera), why
+a calibration failed, and each recovered rig against the rig that filmed it after a similarity
+alignment.
 """
 
 from __future__ import annotations
@@ -58,8 +60,13 @@ def main(argv=None) -> list:
         print(f"\nseed {seed}: sessions {[session.recordings for session in grouping.sessions]}, unfitted {list(grouping.unfitted)}")
         print("| rig of \\ recording | " + " | ".join(grouping.recordings) + " |\n|---|" + "---|" * len(grouping.recordings))
         for name, row in zip(grouping.recordings, grouping.fit_px):
-            print(f"| {name} | " + " | ".join(f"{value:.1f}" if value < 1e4 else "behind" for value in row) + " |")
+            cells = ("no rig" if np.isnan(value) else "behind" if value >= 1e4 else f"{value:.1f}" for value in row)
+            print(f"| {name} | " + " | ".join(cells) + " |")
+        for name, why in grouping.failures.items():
+            print(f"{name}: no rig of its own: {why}")
         for name, rig, _ in PLAN:
+            if name not in grouping.calibrations:
+                continue
             truth = rigs[rig]
             recovered = grouping.calibrations[name].cameras
             comparison = compare_rigs(recovered.R, recovered.t, np.asarray(truth.R, np.float64), np.asarray(truth.t, np.float64))

@@ -21,10 +21,11 @@ Why `FIT_MARGIN_PX` = 3 px: the detector's noise is in both fits, a moved camera
 rig's.  A camera turned by 1 degree moves its image points by f tan(1 deg), 17-21 px at the
 1,000-1,200 px focal lengths of HD cameras, and one moved 100 mm at 5 m about as much; the same
 cameras recovered from two recordings differ by their estimation error, under 1 px where the
-subject moves about.  Measured on simulated two-rig projects (docs/calibration.md, "Sessions"): own
-fits 4.1-5.6 px with the default detector's 3-8 px noise, the same rig's from another recording
-within 0.3 px of them (3.0 px for a rig recovered from a subject reaching on one spot, hence the
-either-way rule), a rig moved by 100-500 mm and 1-3 degrees per camera over 100 px.
+subject moves about.  Measured on four simulated two-rig projects (docs/calibration.md, "Sessions"):
+own fits 4.1-5.6 px with the default detector's 3-8 px noise (8.0 for a failed rig), the same
+cameras' rig from another recording within 0.7 px of them where the subject walks (2.0-3.0 px for
+rigs recovered from a subject on one spot, hence the either-way rule), a rig moved by 100-500 mm and
+1-3 degrees per camera over 100 px.
 """
 
 from __future__ import annotations
