@@ -23,7 +23,7 @@ rig's.  A camera turned by 1 degree moves its image points by f tan(1 deg), 17-2
 cameras recovered from two recordings differ by their estimation error, under 1 px where the
 subject moves about.  Measured on four simulated two-rig projects (docs/calibration.md, "Sessions"):
 own fits 4.1-5.6 px with the default detector's 3-8 px noise (8.0 for a failed rig), the same
-cameras' rig from another recording within 0.7 px of them where the subject walks (2.0-3.0 px for
+cameras' rig from another recording within 0.3 px of them where the subject walks (2.0-3.0 px for
 rigs recovered from a subject on one spot, hence the either-way rule), a rig moved by 100-500 mm and
 1-3 degrees per camera over 100 px.
 """
