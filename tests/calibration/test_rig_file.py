@@ -16,11 +16,14 @@ from scipy.spatial.transform import Rotation
 from jaxpose.calibration import CalibrationConfig, calibrate, from_dataset
 from jaxpose.calibration.rig_file import SOURCE, write_recovered_rig
 from jaxpose.calibration.world import WORLD_FRAME, points_to_world, world_frame
-from jaxpose.camera import project
+from jaxpose.camera import Cameras, project
+from jaxpose.formats.anipose_toml import write_anipose_toml
+from jaxpose.formats.calibrated_rig import RigCalibration
 from jaxpose.formats.intrinsics import read_rig_intrinsics
 from jaxpose.formats.outputs import OutputError
 from jaxpose.formats.rig_calibration import read_rig_calibration
-from jaxpose.synthetic import SyntheticConfig, generate
+from jaxpose.rotations import nearest_rotation
+from jaxpose.synthetic import SyntheticConfig, generate, make_rig
 import paths
 
 QUALISYS = paths.FORMATS / "pose2sim-calib-toml" / "pose2sim_demo_Calib_qualisys.toml"
@@ -33,6 +36,12 @@ def recovered():
     dataset = generate(SyntheticConfig(num_train_subjects=1, num_test_subjects=0, samples_per_subject=600))
     detections = from_dataset(dataset, "S1", NAMES, np.full((4, 2), 1000)).without_intrinsics()
     return dataset, calibrate(detections, CalibrationConfig(max_frames=150))
+
+
+def two_cameras() -> RigCalibration:
+    R = Rotation.random(2, random_state=0).as_matrix()
+    cameras = Cameras(K=np.tile(np.diag([900.0, 900.0, 1.0]), (2, 1, 1)), R=R, t=np.array([[0.0, 0, 4000], [900, 0, 4000]]))
+    return RigCalibration(("a", "b"), cameras, np.array([[640, 480], [640, 480]]), "test", "mm")
 
 
 def assert_file_holds(path, cameras, names, image_size, unit_mm: float) -> dict:
@@ -50,6 +59,23 @@ def assert_file_holds(path, cameras, names, image_size, unit_mm: float) -> dict:
     return document
 
 
+def test_a_rig_in_metres_reads_back_the_same_through_jaxpose_and_tomllib(tmp_path):
+    """The file layer alone (fast): a synthetic room's cameras, float64, with metadata."""
+    room = make_rig(np.random.default_rng(7), SyntheticConfig())
+    cameras = Cameras(**{name: np.asarray(getattr(room, name), np.float64) for name in ("K", "R", "t")})
+    cameras = cameras.replace(R=nearest_rotation(cameras.R))
+    rig = RigCalibration(NAMES, cameras, np.full((4, 2), 1000), "synthetic room", "mm")
+    path = tmp_path / "calibration.toml"
+    write_anipose_toml(path, rig, metadata={"world": "the room's", "reprojection_median_px": [1.0, 2.0, 3.0, 4.0]})
+    document = assert_file_holds(path, cameras, NAMES, rig.image_size, 1000.0)
+    assert document["metadata"] == {"unit": "m", "world": "the room's", "reprojection_median_px": [1.0, 2.0, 3.0, 4.0]}
+    again = read_rig_calibration(path)
+    assert again.camera_names == NAMES and again.unit == "m" and again.cameras.dist is None
+    for name in ("K", "R", "t"):
+        np.testing.assert_allclose(getattr(again.cameras, name), getattr(cameras, name), rtol=1e-12, atol=1e-9)
+
+
+@pytest.mark.slow  # a rig recovered by calibrate: ~40 s, nearly all of it compilation
 def test_a_recovered_rig_reads_back_the_same_through_jaxpose_and_tomllib(recovered, tmp_path):
     _, calibration = recovered
     cameras = calibration.cameras
@@ -67,6 +93,7 @@ def test_a_recovered_rig_reads_back_the_same_through_jaxpose_and_tomllib(recover
         np.testing.assert_allclose(getattr(again.cameras, name), getattr(cameras, name), rtol=1e-12, atol=1e-9)
 
 
+@pytest.mark.slow  # the recovered rig of the fixture above
 def test_the_rig_in_the_upright_world_projects_as_before(recovered, tmp_path):
     """Written in the upright world (mm in the file too): the same pixels for the same points."""
     dataset, calibration = recovered
@@ -84,7 +111,8 @@ def test_the_rig_in_the_upright_world_projects_as_before(recovered, tmp_path):
     np.testing.assert_allclose(after, before, atol=1e-2)
 
 
-def test_an_existing_file_is_replaced_only_when_asked(recovered, tmp_path):
+@pytest.mark.slow  # the recovered rig of the fixture above
+def test_an_existing_recovered_rig_file_is_replaced_only_when_asked(recovered, tmp_path):
     _, calibration = recovered
     path = tmp_path / "calibration.toml"
     path.write_text("# the user's own file\n")
@@ -109,13 +137,7 @@ def test_pose2sims_demo_calibration_read_as_intrinsics_only():
 
 
 def test_metadata_values_are_checked(tmp_path):
-    from jaxpose.camera import Cameras
-    from jaxpose.formats.anipose_toml import write_anipose_toml
-    from jaxpose.formats.calibrated_rig import RigCalibration
-
-    R = Rotation.random(2, random_state=0).as_matrix()
-    rig = RigCalibration(("a", "b"), Cameras(K=np.tile(np.diag([900.0, 900.0, 1.0]), (2, 1, 1)), R=R, t=np.array([[0.0, 0, 4000], [900, 0, 4000]])),
-                         np.array([[640, 480], [640, 480]]), "test", "mm")  # fmt: skip
+    rig = two_cameras()
     with pytest.raises(ValueError, match="metadata 'unit' is the translations' unit"):
         write_anipose_toml(tmp_path / "a.toml", rig, metadata={"unit": "cm"})
     with pytest.raises(ValueError, match="not finite"):
@@ -124,3 +146,15 @@ def test_metadata_values_are_checked(tmp_path):
     write_anipose_toml(tmp_path / "a.toml", rig, metadata={"a key with spaces": "x \"quoted\"", "flag": True, "n": 3})
     metadata = tomllib.loads((tmp_path / "a.toml").read_text())["metadata"]
     assert metadata == {"unit": "m", "a key with spaces": 'x "quoted"', "flag": True, "n": 3.0}
+
+
+def test_an_existing_file_is_replaced_only_when_asked(tmp_path):
+    rig = two_cameras()
+    path = tmp_path / "calibration.toml"
+    path.write_text("# the user's own file\n")
+    with pytest.raises(OutputError, match=r"calibration.toml: exists; pass overwrite=True"):
+        write_anipose_toml(path, rig)
+    assert path.read_text() == "# the user's own file\n"
+    write_anipose_toml(path, rig, overwrite=True)
+    assert read_rig_calibration(path).camera_names == ("a", "b")
+    assert sorted(entry.name for entry in tmp_path.iterdir()) == ["calibration.toml"]  # no partial file left
