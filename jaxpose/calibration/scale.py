@@ -22,7 +22,7 @@ from jaxpose.skeleton import Skeleton
 
 LIMBS = ("upper arm", "forearm", "thigh", "shank")
 DEFAULT_LIMB_LENGTHS_MM = (290.0, 260.0, 450.0, 440.0)
-# Joint-name stems at each limb's ends (after `_stem`), so that H36M's "LFoot" (its ankle marker),
+# Joint-name stems at each limb's ends (after `body_part`), so that H36M's "LFoot" (its ankle marker),
 # HumanEva's "LAnkle" and COCO's "left_ankle" all match.
 _LIMB_ENDS = {
     "upper arm": (("shoulder",), ("elbow",)),
@@ -32,7 +32,7 @@ _LIMB_ENDS = {
 }
 
 
-def _stem(joint_name: str) -> tuple[str, str]:
+def body_part(joint_name: str) -> tuple[str, str]:
     """('l' | 'r' | '', lower-case body part) of a joint name: "LElbow", "left_elbow" -> ('l', 'elbow')."""
     name = joint_name.lower().replace("_", "")
     for prefix, side in (("left", "l"), ("right", "r"), ("l", "l"), ("r", "r")):
@@ -43,7 +43,7 @@ def _stem(joint_name: str) -> tuple[str, str]:
 
 def limb_joints(skeleton: Skeleton) -> dict[str, list[tuple[int, int]]]:
     """Limb -> the (joint, joint) index pairs of the skeleton that form it (left and right)."""
-    parts = {_stem(name): index for index, name in enumerate(skeleton.joint_names)}
+    parts = {body_part(name): index for index, name in enumerate(skeleton.joint_names)}
     limbs = {}
     for limb, (starts, ends) in _LIMB_ENDS.items():
         pairs = []

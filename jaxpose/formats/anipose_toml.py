@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import tomllib
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -28,6 +28,7 @@ from jaxpose.formats.rig_cameras import (
     MM_PER_UNIT, CalibrationUnit, RigCalibration, check_intrinsics, check_rig_size, check_rotation, rig_size,
 )  # fmt: skip
 from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats.outputs import OutputError, atomic_output
 from jaxpose.rotations import nearest_rotation, rodrigues_from_rotation, rotation_from_rodrigues
 
 __all__ = ["is_anipose_calibration", "read_anipose_toml", "write_anipose_toml"]
@@ -95,12 +96,23 @@ def read_anipose_toml(path: Path, unit: CalibrationUnit) -> RigCalibration:
     )
 
 
-def write_anipose_toml(path: str | Path, rig: RigCalibration, unit: Literal["m", "mm"] = "m") -> None:
+def write_anipose_toml(
+    path: str | Path,
+    rig: RigCalibration,
+    unit: Literal["m", "mm"] = "m",
+    *,
+    metadata: Mapping[str, str | float | bool | Sequence[float]] | None = None,
+    overwrite: bool = False,
+) -> None:
     """Write `rig` in the Anipose/Pose2Sim calibration layout, translations in `unit`.
 
     One `[cam_<i>]` table per camera (name, size, matrix, distortions, rotation as a Rodrigues
     vector, translation, fisheye), then `[metadata]` with `unit`, which `read_rig_calibration`
-    uses when reading the file with unit="auto".  Fisheye rigs are written as aniposelib writes
+    uses when reading the file with unit="auto", and the entries of `metadata` (strings, numbers,
+    booleans or lists of numbers; Pose2Sim and aniposelib skip the table).  Pose2Sim reads metres
+    (its own files, and the default here); Anipose the board's unit (mm for most).  The file is
+    written whole or not at all (`jaxpose.formats.outputs.atomic_output`), and an existing file
+    only with `overwrite` (else `OutputError`).  Fisheye rigs are written as aniposelib writes
     them (`fisheye = true`, 4 coefficients).  A rig without image sizes is written without `size`
     (with a warning: Anipose and Pose2Sim need it).  Human3.6M's distortion model has no
     OpenCV/Anipose equivalent and is refused: convert the rig first with
@@ -108,6 +120,11 @@ def write_anipose_toml(path: str | Path, rig: RigCalibration, unit: Literal["m",
     """
     if unit not in ("m", "mm"):
         raise ValueError(f"write_anipose_toml: unit must be 'm' or 'mm', not {unit!r}")
+    if Path(path).exists() and not overwrite:
+        raise OutputError(f"{path}: exists; pass overwrite=True (--overwrite) to replace it")
+    extra = dict(metadata or {})
+    if "unit" in extra:
+        raise ValueError("write_anipose_toml: metadata 'unit' is the translations' unit; pass it as `unit`")
     cameras = rig.cameras
     model = cameras.distortion_model
     if model == "h36m" and cameras.dist is not None:
@@ -146,8 +163,10 @@ def write_anipose_toml(path: str | Path, rig: RigCalibration, unit: Literal["m",
         lines.append(f"translation = {_toml_array(t[c] / MM_PER_UNIT[unit])}")
         lines.append(f"fisheye = {'true' if model == 'fisheye' else 'false'}")
         lines.append("")
-    lines += ["[metadata]", f'unit = "{unit}"', ""]
-    Path(path).write_text("\n".join(lines), encoding="utf-8")
+    lines += ["[metadata]", f'unit = "{unit}"']
+    lines += [f"{_toml_key(key)} = {_toml_value(value)}" for key, value in extra.items()]
+    with atomic_output(path) as temporary:
+        temporary.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -284,6 +303,23 @@ def _toml_string(text: str) -> str:
         else:
             out.append(char)
     return '"' + "".join(out) + '"'
+
+
+def _toml_key(key: str) -> str:
+    """A bare TOML key when it is one (letters, digits, - and _), else a quoted one."""
+    return key if key and all(char.isascii() and (char.isalnum() or char in "-_") for char in key) else _toml_string(key)
+
+
+def _toml_value(value) -> str:
+    """A metadata value: a string, a boolean, a number or a (nested) list of numbers."""
+    if isinstance(value, str):
+        return _toml_string(value)
+    if isinstance(value, (bool, np.bool_)):
+        return "true" if value else "false"
+    array = np.asarray(value, np.float64)
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"write_anipose_toml: metadata value {value!r} is not finite (TOML has no NaN for Pose2Sim)")
+    return repr(float(array)) if array.ndim == 0 else _toml_array(array)
 
 
 def _toml_array(values: np.ndarray) -> str:

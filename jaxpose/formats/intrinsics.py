@@ -7,6 +7,10 @@ jaxpose camera file), e.g. ``calibration.toml cam01``, the name matched to the f
 file holding one camera in the fields of a jaxpose camera file entry: {"K": [[fx, s, cx], [0, fy, cy],
 [0, 0, 1]], "dist": [k1, k2, p1, p2, k3] or null, "image_size": [width, height] or null}; other fields
 (R, t, name) are ignored.
+
+`read_rig_intrinsics` reads the lenses of a whole rig the same way (K, distortion, image sizes; the
+extrinsics dropped), for recovering the rig's poses from the person with known lenses
+(`jaxpose.calibration.RigDetections`' K and dist).
 """
 
 from __future__ import annotations
@@ -64,6 +68,35 @@ def read_intrinsics(values: Sequence[str]) -> CameraIntrinsics:
         _checked_K(camera["K"], f"--intrinsics {path}, field 'K'"),
         None if dist is None else np.asarray(dist, np.float32),
         None if size is None else tuple(size),
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class RigIntrinsics:
+    """The lenses of a rig's cameras, in the order asked for: K f64[C, 3, 3], dist f64[C, 5] or None
+    (pinhole), its `distortion_model`, image_size int64[C, 2] (width, height) or None."""
+
+    camera_names: tuple[str, ...]
+    K: np.ndarray
+    dist: np.ndarray | None
+    distortion_model: str
+    image_size: np.ndarray | None
+    source: str
+
+
+def read_rig_intrinsics(path: str | Path, camera_names: Sequence[str], what: str = "cameras") -> RigIntrinsics:
+    """The intrinsics of `camera_names` (matched to the file's cameras by `RigCalibration.select`, `what`
+    says where the names come from) from any rig calibration file `read_rig_calibration` reads; the
+    file's rotations and translations are dropped."""
+    rig = rig_calibration.read_rig_calibration(path).select(camera_names, what)
+    cameras = rig.cameras
+    return RigIntrinsics(
+        camera_names=rig.camera_names,
+        K=np.asarray(cameras.K, np.float64),
+        dist=None if cameras.dist is None else np.asarray(cameras.dist, np.float64),
+        distortion_model=cameras.distortion_model,
+        image_size=rig.image_size,
+        source=f"{rig.source} (intrinsics only)",
     )
 
 
