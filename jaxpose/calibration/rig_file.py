@@ -21,7 +21,7 @@ from jaxpose.calibration import WORLD_FRAME, Calibration
 from jaxpose.calibration.world import WORLD_FRAME as UPRIGHT_WORLD_FRAME
 from jaxpose.calibration.world import WorldFrame, cameras_to_world
 from jaxpose.formats.anipose_toml import write_anipose_toml
-from jaxpose.formats.calibrated_rig import RigCalibration
+from jaxpose.formats.rig_cameras import RigCalibration
 
 SOURCE = "recovered from the person by jaxpose.calibrate (no calibration target)"
 

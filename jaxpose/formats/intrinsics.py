@@ -88,7 +88,7 @@ def read_rig_intrinsics(path: str | Path, camera_names: Sequence[str], what: str
     """The intrinsics of `camera_names` (matched to the file's cameras by `RigCalibration.select`, `what`
     says where the names come from) from any rig calibration file `read_rig_calibration` reads; the
     file's rotations and translations are dropped."""
-    rig = rig_calibration.read_rig_calibration(path).select(camera_names, what)
+    rig = calibration_files.read_rig_calibration(path).select(camera_names, what)
     cameras = rig.cameras
     return RigIntrinsics(
         camera_names=rig.camera_names,

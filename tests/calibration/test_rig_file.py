@@ -18,10 +18,10 @@ from jaxpose.calibration.rig_file import SOURCE, write_recovered_rig
 from jaxpose.calibration.world import WORLD_FRAME, points_to_world, world_frame
 from jaxpose.camera import Cameras, project
 from jaxpose.formats.anipose_toml import write_anipose_toml
-from jaxpose.formats.calibrated_rig import RigCalibration
+from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.formats.intrinsics import read_rig_intrinsics
 from jaxpose.formats.outputs import OutputError
-from jaxpose.formats.rig_calibration import read_rig_calibration
+from jaxpose.formats.calibration_files import read_rig_calibration
 from jaxpose.rotations import nearest_rotation
 from jaxpose.synthetic import SyntheticConfig, generate, make_rig
 import paths
