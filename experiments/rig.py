@@ -53,9 +53,12 @@ def load_splits(data: RigProjectConfig, progress: bool = True, window: int = 1) 
         calibration = project.recovered_calibration
 
         def write_calibration(run: RunDirectory) -> None:
+            from jaxpose.calibration.rig_file import write_recovered_rig  # the calibrate extra, which recovered it
+
             sizes = {"rig": [tuple(int(v) for v in size) for size in calibration.image_size]}
             comment = f"Recovered by jaxpose.calibrate from the recordings of {data.root}."
             save_cameras(run.recovered_cameras, {"rig": (list(calibration.camera_names), calibration.cameras)}, sizes, comment)
+            write_recovered_rig(run.recovered_toml, calibration, overwrite=True)  # the run's own file, rewritten on a resume
 
         artifacts = (write_calibration,)
     record = RunRecord(min_confidence=data.min_confidence, layout=project.layout, project=recorded_settings(data, project.layout))

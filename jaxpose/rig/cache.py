@@ -46,7 +46,7 @@ from jaxpose.rig.recordings import printable
 
 log = logging.getLogger(__name__)
 
-VERSION = 1  # bump when the prepared arrays change meaning
+VERSION = 2  # bump when the prepared arrays change meaning
 PREFIX = "prepared-"
 KEEP = 2
 RECOVERED_JSON = "recovered.json"

@@ -129,6 +129,9 @@ class RigProjectConfig:
     image_size: tuple[int, int] | None = None
     """Width and height of the images (px), needed only to recover the rig of JSON detections without
     any calibration (a detections.npz carries its own)."""
+    subject_height_mm: float | None = None
+    """Without a calibration: the subject's height (mm), which sets the recovered world's scale (Pose2Sim's
+    participant_height); None: the generic limb prior (5-9% off for bodies unlike it: docs/calibration.md)."""
     validation_recordings: tuple[str, ...] = ()
     """Recordings held out for validation; empty = the last --data.validation-fraction of every recording."""
     validation_fraction: float = 0.2
@@ -140,6 +143,8 @@ class RigProjectConfig:
     """Keep every n-th instant of the validation part."""
 
     def __post_init__(self):
+        if self.subject_height_mm is not None and not 500.0 <= self.subject_height_mm <= 2800.0:
+            raise ValueError(f"--data.subject-height-mm is the subject's height in millimetres (500-2800), got {self.subject_height_mm}")
         if not 0.0 < self.validation_fraction < 1.0:
             raise ValueError(f"--data.validation-fraction must lie in (0, 1), got {self.validation_fraction}")
         if self.train_stride < 1 or self.validation_stride < 1 or self.max_sync_offset < 0:
@@ -256,6 +261,7 @@ def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bo
                 recordings, [(part.keypoints, part.confidence) for part in parts], camera_order,
                 lifting_skeleton(next(iter(layouts.values()))),
                 image_size=config.image_size, max_frames=config.recovery_frames, root=config.root,
+                height_mm=config.subject_height_mm,
             )  # fmt: skip
         for recording in recordings:
             recording.calibration = rig

@@ -9,6 +9,8 @@ capture's world is moved into it for evaluation (`ground_truth_into_recovered_wo
 
 from __future__ import annotations
 
+import dataclasses
+import logging
 import pathlib
 from collections.abc import Sequence
 
@@ -18,9 +20,11 @@ from jaxpose.camera import projection_matrices
 from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_folder import GROUND_TRUTH_NPZ
-from jaxpose.rig.geometry import triangulate_rows
+from jaxpose.rig.geometry import triangulate_rows, undistort_views
 from jaxpose.rig.recordings import Recording, one_person
 from jaxpose.skeleton import Skeleton
+
+log = logging.getLogger(__name__)
 
 MIN_ALIGNMENT_POINTS = 50  # ground-truth joints needed to align it with a recovered rig
 
@@ -34,6 +38,7 @@ def recover_rig(
     image_size: tuple[int, int] | None,
     max_frames: int,
     root: pathlib.Path,
+    height_mm: float | None = None,
 ):
     """`jaxpose.calibrate` on the instants of all recordings (`aligned`: each recording's keypoints and
     confidence on one time axis, `jaxpose.rig.timeline.align`), each view's detection where it saw one
@@ -79,6 +84,7 @@ def recover_rig(
         source=f"{root} (all recordings)",
     )
     calibration = calibrate(detections, CalibrationConfig(max_frames=max_frames))
+    calibration = _upright(calibration, detections, skeleton, height_mm)
     rig = RigCalibration(
         camera_names=tuple(camera_order),
         cameras=calibration.cameras.replace(**{name: np.asarray(getattr(calibration.cameras, name), np.float64) for name in ("K", "R", "t")}),
@@ -87,6 +93,30 @@ def recover_rig(
         unit="mm",
     )
     return rig, calibration
+
+
+def _upright(calibration, detections, skeleton: Skeleton, height_mm: float | None):
+    """`calibration` with its cameras moved into the upright metric world of the person
+    (`jaxpose.calibration.world`: +Y up, the floor at Y = 0, mm; scaled by `height_mm` where given), so that
+    the project's motion stands on the floor; where the person does not show it (a `ValueError` of
+    `world_frame`), view 0's frame is kept and the log says why."""
+    from jaxpose.calibration.world import WORLD_FRAME, cameras_to_world, world_frame
+
+    names = calibration.camera_names
+    rig = RigCalibration(camera_names=names, cameras=calibration.cameras, image_size=detections.image_size, source="recovered", unit="mm")
+    keypoints = np.stack([undistort_views(rig, name, detections.keypoints[:, c]) for c, name in enumerate(names)], 1)
+    P = np.asarray(projection_matrices(calibration.cameras.without_distortion()), np.float32)
+    points = triangulate_rows(P, keypoints, detections.confidence, method="normal")
+    valid = (detections.confidence > 0).sum(1) >= 2
+    try:
+        world = world_frame(points, valid, skeleton, height_mm=height_mm)
+    except ValueError as error:
+        log.warning("the recovered rig stays in view 0's camera frame (not upright): %s", error)
+        return calibration
+    log.info(
+        "recovered rig moved into the %s (up from the %s, scale from the %s, x%.3f)", WORLD_FRAME, world.up_source, world.scale_source, world.scale
+    )
+    return dataclasses.replace(calibration, cameras=cameras_to_world(world, calibration.cameras))
 
 
 def _similarity(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:

@@ -34,6 +34,7 @@ log = logging.getLogger("jaxpose")
 LOCK_FILE = "run.lock"
 RECORD_FILE = "run.json"
 RECOVERED_CAMERAS_FILE = "recovered_cameras.json"
+RECOVERED_TOML_FILE = "recovered_cameras.toml"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,6 +76,11 @@ class RunDirectory:
     def recovered_cameras(self) -> pathlib.Path:
         """The rig recovered from the recordings (a jaxpose camera file), where the project had no calibration."""
         return self.path / RECOVERED_CAMERAS_FILE
+
+    @property
+    def recovered_toml(self) -> pathlib.Path:
+        """The same rig as a Pose2Sim/Anipose calibration TOML (metres), for the other tools."""
+        return self.path / RECOVERED_TOML_FILE
 
     @property
     def plots(self) -> pathlib.Path:
@@ -123,7 +129,7 @@ def read_record(run_dir: pathlib.Path) -> RunRecord | None:
 
 
 # What a run writes into its folder, and what --run.overwrite may remove.
-RUN_ENTRIES = frozenset({RECORD_FILE, LOCK_FILE, "config.json", "metrics.jsonl", "checkpoints", "tensorboard", "report.json", "report.md", "plots", RECOVERED_CAMERAS_FILE})
+RUN_ENTRIES = frozenset({RECORD_FILE, LOCK_FILE, "config.json", "metrics.jsonl", "checkpoints", "tensorboard", "report.json", "report.md", "plots", RECOVERED_CAMERAS_FILE, RECOVERED_TOML_FILE})
 # What the studies of experiments/ write beside the runs they train inside a run folder (kept by --run.overwrite).
 STUDY_ENTRIES = frozenset({"comparison.md", "comparison.json", "search.md", "search.json", "label_bias.md", "table_paper_layout.md", "mpi_inf_3dhp"})
 
