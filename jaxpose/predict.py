@@ -216,8 +216,8 @@ def check_args(args: PredictArgs) -> None:
     """The flags' own errors, before anything is read."""
     if args.output.suffix not in pose_files.SUFFIXES:
         raise ValueError(f"--output {args.output}: the suffix must be one of {pose_files.SUFFIXES}")
-    if not args.fps > 0:
-        raise ValueError(f"--fps must be positive, got {args.fps}")
+    if not 0 < args.fps < float("inf"):
+        raise ValueError(f"--fps must be a positive finite number, got {args.fps}")
     if args.max_gap < 0 or args.track_gap < 0:
         raise ValueError(f"--max-gap and --track-gap must be >= 0, got {args.max_gap} and {args.track_gap}")
     if args.animation is not None:

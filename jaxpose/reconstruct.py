@@ -102,8 +102,8 @@ class ReconstructArgs:
 
 def run(args: ReconstructArgs) -> dict:
     """The whole command; returns the report (as report.json holds it)."""
-    if not args.fps > 0:
-        raise ValueError(f"--fps must be positive, got {args.fps}")
+    if not 0 < args.fps < float("inf"):
+        raise ValueError(f"--fps must be a positive finite number, got {args.fps}")
     if args.max_gap < 0:
         raise ValueError(f"--max-gap must be >= 0 frames, got {args.max_gap}")
     if args.c3d:

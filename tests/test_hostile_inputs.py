@@ -515,3 +515,19 @@ def test_no_command_touches_a_path_outside_its_named_outputs(workspace, tmp_path
                 (workspace / name).unlink(missing_ok=True)
 
     check()
+
+
+def test_smaller_cases_of_issue_42(tmp_path, small_project):
+    """--fps inf was accepted (every Time 0); a recording named with a tab or a line break broke the TRC header."""
+    from jaxpose import predict, reconstruct
+    from jaxpose.formats.trc import read_trc, write_trc
+
+    for main, argv in (
+        (predict.main, ["--checkpoint", str(tmp_path / "run"), "--input", str(tmp_path / "in.json"), "--output", str(tmp_path / "o.json")]),
+        (reconstruct.main, ["--checkpoint", str(tmp_path / "run"), "--data.root", str(small_project), "--output", str(tmp_path / "m")]),
+    ):
+        _refused(main, [*argv, "--fps", "inf"], r"--fps must be a positive finite number, got inf")
+    path = write_trc(tmp_path / "walk\t01\nb.trc", np.zeros((3, 2, 3)), ["A", "B"], 50.0)
+    header = path.read_text().split("\n")[0]
+    assert header.split("\t")[3] == "walk 01 b.trc"
+    assert read_trc(path).markers.shape == (3, 2, 3)

@@ -155,7 +155,8 @@ def write_trc(
     count, markers_count = markers.shape[:2]
     names = [marker_name(name) for name in marker_names]
     rate_text = f"{rate:g}"
-    path_field = path.name + (f" {path_note}" if path_note else "")
+    # A file name with a tab or line break (a recording folder so named) would break the header's fields.
+    path_field = "".join(" " if ch.isspace() else ch for ch in path.name) + (f" {path_note}" if path_note else "")
     lines = [
         f"PathFileType\t4\t(X/Y/Z)\t{path_field}",
         "\t".join(HEADER_KEYS),

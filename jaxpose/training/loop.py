@@ -72,6 +72,11 @@ class Budget:
 def training_budget(num_samples: int, train: TrainConfig) -> Budget:
     """The steps `train` gives a training set of `num_samples` samples; a batch larger than the data,
     or a cap below one batch per epoch, ends the program in one line."""
+    if num_samples == 0:
+        raise SystemExit(
+            "error: no training sample is left: every instant was held out (--data.validation-*), or has fewer usable"
+            " views than --pseudo-labels.min-views (scores below the data's score threshold, e.g. --data.min-confidence)"
+        )
     if num_samples < train.batch_size:
         raise SystemExit(
             f"error: --train.batch-size {train.batch_size} is larger than the training set ({num_samples} samples);"
@@ -226,9 +231,10 @@ def train(
     views = train_set.num_views
     log.info(
         "training: %d samples x %d views, batch %d over %d devices (%d processes), %d steps/epoch,"
-        " %d epochs (%d steps), from step %d",
-        count, views, cfg.batch_size, mesh.size, jax.process_count(), per_epoch, cfg.epochs, total_steps, start,
-    )
+        " %d epochs (%d steps%s), from step %d",
+        count, views, cfg.batch_size, mesh.size, jax.process_count(), per_epoch, cfg.epochs, total_steps,
+        f"; stopping at step {stop_step} (--train.max-steps)" if stop_step < total_steps else "", start,
+    )  # fmt: skip
     if budget.capped:
         log.info("training %s", budget.note())
     bar = tqdm(total=stop_step, initial=start, desc="train", unit="step", disable=not config.run.progress or jax.process_index() != 0)

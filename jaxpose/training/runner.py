@@ -80,7 +80,9 @@ def _run_holding_the_directory(
     usable = splits.train.usable_view_count() >= config.pseudo_labels.min_views
     samples = None
     if not usable.all():
-        log.warning("leaving out %d training samples with fewer than %d usable views", int((~usable).sum()), config.pseudo_labels.min_views)
+        groups = splits.train.labels.get(splits.group_label) if splits.group_label in splits.train.labels else None
+        where = "" if groups is None else " (" + ", ".join(f"{name}: {count}" for name, count in zip(*np.unique(groups[~usable], return_counts=True))) + ")"
+        log.warning("leaving out %d training samples with fewer than %d usable views%s", int((~usable).sum()), config.pseudo_labels.min_views, where)
         samples = np.flatnonzero(usable)
     training_budget(len(usable) if samples is None else len(samples), config.train)  # a batch larger than the data stops here, before the run directory is written
     train_set = pseudo_labelling.label(splits.train, config.pseudo_labels, progress=config.run.progress)
