@@ -30,6 +30,7 @@ import tyro
 from jaxpose.calibration import CalibrationConfig, RigDetections, calibrate, from_dataset
 from jaxpose.calibration.world import ANKLE_HEIGHT_FRACTION, SHOULDER_HEIGHT_FRACTION, points_to_world, world_frame
 from jaxpose.camera import projection_matrices, undistort_points
+from jaxpose.rotations import similarity
 from jaxpose.robust import irls_triangulate
 from jaxpose.skeleton import COCO_17, Skeleton
 from jaxpose.synthetic import ANGLE_NAMES, SyntheticConfig, forward_kinematics, generate, keypoints3d, sample_bone_lengths
@@ -61,17 +62,6 @@ def subject_height(bones: np.ndarray) -> float:
     shoulders = rest[[JOINT_INDEX["LShoulder"], JOINT_INDEX["RShoulder"]], 2].mean()
     ankles = rest[[JOINT_INDEX["LFoot"], JOINT_INDEX["RFoot"]], 2].mean()
     return (shoulders - ankles) / (SHOULDER_HEIGHT_FRACTION - ANKLE_HEIGHT_FRACTION)
-
-
-def similarity(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """(s, Q, u) minimising |s Q source + u - target| over points [M, 3] (Umeyama)."""
-    mean_source, mean_target = source.mean(0), target.mean(0)
-    a, b = source - mean_source, target - mean_target
-    U, singular, Vt = np.linalg.svd(b.T @ a / len(a))
-    sign = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    Q = U @ sign @ Vt
-    s = float(np.trace(np.diag(singular) @ sign) / a.var(0).sum())
-    return s, Q, mean_target - s * Q @ mean_source
 
 
 def measure(detections: RigDetections, truth: np.ndarray, skeleton: Skeleton, height: float, max_frames: int) -> dict:

@@ -77,3 +77,14 @@ def nearest_rotation(matrix: np.ndarray) -> np.ndarray:
     u, _, vt = np.linalg.svd(np.asarray(matrix, np.float64))
     flip = np.sign(np.linalg.det(u @ vt))
     return u @ (np.stack([np.ones_like(flip), np.ones_like(flip), flip], -1)[..., None] * vt)
+
+
+def similarity(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """(s, R, t) minimising |s R source + t - target| over corresponding points [M, 3] (Umeyama, 1991)."""
+    mean_source, mean_target = source.mean(0), target.mean(0)
+    a, b = source - mean_source, target - mean_target
+    u, singular, vt = np.linalg.svd(b.T @ a / len(a))
+    sign = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+    R = u @ sign @ vt
+    s = float(np.trace(np.diag(singular) @ sign) / a.var(0).sum())
+    return s, R, mean_target - s * R @ mean_source

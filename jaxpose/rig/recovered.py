@@ -21,6 +21,7 @@ from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_folder import GROUND_TRUTH_NPZ
 from jaxpose.rig.geometry import triangulate_rows, undistort_views
+from jaxpose.rotations import similarity
 from jaxpose.rig.recordings import Recording, one_person
 from jaxpose.skeleton import Skeleton
 
@@ -119,17 +120,6 @@ def _upright(calibration, detections, skeleton: Skeleton, height_mm: float | Non
     return dataclasses.replace(calibration, cameras=cameras_to_world(world, calibration.cameras))
 
 
-def _similarity(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """(s, R, t) minimising |s R source + t - target| over corresponding points [M, 3] (Umeyama)."""
-    mean_source, mean_target = source.mean(0), target.mean(0)
-    a, b = source - mean_source, target - mean_target
-    u, singular, vt = np.linalg.svd(b.T @ a / len(a))
-    sign = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-    R = u @ sign @ vt
-    s = float(np.trace(np.diag(singular) @ sign) / a.var(0).sum())
-    return s, R, mean_target - s * R @ mean_source
-
-
 def ground_truth_into_recovered_world(target: np.ndarray, keypoints, confidence, rig: RigCalibration) -> np.ndarray:
     """Ground truth [N, J, 3] in the motion capture's world, turned into the recovered rig's world.
 
@@ -149,8 +139,8 @@ def ground_truth_into_recovered_world(target: np.ndarray, keypoints, confidence,
             f"{int(usable.sum())}: do its frame numbers match the detections'?",
         )
     source, destination = target[usable].astype(np.float64), points[usable].astype(np.float64)
-    s, R, t = _similarity(source, destination)
+    s, R, t = similarity(source, destination)
     residual = np.linalg.norm(s * source @ R.T + t - destination, axis=-1)
     keep = residual <= np.quantile(residual, 0.9)
-    s, R, t = _similarity(source[keep], destination[keep])
+    s, R, t = similarity(source[keep], destination[keep])
     return (target @ R.T + t / s).astype(np.float32)
