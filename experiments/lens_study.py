@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 import tyro
 
-from jaxpose.calibration import CalibrationConfig, CalibrationError, RigDetections, calibrate, compare_rigs
+from jaxpose.calibration import CalibrationConfig, CalibrationError, LensConfig, RigDetections, calibrate, compare_rigs
 from jaxpose.camera import Cameras, undistort_points
 from jaxpose.metrics import procrustes_align
 from jaxpose.skeleton import H36M_17
@@ -57,8 +57,8 @@ class Args:
     """Instants simulated per rig (the calibration uses at most `calibration.max_frames` of them)."""
     lenses: WideAngleLenses = WideAngleLenses()
     """The lenses drawn."""
-    calibration: CalibrationConfig = CalibrationConfig()
-    """How the rigs are recovered."""
+    calibration: CalibrationConfig = CalibrationConfig(lens=LensConfig(estimate_principal_point=True, estimate_distortion=True))
+    """How the rigs are recovered (by default the whole lens: focal length, principal point, k1, k2)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -125,7 +125,7 @@ def evaluate(case: Case, config: CalibrationConfig) -> dict:
     shift_error = np.linalg.norm(displacement(recovered, pixels)[detected] - true_shift, axis=-1)
     true_values = np.concatenate([truth.K[:, :1, 0], truth.K[:, :2, 2], truth.dist[:, :2]], axis=1)
     lens = calibration.lens
-    free = lens.state[:, :STUDIED] != "given"
+    free = lens.state[:, :STUDIED] != "held"
     within = np.abs(lens.value[:, :STUDIED] - true_values) <= 2.0 * lens.sigma[:, :STUDIED]
     return {
         "recovered": bool(comparison.rotation_deg.max() < 1.0),

@@ -82,7 +82,7 @@ def read_reference(path: Path, subject: str, camera_names: Sequence[str]) -> Cam
 
 def report(calibration: Calibration, comparison: RigComparison | None, reference: Cameras | None) -> str:
     """The calibration report as markdown."""
-    estimated = (calibration.lens.state != "given").any()
+    estimated = (calibration.lens.state != "held").any()
     intrinsics = "estimated intrinsics" if estimated else "given intrinsics"
     scale = calibration.scale
     lines = [

@@ -209,11 +209,8 @@ def calibrate(detections: RigDetections, config: CalibrationConfig = Calibration
     estimate_focal = detections.K is None if config.estimate_focal is None else config.estimate_focal
     if not estimate_focal and detections.K is None:
         raise CalibrationError(f"{detections.source}: without K the focal lengths must be estimated (estimate_focal)")
-    try:
-        lens = lens_setup(detections.K, detections.dist, detections.distortion_model, detections.image_size,
-                          estimate_focal, config.lens, FOCAL_GUESS_PER_IMAGE_SIDE)  # fmt: skip
-    except ValueError as error:
-        raise CalibrationError(f"{detections.source}: {error}") from None
+    lens = lens_setup(detections.K, detections.dist, detections.distortion_model, detections.image_size,
+                      estimate_focal, config.lens, FOCAL_GUESS_PER_IMAGE_SIDE)  # fmt: skip
     # The first rig sees the detections through the starting lenses (the given ones, or no distortion).
     start_lens = Cameras(K=jnp.asarray(lens.K), R=jnp.tile(jnp.eye(3), (len(lens.K), 1, 1)), t=jnp.zeros((len(lens.K), 3)),
                     dist=jnp.asarray(lens.dist), distortion_model=lens.model)  # fmt: skip

@@ -38,7 +38,7 @@ import optimistix as optx
 
 from jaxpose.calibration.initial import CalibrationError
 from jaxpose.calibration.lens import (
-    AT_PRIOR, ESTIMATED, GIVEN, PRIOR_DOMINATED, LensEstimate, LensSetup, lens_from_theta, sigma_in_units, theta_in_units,
+    AT_PRIOR, ESTIMATED, HELD, PRIOR_DOMINATED, LensEstimate, LensSetup, lens_from_theta, sigma_in_units, theta_in_units,
 )  # fmt: skip
 from jaxpose.camera import Cameras, project_from_camera, project_with_matrices, undistort_lens
 from jaxpose.triangulation import triangulate
@@ -88,8 +88,9 @@ class _Problem:
     t0: jax.Array
     K0: jax.Array
     dist0: jax.Array
-    free: jax.Array  # bool[C, 7]
-    held: jax.Array  # f64[C, 7] theta of the parameters not free
+    free_index: jax.Array  # i[P] flat indices into theta [C, 7] of the free parameters ("lens" [P])
+    active: jax.Array  # bool[P] the free parameters not (yet) put back at their prior
+    held: jax.Array  # f64[C, 7] theta of the parameters not free or not active
     prior_mean: jax.Array
     prior_sigma: jax.Array
     pixels: jax.Array  # f64[F, C, J, 2] detections (distorted), the principal point where not observed
@@ -107,7 +108,11 @@ def _extrinsics(params: dict, problem: _Problem) -> tuple[jax.Array, jax.Array]:
 
 
 def _theta(params: dict, problem: _Problem) -> jax.Array:
-    return jnp.where(problem.free, params["lens"], problem.held) if "lens" in params else problem.held
+    if "lens" not in params:
+        return problem.held
+    held = problem.held.reshape(-1)
+    values = jnp.where(problem.active, params["lens"], held[problem.free_index])
+    return held.at[problem.free_index].set(values).reshape(problem.held.shape)
 
 
 def _model(params: dict, problem: _Problem, weights: jax.Array, model: str) -> tuple[jax.Array, jax.Array]:
@@ -135,7 +140,12 @@ def _residuals(params: dict, args: tuple) -> tuple[jax.Array, jax.Array, jax.Arr
     problem, weights, joint_sigma, model = args
     _, projected = _model(params, problem, weights, model)
     data = jnp.sqrt(weights)[..., None] * (projected - problem.pixels) / joint_sigma[:, None]
-    prior = jnp.where(problem.free, (_theta(params, problem) - problem.prior_mean) / problem.prior_sigma, 0.0)
+    if "lens" in params:  # only the free parameters have a prior; one put back at it, a residual of 0
+        index = problem.free_index
+        deviation = (params["lens"] - problem.prior_mean.reshape(-1)[index]) / problem.prior_sigma.reshape(-1)[index]
+        prior = jnp.where(problem.active, deviation, 0.0)
+    else:
+        prior = jnp.zeros(0, problem.held.dtype)
     # The scale gauge: nothing in the images fixes it, so one residual holds view 1's distance from
     # view 0 at its start value (a free null direction lets the solver drift and stalls its stopping test).
     gauge = GAUGE_WEIGHT * (jnp.linalg.norm(params["translation"][0]) - jnp.linalg.norm(problem.t0[1]))
@@ -149,8 +159,10 @@ def _stacked_residuals(params: dict, args: tuple) -> jax.Array:
 def _robust_weights(error: jax.Array, observed: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Cauchy weights [F, C, J] from the errors (px), and each joint's noise 1-sigma per coordinate
     (px, [J]) under them, corrected for the 3 coordinates every triangulated joint absorbs."""
-    median = jnp.nanmedian(jnp.where(observed, error, jnp.nan))
-    scale = CAUCHY_SCALE_PER_MEDIAN * jnp.maximum(median, 1e-6)
+    # Per joint: one scale for all would call a wrist's ordinary 8 px noise an outlier next to a hip's
+    # 3 px, and a wrong rig that the down-weighted joints contradict could then hold itself in place.
+    median = jnp.nanmedian(jnp.where(observed, error, jnp.nan), axis=(0, 1))  # [J]
+    scale = CAUCHY_SCALE_PER_MEDIAN * jnp.maximum(jnp.nan_to_num(median, nan=1.0), 1e-6)
     weights = jnp.where(observed, 1.0 / (1.0 + (error / scale) ** 2), 0.0)
     points = (observed.sum(1) >= 2).sum(0)  # [J] triangulated instances of each joint
     freedom = jnp.maximum(2.0 * weights.sum((0, 1)) - 3.0 * points, 1.0)
@@ -195,15 +207,16 @@ def _posterior(params, problem: _Problem, weights, joint_sigma, model: str):
     return covariance, variance, points3d, error
 
 
-def _lens_sigma(covariance: np.ndarray, params: dict) -> np.ndarray:
-    """f64[C, 7] posterior 1-sigma of the lens offsets theta (zeros without a "lens" entry)."""
-    if "lens" not in params:
-        return np.zeros((params["translation"].shape[0] + 1, 7))
-    sizes = {name: int(np.size(value)) for name, value in params.items()}
-    # ravel_pytree orders a dict's entries by sorted key.
-    offset = sum(sizes[name] for name in sorted(params) if name < "lens")
-    diagonal = np.diag(covariance)[offset : offset + sizes["lens"]]
-    return np.sqrt(np.maximum(diagonal, 0.0)).reshape(-1, 7)
+def _lens_sigma(covariance: np.ndarray, params: dict, free: np.ndarray) -> np.ndarray:
+    """f64[C, 7] posterior 1-sigma of the lens offsets theta (0 where not free)."""
+    sigma = np.zeros(free.shape)
+    if "lens" in params:
+        sizes = {name: int(np.size(value)) for name, value in params.items()}
+        # ravel_pytree orders a dict's entries by sorted key.
+        offset = sum(sizes[name] for name in sorted(params) if name < "lens")
+        diagonal = np.diag(covariance)[offset : offset + sizes["lens"]]
+        sigma[free] = np.sqrt(np.maximum(diagonal, 0.0))
+    return sigma
 
 
 def bundle_adjust(
@@ -227,11 +240,12 @@ def bundle_adjust(
     with jax.enable_x64(True):
         params = {"rotation": jnp.zeros((C - 1, 3), jnp.float64), "translation": jnp.asarray(t[1:], jnp.float64)}
         if lens.any_free:
-            params["lens"] = jnp.zeros((C, 7), jnp.float64)  # the start
+            params["lens"] = jnp.zeros(int(lens.free.sum()), jnp.float64)  # the start
         centre = np.broadcast_to(lens.K[None, :, None, :2, 2], pixels.shape)
         problem = _Problem(
             R0=jnp.asarray(R, jnp.float64), t0=jnp.asarray(t, jnp.float64), K0=jnp.asarray(lens.K), dist0=jnp.asarray(lens.dist),
-            free=jnp.asarray(lens.free), held=jnp.zeros((C, 7), jnp.float64), prior_mean=jnp.asarray(lens.prior_mean),
+            free_index=jnp.asarray(np.flatnonzero(lens.free)), active=jnp.ones(int(lens.free.sum()), bool),
+            held=jnp.zeros((C, 7), jnp.float64), prior_mean=jnp.asarray(lens.prior_mean),
             prior_sigma=jnp.asarray(lens.prior_sigma),
             # An unobserved detection (weight 0) sits at the principal point, where undistortion is trivial.
             pixels=jnp.asarray(np.where(observed[..., None], pixels, centre), jnp.float64), observed=jnp.asarray(observed),
@@ -239,21 +253,27 @@ def bundle_adjust(
         for _ in range(rounds):
             params, weights, joint_sigma = _reweight_and_solve(params, problem, max_steps, lens.model)
         covariance, variance, points, error = _posterior(params, problem, weights, joint_sigma, lens.model)
-        sigma = _lens_sigma(np.asarray(covariance), params)
+        sigma = _lens_sigma(np.asarray(covariance), params, lens.free)
         at_prior = lens.free & (sigma >= PRIOR_DOMINATED * lens.prior_sigma)
         if at_prior.any():
+            # Same shapes, so no new compilation: the parameters put back are masked, not removed.
             problem = dataclasses.replace(
-                problem, free=jnp.asarray(lens.free & ~at_prior), held=jnp.asarray(np.where(at_prior, lens.prior_mean, 0.0))
+                problem, active=jnp.asarray(~at_prior[lens.free]), held=jnp.asarray(np.where(at_prior, lens.prior_mean, 0.0))
             )
             params, weights, joint_sigma = _reweight_and_solve(params, problem, max_steps, lens.model)
-            covariance, variance, points, error = _posterior(params, problem, weights, joint_sigma, lens.model)
-            sigma = _lens_sigma(np.asarray(covariance), params)
+            # The 1-sigmas of the others keep the put-back parameters' prior uncertainty (k1's must
+            # not pretend that k2 is known to be 0): the posterior with them free at their prior mean.
+            free_prior = jnp.asarray(lens.prior_mean[lens.free])
+            marginal = dict(params, lens=jnp.where(problem.active, params["lens"], free_prior))
+            everything = dataclasses.replace(problem, active=jnp.ones_like(problem.active))
+            covariance, variance, points, error = _posterior(marginal, everything, weights, joint_sigma, lens.model)
+            sigma = _lens_sigma(np.asarray(covariance), params, lens.free)
         R_out, t_out = _extrinsics(params, problem)
         theta = np.asarray(_theta(params, problem))
         K_out, dist_out = lens_from_theta(jnp.asarray(theta), problem.K0, problem.dist0)
     if not all(np.all(np.isfinite(np.asarray(a))) for a in (R_out, t_out, K_out, dist_out)):
         raise CalibrationError("the bundle adjustment diverged (non-finite cameras); check the detections' views and names")
-    state = np.where(lens.free, np.where(at_prior, AT_PRIOR, ESTIMATED), GIVEN)
+    state = np.where(lens.free, np.where(at_prior, AT_PRIOR, ESTIMATED), HELD)
     sigma = np.where(at_prior, lens.prior_sigma, np.where(lens.free, sigma, 0.0))
     estimate = LensEstimate(
         value=theta_in_units(theta, lens.K, lens.dist),

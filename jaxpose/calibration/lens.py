@@ -16,9 +16,10 @@ principal point of a rig of two views.  After the adjustment a free parameter wh
 is still close to its prior's (`PRIOR_DOMINATED`) was not determined by the data; it is put back at its
 prior mean, held there, and reported as such (`LensEstimate.state`).
 
-Tangential distortion is off by default: p1 and p2 shift the image like a principal-point offset
-does, near the centre where a person's keypoints mostly are, so the two trade against each other
-(measured in docs/calibration.md) and modern lenses' p are ~1e-4 to 1e-3 anyway.
+Tangential distortion is off by default: to first order p1 and p2 displace a point by 2 p r^2-sized
+amounts that, over the small part of the image a person covers, look like a principal-point offset
+and a rotation, which the data already determine weakly (docs/calibration.md); and real lenses' p
+are ~1e-4 to 1e-3, a displacement below the detector's noise.  `LensConfig.tangential` turns them on.
 """
 
 from __future__ import annotations
@@ -35,21 +36,24 @@ UNITS = ("px", "px", "px", "", "", "", "")
 # by the prior, not the data: the data carry less than a quarter of the prior's information
 # (1 / 0.9^2 - 1 = 0.23).
 PRIOR_DOMINATED = 0.9
-GIVEN, ESTIMATED, AT_PRIOR = "given", "estimated", "prior"
+HELD, ESTIMATED, AT_PRIOR = "held", "estimated", "prior"
 
 
 @dataclasses.dataclass(frozen=True)
 class LensConfig:
     """Which unknown intrinsics the bundle adjustment estimates, and their priors."""
 
-    estimate_principal_point: bool | None = None
-    """Estimate the principal points: None = only when the input gives no intrinsics K."""
-    estimate_distortion: bool | None = None
-    """Estimate OpenCV radial distortion (k1, k2): None = only when the input gives no intrinsics K (a K
-    without dist is a pinhole camera, as everywhere in jaxpose)."""
+    estimate_principal_point: bool = False
+    """Estimate the principal points of cameras whose K the input does not give (else: the image
+    centre).  Off by default: on wide-angle synthetic rigs the principal point traded against the
+    camera's rotation (docs/calibration.md: 6.7 instead of 1.5 degrees)."""
+    estimate_distortion: bool = False
+    """Estimate OpenCV radial distortion (k1, k2) of cameras whose dist the input does not give (else:
+    none).  Off by default: on wide-angle synthetic rigs whose person covers the image centre it did
+    not improve on k = 0 (docs/calibration.md)."""
     tangential: bool = False
     """Estimate the tangential distortion (p1, p2) too, where distortion is estimated.  Off by default:
-    near the image centre it trades against the principal point (docs/calibration.md)."""
+    over the part of the image a person covers it acts like a principal-point offset (module docstring)."""
     focal_log_sigma: float = 0.5
     """Prior 1-sigma of log(focal / image-size guess): 0.5 is a factor of 1.65 either way."""
     principal_point_sigma: float = 0.03
@@ -80,8 +84,8 @@ class LensSetup:
     free: np.ndarray
     """bool[C, 7] the parameters estimated."""
     prior_mean: np.ndarray
-    """f64[C, 7] prior means in theta units: the start (the given intrinsics, or the image-size guess:
-    centred, no distortion), so zeros."""
+    """f64[C, 7] prior means in theta units (relative to the start): the given intrinsics, or the
+    image-size guess (centred, no distortion)."""
     prior_sigma: np.ndarray
     """f64[C, 7] prior 1-sigmas in theta units (of the free parameters; 1 elsewhere, unused)."""
 
@@ -101,10 +105,8 @@ def lens_setup(
         K = np.tile(np.eye(3), (C, 1, 1))
         K[:, 0, 0] = K[:, 1, 1] = focal_guess * image_size.max(-1)
         K[:, :2, 2] = image_size / 2.0
-    estimate_pp = not given_K if config.estimate_principal_point is None else config.estimate_principal_point
-    estimate_dist = not given_K if config.estimate_distortion is None else config.estimate_distortion
-    if estimate_dist and dist is not None and np.any(dist):
-        raise ValueError("the distortion cannot be estimated over a given dist: withhold it (estimate_distortion)")
+    estimate_pp = config.estimate_principal_point and not given_K
+    estimate_dist = config.estimate_distortion and dist is None
     free = np.zeros((C, 7), bool)
     free[:, 0] = estimate_focal
     free[:, 1:3] = estimate_pp
@@ -154,13 +156,13 @@ class LensEstimate:
     """f64[C, 7] focal (px), cx, cy (px), k1, k2, p1, p2."""
     sigma: np.ndarray
     """f64[C, 7] 1-sigma: the posterior's for estimated parameters, the prior's for those left at the
-    prior, 0 for given ones."""
+    prior, 0 for held ones."""
     prior_mean: np.ndarray
-    """f64[C, 7] the priors' means (the given value where given)."""
+    """f64[C, 7] the priors' means (the held value where held)."""
     prior_sigma: np.ndarray
-    """f64[C, 7] the priors' 1-sigmas (0 where given)."""
+    """f64[C, 7] the priors' 1-sigmas (0 where held)."""
     state: np.ndarray
-    """str[C, 7]: "given" (held at the input's value), "estimated", or "prior" (the data did not
+    """str[C, 7]: "held" (at the input's value, or at the start when not estimated), "estimated", or "prior" (the data did not
     determine it beyond its prior: held at the prior mean)."""
 
     def summary(self, camera_names) -> str:
@@ -173,6 +175,6 @@ class LensEstimate:
                 digits = 1 if i < 3 else 4
                 value = f"{self.value[c, i]:.{digits}f}"
                 state = self.state[c, i]
-                cells.append(value if state == GIVEN else f"{value} ± {self.sigma[c, i]:.{digits}f}" + (" (prior)" if state == AT_PRIOR else ""))
+                cells.append(value if state == HELD else f"{value} ± {self.sigma[c, i]:.{digits}f}" + (" (prior)" if state == AT_PRIOR else ""))
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
         return "\n".join(lines)
