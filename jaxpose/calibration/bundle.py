@@ -159,10 +159,8 @@ def _stacked_residuals(params: dict, args: tuple) -> jax.Array:
 def _robust_weights(error: jax.Array, observed: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Cauchy weights [F, C, J] from the errors (px), and each joint's noise 1-sigma per coordinate
     (px, [J]) under them, corrected for the 3 coordinates every triangulated joint absorbs."""
-    # Per joint: one scale for all would call a wrist's ordinary 8 px noise an outlier next to a hip's
-    # 3 px, and a wrong rig that the down-weighted joints contradict could then hold itself in place.
-    median = jnp.nanmedian(jnp.where(observed, error, jnp.nan), axis=(0, 1))  # [J]
-    scale = CAUCHY_SCALE_PER_MEDIAN * jnp.maximum(jnp.nan_to_num(median, nan=1.0), 1e-6)
+    median = jnp.nanmedian(jnp.where(observed, error, jnp.nan))
+    scale = CAUCHY_SCALE_PER_MEDIAN * jnp.maximum(median, 1e-6)
     weights = jnp.where(observed, 1.0 / (1.0 + (error / scale) ** 2), 0.0)
     points = (observed.sum(1) >= 2).sum(0)  # [J] triangulated instances of each joint
     freedom = jnp.maximum(2.0 * weights.sum((0, 1)) - 3.0 * points, 1.0)

@@ -19,7 +19,7 @@ prior mean, held there, and reported as such (`LensEstimate.state`).
 Tangential distortion is off by default: to first order p1 and p2 displace a point by 2 p r^2-sized
 amounts that, over the small part of the image a person covers, look like a principal-point offset
 and a rotation, which the data already determine weakly (docs/calibration.md); and real lenses' p
-are ~1e-4 to 1e-3, a displacement below the detector's noise.  `LensConfig.tangential` turns them on.
+are ~1e-4 to 1e-3, a displacement below the detector's noise.  `LensConfig.estimate_tangential` turns them on.
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ class LensConfig:
     """Estimate OpenCV radial distortion (k1, k2) of cameras whose dist the input does not give (else:
     none).  Off by default: on wide-angle synthetic rigs whose person covers the image centre it did
     not improve on k = 0 (docs/calibration.md)."""
-    tangential: bool = False
+    estimate_tangential: bool = False
     """Estimate the tangential distortion (p1, p2) too, where distortion is estimated.  Off by default:
     over the part of the image a person covers it acts like a principal-point offset (module docstring)."""
     focal_log_sigma: float = 0.5
@@ -111,7 +111,7 @@ def lens_setup(
     free[:, 0] = estimate_focal
     free[:, 1:3] = estimate_pp
     free[:, 3:5] = estimate_dist
-    free[:, 5:7] = estimate_dist and config.tangential
+    free[:, 5:7] = estimate_dist and config.estimate_tangential
     f0 = np.asarray(K[:, 0, 0], np.float64)
     longer = image_size.max(-1).astype(np.float64)
     sigma = np.ones((C, 7))

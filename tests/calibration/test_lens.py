@@ -92,7 +92,7 @@ def test_lens_setup_frees_what_is_unknown_and_asked_for():
     assert unknown.free[:, :5].all() and not unknown.free[:, 5:].any()  # tangential off by default
     K = np.tile(np.diag([1000.0, 1000.0, 1.0]), (2, 1, 1))
     assert not lens_setup(K, None, "opencv", size, False, LensConfig(), 1.2).any_free  # K given: a pinhole, held
-    partial = lens_setup(K, None, "opencv", size, False, dataclasses.replace(whole, tangential=True), 1.2)
+    partial = lens_setup(K, None, "opencv", size, False, dataclasses.replace(whole, estimate_tangential=True), 1.2)
     assert partial.free[:, 3:].all() and not partial.free[:, :3].any()  # the given K is held
     assert not lens_setup(K, np.full((2, 5), 0.1), "opencv", size, False, whole, 1.2).any_free  # so is a given dist
     with pytest.raises(ValueError, match="sigmas must be positive"):
