@@ -113,7 +113,7 @@ class Calibration:
     lens: LensEstimate
     """Every camera's intrinsics with their 1-sigma, and which were given, estimated or left at their prior."""
     residual_scale: float
-    """The adjustment's robust residual variance factor (near 1 when the detections' noise is as estimated)."""
+    """The adjustment's robust residual variance factor (near 1 when the per-joint noise levels explain the residuals)."""
     frames_used: int
     seconds: float
 

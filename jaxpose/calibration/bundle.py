@@ -49,7 +49,7 @@ REWEIGHTINGS = 2
 # Cauchy scale as a multiple of the median residual: inliers keep ~full weight, a swapped joint
 # (tens of pixels off) next to none.
 CAUCHY_SCALE_PER_MEDIAN = 3.0
-GAUGE_WEIGHT = 1e4  # pixels per rig unit of the scale-gauge residual
+GAUGE_WEIGHT = 1e4  # noise sigmas per rig unit of the scale-gauge residual
 # Tolerances on the parameters (radians, rig units ~ the first baseline, lens offsets of order one):
 # 1e-6 rad is 0.00006 degrees, far below what the detections determine.
 SOLVER = optx.LevenbergMarquardt(rtol=1e-5, atol=1e-6)
