@@ -82,7 +82,8 @@ def read_reference(path: Path, subject: str, camera_names: Sequence[str]) -> Cam
 
 def report(calibration: Calibration, comparison: RigComparison | None, reference: Cameras | None) -> str:
     """The calibration report as markdown."""
-    intrinsics = "estimated focal lengths" if calibration.focal_estimated else "given intrinsics"
+    estimated = (calibration.lens.state != "held").any()
+    intrinsics = "estimated intrinsics" if estimated else "given intrinsics"
     scale = calibration.scale
     lines = [
         f"# Rig recovered from the person ({len(calibration.camera_names)} cameras, {intrinsics})",
@@ -107,6 +108,14 @@ def report(calibration: Calibration, comparison: RigComparison | None, reference
         if comparison is not None:
             row += f" {comparison.rotation_deg[c]:.3f} | {comparison.centre_mm[c]:.1f} | {float(reference.K[c, 0, 0]):.1f} |"
         lines.append(row)
+    if estimated:
+        lines += [
+            "",
+            "Intrinsics with their 1-sigma uncertainty; (prior): the detections do not determine it beyond its prior,"
+            " so it stays at the prior's mean (the image-size guess of the focal length, the image centre, no distortion):",
+            "",
+            calibration.lens.summary(calibration.camera_names),
+        ]
     if comparison is not None:
         lines += [
             "",

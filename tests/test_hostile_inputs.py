@@ -22,6 +22,7 @@ import paths
 import pytest
 
 from jaxpose.calibration import Calibration
+from jaxpose.calibration.lens import LensEstimate
 from jaxpose.calibration.scale import MetricScale
 from jaxpose.camera import Cameras
 from jaxpose.rig import cache
@@ -48,7 +49,10 @@ def _calibration() -> Calibration:
     return Calibration(
         cameras=cameras, camera_names=("a", "b", "c"), image_size=np.array([[1920, 1080]] * 3), reprojection_median_px=rng.random(3),
         reprojection_p90_px=rng.random(3), inlier_fraction=rng.random(3), scale=scale, focal_estimated=True, frames_used=120, seconds=2.5,
-    )
+        lens=LensEstimate(value=rng.random((3, 7)), sigma=rng.random((3, 7)), prior_mean=rng.random((3, 7)), prior_sigma=rng.random((3, 7)),
+                          state=np.array([["held", "estimated", "prior", "held", "held", "held", "held"]] * 3)),
+        residual_scale=1.02,
+    )  # fmt: skip
 
 
 def _assert_same(a, b):

@@ -6,10 +6,12 @@
 
 The steps, each its own module:
 1. `inputs`: the detections (an npz, or a subject of a loaded data set) and their checks;
-2. here: frame selection, undistortion with the known intrinsics (or an image-size guess of them),
-   a check that the person moves enough to calibrate on;
+2. here: frame selection, undistortion with the known intrinsics (or an image-size guess of them, no
+   distortion) for the first rig, a check that the person moves enough to calibrate on;
 3. `initial`: a first rig from one view pair's essential matrix and PnP for the other views (OpenCV);
-4. `bundle`: bundle adjustment of all cameras (focal lengths too when unknown) over all joints (JAX);
+4. `bundle`: bundle adjustment of all cameras over all joints (JAX), with the unknown intrinsics
+   (focal length, principal point, radial distortion; `lens`: which are free, their priors and the
+   1-sigma of each);
 5. `scale`: metric scale from the limb lengths of the person.
 
 World frame of the result: view 0's camera frame (origin at its centre, x right, y down, z along
@@ -35,18 +37,23 @@ from jaxpose.calibration.bundle import bundle_adjust
 from jaxpose.calibration.compare import RigComparison, compare_rigs
 from jaxpose.calibration.initial import CalibrationError, initial_rig
 from jaxpose.calibration.inputs import RigDetections, from_dataset, read_detections_npz
+from jaxpose.calibration.lens import INTRINSICS, LensConfig, LensEstimate, LensSetup, lens_setup
 from jaxpose.calibration.scale import DEFAULT_LIMB_LENGTHS_MM, MetricScale, metric_scale
-from jaxpose.camera import Cameras, undistort_points
+from jaxpose.camera import Cameras, project_with_matrices, undistort_points
+from jaxpose.triangulation import triangulate
 
 __all__ = [
-    "Calibration", "CalibrationConfig", "CalibrationError", "RigComparison", "RigDetections", "calibrate",
-    "compare_rigs", "from_dataset", "read_detections_npz",
+    "INTRINSICS", "Calibration", "CalibrationConfig", "CalibrationError", "LensConfig", "LensEstimate", "RigComparison",
+    "RigDetections", "calibrate", "compare_rigs", "from_dataset", "read_detections_npz",
 ]  # fmt: skip
 
 WORLD_FRAME = "view 0's camera frame (origin at its centre, x right, y down, z forward), millimetres"
 # Focal length guessed from the image size when the intrinsics are unknown (a common starting
 # point of structure-from-motion tools; bundle adjustment then estimates the real one).
 FOCAL_GUESS_PER_IMAGE_SIDE = 1.2
+# The focal lengths (x the longer image side) the first rig is tried with when they are unknown:
+# from a 120-degree wide-angle lens (0.3) to a 37-degree one (1.5), the guess among them.
+FOCAL_CANDIDATES = tuple(sorted({*np.geomspace(0.3, 1.5, 8).round(3).tolist(), FOCAL_GUESS_PER_IMAGE_SIDE}))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,6 +78,8 @@ class CalibrationConfig:
     over time must exceed this fraction of the image diagonal."""
     estimate_focal: bool | None = None
     """Estimate the focal lengths: None = only when the input gives no intrinsics K."""
+    lens: LensConfig = LensConfig()
+    """The other intrinsics: which unknown ones are estimated (principal point, distortion) and their priors."""
     robust_rounds: int = 4
     """Re-weighting rounds of the bundle adjustment (each down-weights outlying detections anew)."""
     seed: int = 0
@@ -89,7 +98,8 @@ class Calibration:
     """A recovered rig and how well it explains the detections."""
 
     cameras: Cameras
-    """numpy `Cameras` [C]: K, R, t (mm, world = `WORLD_FRAME`), the input's dist and model."""
+    """numpy `Cameras` [C]: K, R, t (mm, world = `WORLD_FRAME`), dist: the input's, or estimated ("opencv"
+    model), or None (pinhole: neither given nor estimated)."""
     camera_names: tuple[str, ...]
     image_size: np.ndarray
     reprojection_median_px: np.ndarray
@@ -100,6 +110,10 @@ class Calibration:
     """f64[C] the share of detections the robust adjustment kept (weight > 0.5)."""
     scale: MetricScale
     focal_estimated: bool
+    lens: LensEstimate
+    """Every camera's intrinsics with their 1-sigma, and which were given, estimated or left at their prior."""
+    residual_scale: float
+    """The adjustment's robust residual variance factor (near 1 when the per-joint noise levels explain the residuals)."""
     frames_used: int
     seconds: float
 
@@ -128,6 +142,57 @@ def _check_motion(pixels: np.ndarray, valid: np.ndarray, detections: RigDetectio
         )
 
 
+def _initial_rig(pixels: np.ndarray, valid: np.ndarray, K: np.ndarray, detections: RigDetections, config: CalibrationConfig):
+    """(R, t, median re-projection error in px of every view's triangulated joints) of the first rig
+    through intrinsics K [C, 3, 3] from undistorted pixels [F, C, J, 2]."""
+    homogeneous = np.concatenate([pixels, np.ones_like(pixels[..., :1])], -1)
+    normalized = np.einsum("cij,fcnj->fcni", np.linalg.inv(K), homogeneous)[..., :2]
+    focal = float(np.mean(K[:, [0, 1], [0, 1]]))
+    R, t = initial_rig(
+        normalized, valid, detections.camera_names, config.ransac_threshold_px / focal, config.min_joints,
+        config.min_frames, config.seed,
+    )  # fmt: skip
+    P = np.concatenate([R, t[..., None]], axis=-1)
+    points = triangulate(jnp.asarray(P), jnp.asarray(normalized), jnp.asarray(valid, jnp.float32), method="normal")
+    projected = np.asarray(project_with_matrices(jnp.asarray(P), points), np.float64)
+    depth = np.where(projected[..., 2:] > 1e-9, projected[..., 2:], np.nan)
+    error = np.linalg.norm(projected[..., :2] / depth - normalized, axis=-1) * focal
+    return R, t, float(np.nanmedian(np.where(valid, error, np.nan)))
+
+
+def _initial_rig_and_focal(pixels: np.ndarray, valid: np.ndarray, lens: LensSetup, detections: RigDetections, config: CalibrationConfig):
+    """The first rig (R, t) and the lens setup to start the adjustment from.  With unknown focal
+    lengths the first rig is made for every candidate of `FOCAL_CANDIDATES` (one focal length for all
+    views) and the one whose joints re-project best is kept: a focal length twice off (a wide-angle
+    lens under the image-size guess) starts the adjustment in a wrong valley."""
+    if not lens.free[:, 0].all():
+        R, t, _ = _initial_rig(pixels, valid, lens.K, detections, config)
+        return R, t, lens
+    best = None
+    longer = detections.image_size.max(-1).astype(np.float64)
+    for factor in FOCAL_CANDIDATES:
+        K = lens.K.copy()
+        K[:, [0, 1], [0, 1]] = (factor * longer)[:, None]
+        try:
+            R, t, error = _initial_rig(pixels, valid, K, detections, config)
+        except CalibrationError:
+            continue
+        if best is None or error < best[2]:
+            best = (R, t, error, factor)
+    if best is None:  # no candidate gives a rig: the guess's refusal says why
+        _initial_rig(pixels, valid, lens.K, detections, config)
+    R, t, _, factor = best
+    # The adjustment starts at the chosen focal length; the priors stay where they were (theta is
+    # relative to the start: the focal prior's mean moves, the principal point's sigma rescales).
+    ratio = factor / FOCAL_GUESS_PER_IMAGE_SIDE
+    K = lens.K.copy()
+    K[:, [0, 1], [0, 1]] *= ratio
+    prior_mean, prior_sigma = lens.prior_mean.copy(), lens.prior_sigma.copy()
+    prior_mean[:, 0] -= np.log(ratio)
+    prior_sigma[:, 1:3] /= ratio
+    return R, t, dataclasses.replace(lens, K=K, prior_mean=prior_mean, prior_sigma=prior_sigma)
+
+
 def calibrate(detections: RigDetections, config: CalibrationConfig = CalibrationConfig()) -> Calibration:
     """Recover the rig of `detections` (see the module docstring); raises `CalibrationError` when the
     detections cannot determine it."""
@@ -142,30 +207,24 @@ def calibrate(detections: RigDetections, config: CalibrationConfig = Calibration
     # A joint seen by one view only cannot be triangulated: it would only add noise to the adjustment.
     valid = valid_all[frames] & (valid_all[frames].sum(1, keepdims=True) >= 2)
     estimate_focal = detections.K is None if config.estimate_focal is None else config.estimate_focal
-    if estimate_focal and detections.dist is not None:
-        raise CalibrationError(f"{detections.source}: the focal lengths cannot be estimated under a given dist (fitted to the given K)")
     if not estimate_focal and detections.K is None:
         raise CalibrationError(f"{detections.source}: without K the focal lengths must be estimated (estimate_focal)")
-    K = detections.K if detections.K is not None else _guess_intrinsics(detections.image_size)
-    intrinsics = Cameras(K=jnp.asarray(K), R=jnp.tile(jnp.eye(3), (len(K), 1, 1)), t=jnp.zeros((len(K), 3)),
-                         dist=None if detections.dist is None else jnp.asarray(detections.dist),
-                         distortion_model=detections.distortion_model)  # fmt: skip
+    lens = lens_setup(detections.K, detections.dist, detections.distortion_model, detections.image_size,
+                      estimate_focal, config.lens, FOCAL_GUESS_PER_IMAGE_SIDE)  # fmt: skip
+    # The first rig sees the detections through the starting lenses (the given ones, or no distortion).
+    start_lens = Cameras(K=jnp.asarray(lens.K), R=jnp.tile(jnp.eye(3), (len(lens.K), 1, 1)), t=jnp.zeros((len(lens.K), 3)),
+                    dist=jnp.asarray(lens.dist), distortion_model=lens.model)  # fmt: skip
     raw = np.where(valid[..., None], detections.keypoints[frames], 0.0)
-    pixels = np.asarray(undistort_points(intrinsics[None], jnp.asarray(raw, jnp.float32)), np.float64)
+    pixels = np.asarray(undistort_points(start_lens[None], jnp.asarray(raw, jnp.float32)), np.float64)
     _check_motion(pixels, valid, detections, config)
-    homogeneous = np.concatenate([pixels, np.ones_like(pixels[..., :1])], -1)
-    normalized = np.einsum("cij,fcnj->fcni", np.linalg.inv(K), homogeneous)[..., :2]
-    focal = float(np.mean(K[:, [0, 1], [0, 1]]))
-    R0, t0 = initial_rig(
-        normalized, valid, detections.camera_names, config.ransac_threshold_px / focal, config.min_joints,
-        config.min_frames, config.seed,
-    )  # fmt: skip
-    adjusted = bundle_adjust(R0, t0, K, pixels, valid, estimate_focal, rounds=config.robust_rounds)
+    R0, t0, lens = _initial_rig_and_focal(pixels, valid, lens, detections, config)
+    adjusted = bundle_adjust(R0, t0, lens, raw.astype(np.float64), valid, rounds=config.robust_rounds)
     kept = adjusted.weights > 0.5  # [F, C, J] detections the robust adjustment kept
     reliable = kept.sum(1) >= 2  # [F, J] joints triangulated from two or more of them
     scale = metric_scale(adjusted.points, reliable, detections.skeleton, config.limb_lengths_mm)
-    cameras = Cameras(K=adjusted.K, R=adjusted.R, t=adjusted.t * scale.mm_per_unit, dist=detections.dist,
-                      distortion_model=detections.distortion_model)  # fmt: skip
+    distorted = detections.dist is not None or lens.free[:, 3:].any()
+    cameras = Cameras(K=adjusted.K, R=adjusted.R, t=adjusted.t * scale.mm_per_unit, dist=adjusted.dist if distorted else None,
+                      distortion_model=lens.model)  # fmt: skip
     return Calibration(
         cameras=cameras,
         camera_names=detections.camera_names,
@@ -175,14 +234,9 @@ def calibrate(detections: RigDetections, config: CalibrationConfig = Calibration
         inlier_fraction=kept.sum((0, 2)) / np.maximum(valid.sum((0, 2)), 1),
         scale=scale,
         focal_estimated=estimate_focal,
+        lens=adjusted.lens,
+        residual_scale=adjusted.residual_scale,
         frames_used=len(frames),
         seconds=time.perf_counter() - start,
     )
 
-
-def _guess_intrinsics(image_size: np.ndarray) -> np.ndarray:
-    """f64[C, 3, 3]: square pixels, focal FOCAL_GUESS_PER_IMAGE_SIDE x the longer side, centred."""
-    K = np.tile(np.eye(3), (len(image_size), 1, 1))
-    K[:, 0, 0] = K[:, 1, 1] = FOCAL_GUESS_PER_IMAGE_SIDE * image_size.max(-1)
-    K[:, :2, 2] = image_size / 2.0
-    return K

@@ -19,7 +19,8 @@ from scipy.spatial.transform import Rotation
 
 from jaxpose import calibrate as calibrate_cli
 from jaxpose.calibration import (
-    CalibrationConfig, CalibrationError, RigDetections, calibrate, compare_rigs, from_dataset, read_detections_npz,
+    CalibrationConfig, CalibrationError, LensConfig, RigDetections, calibrate, compare_rigs, from_dataset,
+    read_detections_npz,
 )  # fmt: skip
 from jaxpose.calibration.scale import LIMBS, limb_joints, metric_scale, prior_scale_error
 from jaxpose.camera import Cameras, camera_centres
@@ -96,8 +97,9 @@ def test_synthetic_rig_is_recovered_through_the_command_line(synthetic_subject, 
 def test_unknown_focal_lengths_are_estimated(synthetic_subject):
     rig = own_rig(synthetic_subject)
     detections = from_dataset(synthetic_subject, "S2", NAMES, np.full((4, 2), 1000)).without_intrinsics()
-    calibration = calibrate(detections, FAST)
-    assert calibration.focal_estimated
+    focal_only = LensConfig(estimate_principal_point=False, estimate_distortion=False)
+    calibration = calibrate(detections, dataclasses.replace(FAST, lens=focal_only))
+    assert calibration.focal_estimated and (calibration.lens.state[:, 1:] == "held").all()
     # The start is 1.2 x 1000 px; the true focal lengths are ~1150 px.
     np.testing.assert_allclose(calibration.cameras.K[:, 0, 0], np.asarray(rig.K)[:, 0, 0], rtol=0.02)
     comparison = compare_rigs(calibration.cameras.R, calibration.cameras.t, np.asarray(rig.R), np.asarray(rig.t))
@@ -235,8 +237,7 @@ def test_help_documents_every_flag(capsys):
         calibrate_cli.main(["--help"])
     assert stop.value.code == 0
     flags = [f"--{field.name}".replace("_", "-") for field in dataclasses.fields(calibrate_cli.CalibrateArgs) if field.name != "calibration"]
-    flags += [f"--calibration.{field.name}".replace("_", "-") for field in dataclasses.fields(CalibrationConfig)]
-    assert_every_flag_documented(capsys.readouterr().out, flags)
+    assert_every_flag_documented(capsys.readouterr().out, flags + calibration_flags())
 
 
 @pytest.mark.skipif(not (S1_DIR / "cameras.h5").is_file(), reason=f"the real Human3.6M S1 development set is not at {S1_DIR}")
@@ -254,5 +255,12 @@ def test_synthetic_calibration_experiment_help_documents_every_flag(capsys):
     with pytest.raises(SystemExit) as stop:
         experiment.main(["--help"])
     assert stop.value.code == 0
-    flags = ["--unknown-intrinsics"] + [f"--calibration.{field.name}".replace("_", "-") for field in dataclasses.fields(CalibrationConfig)]
-    assert_every_flag_documented(capsys.readouterr().out, flags)
+    assert_every_flag_documented(capsys.readouterr().out, ["--unknown-intrinsics"] + calibration_flags())
+
+
+def calibration_flags() -> list[str]:
+    """The flags of `CalibrationConfig`, its nested lens settings included."""
+    flags = [f"--calibration.{field.name}" for field in dataclasses.fields(CalibrationConfig) if field.name != "lens"]
+    # A switch's help follows its "--no-" form, which long names push onto a line of its own.
+    flags += [f"--calibration.lens.{'no-' if field.type == 'bool' else ''}{field.name}" for field in dataclasses.fields(LensConfig)]
+    return [flag.replace("_", "-") for flag in flags]
