@@ -192,10 +192,15 @@ def test_cli_errors(trained_run, tmp_path):
     incomplete = tmp_path / "incomplete"
     incomplete.mkdir()
     shutil.copy(run_dir / "config.json", incomplete)
-    runs = [(tmp_path / "nowhere", "does not exist"), (incomplete, "no checkpoints/"), (tmp_path, "no checkpoints/")]
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    runs = [(tmp_path / "nowhere", "does not exist"), (incomplete, "no checkpoints/"), (bare, "no checkpoints/")]
     for run, message in runs:
         with pytest.raises(SystemExit, match=message):
             _cli("--checkpoint", run, "--input", tmp_path / "j17.npz", "--output", tmp_path / "o.json")
+    # The output inside the run folder given as --checkpoint: the run is an input (issue 42).
+    with pytest.raises(SystemExit, match="is inside this command's input folder"):
+        _cli("--checkpoint", run_dir, "--input", tmp_path / "j17.npz", "--output", run_dir / "o.json")
     (incomplete / "checkpoints").mkdir()
     with pytest.raises(SystemExit, match="holds no checkpoint"):
         _cli("--checkpoint", incomplete / "checkpoints", "--input", tmp_path / "j17.npz", "--output", tmp_path / "o.npz")

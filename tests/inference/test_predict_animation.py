@@ -117,5 +117,5 @@ def test_animation_flag_errors(trained_run, tmp_path):
     base = ["--checkpoint", trained_run[0], "--input", tmp_path / "results.json", "--output", tmp_path / "poses.json"]
     with pytest.raises(SystemExit, match=r"--animation .*clip\.avi: the suffix must be one of \('\.gif', '\.mp4'\)"):
         _cli(*base, "--animation", tmp_path / "clip.avi")
-    with pytest.raises(SystemExit, match="fps must be positive, got 0.0"):
+    with pytest.raises(SystemExit, match="fps must be a positive finite number, got 0.0"):
         _cli(*base, "--animation", tmp_path / "clip.gif", "--fps", 0)
