@@ -535,3 +535,37 @@ def test_smaller_cases_of_issue_42(tmp_path, small_project):
     header = path.read_text().split("\n")[0]
     assert header.split("\t")[3] == "walk 01 b.trc"
     assert read_trc(path).markers.shape == (3, 2, 3)
+
+
+def test_a_full_disk_a_read_only_folder_and_a_device_are_one_line_each(tmp_path, monkeypatch):
+    """Issue 42 case 9, simulated by the OS errors they raise (the suite may run as root): a full disk keeps
+    the earlier file and says so; an output folder that cannot be made; a calibration linked to /dev/zero."""
+    import errno
+
+    from jaxpose.formats import outputs
+    from jaxpose.formats.calibration_files import read_rig_calibration
+    from jaxpose.formats.errors import DataFormatError
+
+    target = tmp_path / "poses.json"
+    target.write_text("earlier")
+
+    def full(*_):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    with pytest.raises(outputs.OutputError, match=r"poses.json: could not be written \(No space left on device\); the earlier file is kept"):
+        with outputs.atomic_output(target) as temporary:
+            temporary.write_text("new")
+            monkeypatch.setattr(outputs.os, "replace", full)
+    monkeypatch.undo()
+    assert target.read_text() == "earlier" and sorted(p.name for p in tmp_path.iterdir()) == ["poses.json"]
+
+    def read_only(*_, **__):
+        raise OSError(errno.EROFS, "Read-only file system")
+
+    monkeypatch.setattr(outputs.Path, "mkdir", read_only)
+    with pytest.raises(outputs.OutputError, match=r"--output .*out/poses.json: its folder .* cannot be made \(Read-only file system\)"):
+        outputs.check_output(tmp_path / "out" / "poses.json", overwrite=False)
+    monkeypatch.undo()
+    (tmp_path / "calibration.toml").symlink_to("/dev/zero")
+    with pytest.raises(DataFormatError, match="not a regular file"):
+        read_rig_calibration(tmp_path / "calibration.toml")

@@ -62,6 +62,8 @@ def read_rig_calibration(
     path = Path(path)
     if not path.exists():
         raise DataFormatError(path, ACCEPTED, "no such file or folder")
+    if not path.is_dir() and not path.is_file():  # a device (a link to /dev/zero would be read without end), a pipe
+        raise DataFormatError(path, ACCEPTED, "not a regular file")
     if path.is_dir():
         found = find_calibration(path)
         if found is None:

@@ -34,7 +34,10 @@ def check_output(path: str | Path, overwrite: bool, inputs: Iterable[str | Path]
     if path.exists() and not overwrite:
         raise OutputError(f"{flag} {path}: exists; pass {OVERWRITE_FLAG} to replace it")
     if not path.parent.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as error:  # a read-only file system, no permission
+            raise OutputError(f"{flag} {path}: its folder {path.parent} cannot be made ({error.strerror})") from None
     if not os.access(path.parent, os.W_OK):
         raise OutputError(f"{flag} {path}: its folder {path.parent} cannot be written")
     return path
@@ -70,5 +73,8 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
     try:
         yield temporary
         os.replace(temporary, path)
+    except OSError as error:  # a full disk, a file system gone read-only: the earlier file, if any, is kept
+        kept = "the earlier file is kept as it was" if path.exists() else "nothing was written there"
+        raise OutputError(f"{path}: could not be written ({error.strerror or error}); {kept}") from None
     finally:
         temporary.unlink(missing_ok=True)
