@@ -305,19 +305,20 @@ MIDHIP_TOLERANCE = 0.1
 (the right elbow) lies nowhere near the midpoint of its 9 and 12 (left wrist, right hip).  The median, over
 poses with the three detected, of that distance divided by the pose's size (its bounding box diagonal)
 tells them apart: measured 0.002 on real OpenPose BODY_25 (SPIN's example) and 0.16-0.32 per camera on
-Pose2Sim's BODY_25B demo (single poses 0.06-0.44, hence the median)."""
+Pose2Sim's BODY_25B demo (single poses 0.06-0.44, hence the median over at least `MIDHIP_MIN_POSES`)."""
+MIDHIP_MIN_POSES = 3
 
 
 def check_body25_layout(layout: str, keypoints: np.ndarray, scores: np.ndarray, where: str, flag: str) -> None:
     """Refuse 75-value keypoints named `layout` ("body25" or "body25b") whose joint 8 says otherwise: a
-    ValueError naming `where`, the evidence and `flag`.  Other layouts, and input without a pose that
-    detects joints 8, 9 and 12, pass unchecked."""
+    ValueError naming `where`, the evidence and `flag`.  Other layouts, and input with fewer than
+    `MIDHIP_MIN_POSES` poses that detect joints 8, 9 and 12, pass unchecked."""
     if layout not in ("body25", "body25b") or keypoints.shape[-2] != 25:
         return
     points = np.asarray(keypoints, np.float64).reshape(-1, 25, 2)
     seen = (np.asarray(scores).reshape(-1, 25) > 0) & np.isfinite(points).all(-1)
     poses = seen[:, [8, 9, 12]].all(-1) & (seen.sum(-1) >= 4)
-    if not poses.any():
+    if poses.sum() < MIDHIP_MIN_POSES:  # too little evidence to overrule what the layout was named
         return
     points, seen = points[poses], seen[poses]
     low = np.where(seen[..., None], points, np.inf).min(1)

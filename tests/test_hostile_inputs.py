@@ -381,7 +381,7 @@ def test_body25_and_body25b_are_told_apart_by_their_joint_8():
     import json
 
     spin = json.loads((paths.FORMATS / "openpose-json" / "spin_im1010_single_image" / "im1010_openpose.json").read_text())
-    values = np.asarray(spin["people"][0]["pose_keypoints_2d"], np.float32).reshape(1, 25, 3)
+    values = np.repeat(np.asarray(spin["people"][0]["pose_keypoints_2d"], np.float32).reshape(1, 25, 3), 3, axis=0)  # its one pose, thrice
     check_body25_layout("body25", values[..., :2], values[..., 2], "im1010", "--format")
     with pytest.raises(ValueError, match=r"read as body25b, but joint 8 is the midpoint .* this is BODY25 output"):
         check_body25_layout("body25b", values[..., :2], values[..., 2], "im1010", "--format")
