@@ -158,6 +158,7 @@ def test_a_symbolic_link_that_loops_is_refused_in_one_line(small, tmp_path, wher
         load_rig_project(RigProjectConfig(root=root), progress=False)
 
 
+@pytest.mark.slow  # two whole runs, ~110 s on 2 cores
 @pytest.mark.trains
 def test_a_one_step_run_compiles_as_much_for_eight_recordings_as_for_two(small, tmp_path):
     """Issue 41: the programs a one-step `experiments.rig` run lowers (loading, pseudo-labels, the step, the
