@@ -28,7 +28,7 @@ JAX's caches cleared before it) and the median of `--repeats` calls after it.  A
 one subprocess stopped after `--peer-limit-s` and reported as capped.
 
 jaxpose's methods are `JAXPOSE_METHODS` (name -> function of the lifter and a recording's inputs
-giving f32[F, J, 3] world mm): one line adds another.
+and the recording's fps, giving f32[F, J, 3] world mm): one line adds another.
 """
 
 from __future__ import annotations
@@ -56,6 +56,7 @@ from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.formats.outputs import atomic_output, check_output
 from jaxpose.formats.calibration_files import find_calibration, read_rig_calibration
 from jaxpose.reconstruction.recording import RecordingInput, lift_and_reconstruct, recording_inputs
+from jaxpose.reconstruction.trajectory import TrajectoryConfig
 from jaxpose.rig.project import RigProjectConfig, load_rig_project
 from jaxpose.skeleton import H36M_17, Skeleton
 from jaxpose.synthetic import SyntheticConfig, make_rig, project_points, sample_bone_lengths, sample_motion, simulate_detector
@@ -72,13 +73,19 @@ PEER_METHODS = {  # family -> driver method -> the name in the tables
 }  # fmt: skip
 
 
-def per_instant(lifter: inference.Lifter3D, inputs: RecordingInput) -> np.ndarray:
-    """`python -m jaxpose.reconstruct`'s motion (its defaults): per-instant fusion, gaps bridged."""
+def per_instant(lifter: inference.Lifter3D, inputs: RecordingInput, fps: float) -> np.ndarray:
+    """`python -m jaxpose.reconstruct --no-smoothing`'s motion: per-instant fusion, gaps bridged."""
     return lift_and_reconstruct(lifter, inputs)[0].points
 
 
-JAXPOSE_METHODS: dict[str, Callable[[inference.Lifter3D, RecordingInput], np.ndarray]] = {
+def trajectory(lifter: inference.Lifter3D, inputs: RecordingInput, fps: float) -> np.ndarray:
+    """`python -m jaxpose.reconstruct`'s motion (its defaults): the trajectory solved over time."""
+    return lift_and_reconstruct(lifter, inputs, trajectory=TrajectoryConfig(), fps=fps)[0].points
+
+
+JAXPOSE_METHODS: dict[str, Callable[[inference.Lifter3D, RecordingInput, float], np.ndarray]] = {
     "jaxpose per-instant fusion": per_instant,
+    "jaxpose trajectory": trajectory,
 }
 
 
@@ -266,7 +273,7 @@ def accuracy(args: PeersArgs, lifter: inference.Lifter3D, python: pathlib.Path |
                 raw, inputs = (occlude(x, occlusion, args.fps, (index,)) for x in (raw, inputs))
             detected[inputs.name], undistorted[inputs.name] = raw, inputs
         results = {
-            name: {method: function(lifter, inputs) for method, function in JAXPOSE_METHODS.items()}
+            name: {method: function(lifter, inputs, args.fps) for method, function in JAXPOSE_METHODS.items()}
             for name, inputs in undistorted.items()
         }
         for family, methods in (families.items() if python else ()):
@@ -334,7 +341,7 @@ def timing(args: PeersArgs, lifter: inference.Lifter3D, python: pathlib.Path | N
         row = {}
         error = lambda points: float(np.nanmean(np.linalg.norm(points - inputs.target3d, axis=-1)))  # noqa: E731
         for method, function in JAXPOSE_METHODS.items():
-            times, points = timed(lambda function=function: function(lifter, inputs), args.repeats)
+            times, points = timed(lambda function=function: function(lifter, inputs, args.fps), args.repeats)
             row[method] = {"times": times, "problem": "", "mpjpe_mm": error(points)}
         for family, methods in (families.items() if python else ()):
             groups = [methods] if family == "pose2sim" else [[method] for method in methods]  # filtering reads the triangulation
