@@ -11,7 +11,7 @@ The kind is told by the path:
   ``K`` [N, 3, 3] (one camera per pose).
 
 Every pose has a frame number, the time axis of the outputs: an OpenPose file's index (the last digits of
-its name, `keypoint_files.frame_number`), else its image id's (`keypoint_files.image_frame_number`: an
+its name, `jaxpose.formats.frame_numbers.frame_number`), else its image id's (`image_frame_number`: an
 integer itself, a file name's last digits).  Where some image id has no digits, or two ids share a number,
 the frames are numbered 0, 1, ... in sequence order (`sequence_order`) and `frames_note` says so.
 
@@ -31,6 +31,7 @@ from typing import Any, Literal
 import numpy as np
 
 from jaxpose.formats import coco_results, confidences, keypoint_files
+from jaxpose.formats.frame_numbers import OPENPOSE_SUFFIX, frame_stem, image_frame_number
 from jaxpose.formats.errors import DataFormatError
 
 
@@ -80,12 +81,12 @@ def sequence_order(image_id: Any) -> tuple[bool, Any]:
 
 
 def frame_numbers(image_ids: list[Any], where: Path) -> tuple[np.ndarray, str | None]:
-    """int64[N] the frame number of each image id (`keypoint_files.image_frame_number`), and None; or, where
+    """int64[N] the frame number of each image id (`image_frame_number`), and None; or, where
     an id has none or two ids share one, their ranks in `sequence_order` and a note saying so."""
     numbers: dict[Any, int | None] = {}
     for image_id in dict.fromkeys(image_ids):
         try:
-            numbers[image_id] = keypoint_files.image_frame_number(image_id) if isinstance(image_id, int | str) else None
+            numbers[image_id] = image_frame_number(image_id) if isinstance(image_id, int | str) else None
         except DataFormatError:
             numbers[image_id] = None
     problem = next((i for i, n in numbers.items() if n is None), None)
@@ -101,7 +102,7 @@ def _read_by_kind(path: Path) -> DetectionFile:
     """Dispatch on the path: folder -> OpenPose, .npz, .json (COCO results list or one OpenPose frame)."""
     if not path.exists():
         raise FileNotFoundError(f"input {path} does not exist")
-    if path.is_dir() or path.name.endswith(keypoint_files.OPENPOSE_SUFFIX):
+    if path.is_dir() or path.name.endswith(OPENPOSE_SUFFIX):
         return _read_openpose(path)
     if path.suffix == ".npz":
         return _read_npz(path)
@@ -133,7 +134,7 @@ def _read_openpose(path: Path) -> DetectionFile:
     """OpenPose JSON, a folder of per-frame files (in frame-number order) or one such file: a row per person."""
     files = keypoint_files.frame_files(path)
     detections = keypoint_files.read_openpose_frames(files, str(path))
-    frame_ids = [keypoint_files.frame_stem(os.path.basename(file)) for _, file in files]
+    frame_ids = [frame_stem(os.path.basename(file)) for _, file in files]
     present = np.arange(detections.keypoints.shape[1]) < detections.people[:, None]  # [F, P]
     rows = np.concatenate([detections.keypoints, detections.scores[..., None]], -1)[present]
     image_ids = np.repeat(np.array(frame_ids, object), detections.people).tolist()

@@ -32,7 +32,7 @@ import numpy as np
 from jaxpose.formats.camera_file import DISTORTION_MODELS
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.files import read_npz_arrays
-from jaxpose.formats.keypoint_files import check_frame_numbers
+from jaxpose.formats.frame_numbers import check_frame_numbers
 from jaxpose.layouts import LAYOUTS, layout_joint_names
 
 REQUIRED = ("keypoints", "camera_names")

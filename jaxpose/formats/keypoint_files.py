@@ -39,15 +39,14 @@ import numpy as np
 
 from jaxpose.formats import coco_results, confidences, fast_json, file_cache, file_pool
 from jaxpose.formats.errors import DataFormatError, printable
+from jaxpose.formats.frame_numbers import check_frame_numbers, frame_number, image_frame_number
 
-OPENPOSE_SUFFIX = "_keypoints.json"
 CACHE_VERSION = 2
 """Part of every cache key (`jaxpose.formats.file_cache`): bump it when the cached arrays change meaning
 (2: scores clipped to 1, their count cached)."""
 CACHED_FIELDS = ("frames", "keypoints", "scores", "people", "clipped_scores")
 
 _FRAME_EXPECTED = 'an OpenPose JSON frame {"people": [{"pose_keypoints_2d": [x, y, score, ...]}, ...]}'
-_LAST_DIGITS = re.compile(r"(\d+)(?!.*\d)", re.DOTALL)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,59 +70,6 @@ class CameraDetections:
     def values_per_person(self) -> int:
         """3 * J: the length of one person's [x, y, score] list, for skeleton inference by the caller."""
         return 3 * self.keypoints.shape[2]
-
-
-# ---------------------------------------------------------------------------------------------
-# Frame numbers
-
-
-def frame_stem(name: str) -> str:
-    """A frame file's name without ``_keypoints.json`` (OpenPose's suffix) or ``.json``: the frame's image id."""
-    return name.removesuffix(OPENPOSE_SUFFIX) if name.endswith(OPENPOSE_SUFFIX) else name.removesuffix(".json")
-
-
-MAX_FRAME_NUMBER = 2**62
-"""Frame numbers at or above this are refused: they pass no int64 arithmetic safely."""
-MAX_FRAME_GAP = 100_000
-"""Frames of one camera more than this far apart (33 min at 50 fps) are refused, naming the stray file: a
-recording is held on its whole frame axis, so one stray frame number would cost memory for every frame between."""
-
-
-def frame_number(name: str) -> int:
-    """The frame number of a file name: the last run of digits of its `frame_stem`.
-
-    ``clip_000000000123_keypoints.json`` -> 123, ``cam01.0010.json`` -> 10, ``frame_00001.json`` -> 1.
-    """
-    match = _LAST_DIGITS.search(frame_stem(name))
-    if match is None:
-        raise DataFormatError(name, "a frame number in the file name (e.g. cam01.0010.json)", "no digits")
-    return _checked_frame_number(int(match.group(1)), name)
-
-
-def _checked_frame_number(number: int, where: str) -> int:
-    if number >= MAX_FRAME_NUMBER:
-        raise DataFormatError(where, "a frame number below 2^62", f"frame number {number}")
-    return number
-
-
-def check_frame_numbers(frames: np.ndarray, source: str, owners: Sequence[str]) -> None:
-    """Refuse a frame number out of range or far beyond the others (`MAX_FRAME_GAP`), naming where it came from."""
-    if len(frames) and (np.abs(frames) >= MAX_FRAME_NUMBER).any():
-        row = int(np.argmax(np.abs(frames) >= MAX_FRAME_NUMBER))
-        raise DataFormatError(source, "frame numbers below 2^62", f"{owners[row]}: frame number {frames[row]}")
-    if len(frames) < 2:
-        return
-    order = np.argsort(frames, kind="stable")
-    gaps = np.diff(frames[order])
-    widest = int(np.argmax(gaps))
-    if gaps[widest] > MAX_FRAME_GAP:
-        before, after = order[widest], order[widest + 1]
-        stray = after if len(frames) - widest - 1 <= widest + 1 else before  # the side with fewer frames is the stray
-        raise DataFormatError(
-            source,
-            f"the frames of one camera within {MAX_FRAME_GAP:,} of each other",
-            f"{owners[stray]} (frame {frames[stray]:,}) lies {int(gaps[widest]):,} frames from the next frame; a stray file?",
-        )
 
 
 def frame_files(path: str | Path) -> list[tuple[int, str]]:
@@ -340,18 +286,6 @@ def _read_frames(
 
 # ---------------------------------------------------------------------------------------------
 # COCO keypoint results
-
-
-def image_frame_number(image_id: int | str) -> int:
-    """The frame number of a COCO image_id: the int itself, or the last digit run of a file-name string
-    with its extension removed (``"out-002.jpg"`` -> 2)."""
-    if isinstance(image_id, int):
-        return _checked_frame_number(image_id, f"image_id {image_id}")
-    stem = os.path.splitext(image_id)[0] or image_id
-    match = _LAST_DIGITS.search(stem)
-    if match is None:
-        raise DataFormatError(repr(image_id), "an image_id with a frame number (digits)", "no digits")
-    return _checked_frame_number(int(match.group(1)), repr(image_id))
 
 
 def read_coco_results(path: str | Path) -> CameraDetections:

@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from jaxpose.formats import coco_results, file_pool
 from jaxpose.formats import keypoint_files as kf
 from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats.frame_numbers import frame_number
 from keypoint_writers import check_matches, coco_entry, openpose_document, random_people, write_folder, write_frame
 import paths
 
@@ -135,7 +136,7 @@ def test_cocoapi_results():
     ],
 )
 def test_frame_number_of_real_names(name, number):
-    assert kf.frame_number(name) == number
+    assert frame_number(name) == number
 
 
 @settings(max_examples=200, deadline=None)
@@ -146,7 +147,7 @@ def test_frame_number_of_real_names(name, number):
     tail=st.sampled_from(["_keypoints.json", ".json", "_rgb.json", "_keypoints_keypoints.json"]),
 )
 def test_frame_number_is_the_last_digit_run(prefix, number, width, tail):
-    assert kf.frame_number(f"{prefix}{number:0{width}d}{tail}") == number
+    assert frame_number(f"{prefix}{number:0{width}d}{tail}") == number
 
 
 def test_names_without_digits_and_duplicate_frames_are_refused(tmp_path):
