@@ -64,9 +64,9 @@ class Experiment:
     """One line per preset for `--help`."""
     load_splits: Callable[..., Splits]
     """The data config -> train and test splits; with `loads_with_run_settings`, also given the
-    keywords `progress` (--run.progress) and `window` (--model.temporal-window)."""
+    keyword `progress` (--run.progress)."""
     loads_with_run_settings: bool = False
-    """Whether loading prepares the data for the run: its progress bars and the lifter's input windows."""
+    """Whether loading prepares the data for the run: its progress bars."""
     expected_files: Callable[[Any], str] | None = None
     """Real data: the files a data config reads, for the message when one is missing or malformed."""
     paper_table: paper_tables.PaperTable | None = None
@@ -86,7 +86,7 @@ class Experiment:
         errors end the program with one message and exit status 1."""
         load_splits = self.load_splits
         if self.loads_with_run_settings and config is not None:
-            load_splits = functools.partial(load_splits, progress=config.run.progress, window=config.model.temporal_window)
+            load_splits = functools.partial(load_splits, progress=config.run.progress)
         if self.expected_files is None:
             return load_splits
         expected_files = self.expected_files

@@ -38,16 +38,16 @@ log = logging.getLogger("jaxpose")
 EXAMPLE_ROOT = RigProjectConfig().root
 
 
-def load_splits(data: RigProjectConfig, progress: bool = True, window: int = 1) -> Splits:
+def load_splits(data: RigProjectConfig, progress: bool = True) -> Splits:
     """The project's training recordings and its held-out part; the embedded example is written first
-    when --data.root is left at its default and does not exist yet.  `progress`: --run.progress;
-    `window`: --model.temporal-window (the frames around each sample are prepared too)."""
+    when --data.root is left at its default and does not exist yet.  `progress`: --run.progress.  (Every
+    instant is prepared: a temporal lifter's windows need no option of loading.)"""
     if data.root == EXAMPLE_ROOT and not data.root.exists():
         from jaxpose.synthetic.project import write_rig_project
 
         log.info("writing the embedded example project to %s", data.root)
         write_rig_project(data.root)
-    project = load_rig_project(data, progress=progress, window=window)
+    project = load_rig_project(data, progress=progress)
     artifacts = ()
     if project.recovered_calibration is not None:
         calibration = project.recovered_calibration

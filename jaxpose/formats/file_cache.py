@@ -1,4 +1,5 @@
-"""Parsed input files kept beside them as arrays, in ``.jaxpose_cache/<name>.npz``, reused while unchanged.
+"""Parsed input files kept as arrays, beside them in ``.jaxpose_cache/<name>.npz`` (or where the caller
+says: a rig project's cache), reused while unchanged.
 
 The key digests what was cached (a label that carries its version) and the input files' names and
 contents (`content_digest`, BLAKE2b of every byte): a file added, removed, renamed or with other bytes, or
@@ -75,7 +76,7 @@ def save(path: Path, key: str, source: str, arrays: Mapping[str, np.ndarray]) ->
     """Write `arrays` of `source` as the cache `path` with its `key`, whole or not at all (a warning)."""
     temporary = None
     try:
-        path.parent.mkdir(exist_ok=True)
+        path.parent.mkdir(parents=True, exist_ok=True)
         with tempfile.NamedTemporaryFile(dir=path.parent, prefix=path.name, suffix=".tmp", delete=False) as file:
             temporary = file.name
             np.savez(file, key=np.str_(key), **arrays)

@@ -22,8 +22,8 @@ file and the field, before anything is returned.
 Folders of many files are parsed by a process pool (`read_openpose_folder`), with orjson when it is
 importable (`jaxpose.formats.fast_json`); COCO files by `jaxpose.formats.coco_results`.  The results of
 `read_camera_detections` are cached beside the input, in ``.jaxpose_cache/<name>.npz`` in the folder that
-holds the camera folder or results file, keyed by the input files' names and contents (`file_cache`);
-see benchmarks/README.md for the speeds.
+holds the camera folder or results file (a rig project's in the project's cache instead), keyed by the
+input files' names and contents (`file_cache`); see benchmarks/README.md for the speeds.
 """
 
 from __future__ import annotations
@@ -316,14 +316,14 @@ def read_coco_results(path: str | Path) -> CameraDetections:
 # Dispatch and cache (`jaxpose.formats.file_cache`)
 
 
-def read_camera_detections(path: str | Path, progress: bool = True, cache: bool = True) -> CameraDetections:
+def read_camera_detections(path: str | Path, progress: bool = True, cache: bool | Path = True) -> CameraDetections:
     """One camera's detections: a folder -> OpenPose frames, a ``.json`` file -> COCO results (or, when
     the file holds one JSON object, a single OpenPose frame).
 
-    With `cache`, the arrays are kept in ``.jaxpose_cache/<name>.npz`` in the folder that holds `path` and
-    reused while no input file was added, removed, renamed or changed in content (`jaxpose.formats.file_cache`:
-    the files are hashed where a cache exists, and as they are parsed where none does); a corrupt or
-    unwritable cache is ignored with a warning.
+    With `cache` True, the arrays are kept in ``.jaxpose_cache/<name>.npz`` in the folder that holds `path`
+    (a path: in that file, e.g. a rig project's cache) and reused while no input file was added, removed,
+    renamed or changed in content (`jaxpose.formats.file_cache`: the files are hashed where a cache exists,
+    and as they are parsed where none does); a corrupt or unwritable cache is ignored with a warning.
     """
     path = Path(path)
     if path.is_dir():
@@ -354,7 +354,7 @@ def read_camera_detections(path: str | Path, progress: bool = True, cache: bool 
     if not cache:
         return parse()[0]
     label = f"jaxpose keypoint cache v{CACHE_VERSION}"
-    cache_file = file_cache.cache_file(path)
+    cache_file = file_cache.cache_file(path) if cache is True else Path(cache)
     if cache_file.exists():
         key = file_cache.cache_key(label, digests())
         cached = file_cache.load(cache_file, key, str(path), lambda arrays: _from_arrays(arrays, str(path)))

@@ -33,12 +33,13 @@ import numpy as np
 
 from jaxpose.camera import Cameras
 from jaxpose.data.dataset import MultiViewDataset
-from jaxpose.formats.calibration_files import find_calibration
+from jaxpose.formats.calibration_files import find_calibration, read_rig_calibration
 from jaxpose.serving.inference import Lifter3D
 from jaxpose.reconstruction.fusion import MIN_DEPTH_MM, Fusion, FusionConfig, Provenance, fuse
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, complete_segments, fill_gaps
 from jaxpose.reconstruction.trajectory import TrajectoryConfig, limb_lengths, solve_trajectory
-from jaxpose.rig.project import SPLIT_FIELDS, RigProject, RigProjectConfig, load_rig_project
+from jaxpose.rig.cameras import in_view_order
+from jaxpose.rig.project import SPLIT_FIELDS, PreparedProject, RigProject, RigProjectConfig, load_rig_project, prepared_project, split
 from jaxpose.training.run_directory import RunDirectory
 from jaxpose.rig.recordings import recording_folders
 from jaxpose.skeleton import ROOT, Skeleton
@@ -50,27 +51,46 @@ def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: 
     """The project with every instant of every recording (of --data.recordings) in its `validation` part.
 
     The calibration: --data.calibration where given; else RUN/recovered_cameras.json where the run was
-    trained on a recovered rig; else the project's own.  A project with none of these is refused, as are
-    the split flags (`SPLIT_FIELDS`) set to anything but their defaults."""
+    trained on a recovered rig (read from the prepared project the run was trained on where the cache still
+    holds it); else the project's own.  A project with none of these is refused, as are the split flags
+    (`SPLIT_FIELDS`) set to anything but their defaults.  The prepared instants are those training read
+    (`jaxpose.rig.project.prepared_project`): the same cache, whatever the run's split."""
     defaults = RigProjectConfig()
     changed = [field for field in SPLIT_FIELDS if getattr(data, field) != getattr(defaults, field)]
     if changed:
         flags = ", ".join("--data." + field.replace("_", "-") for field in changed)
         raise ValueError(f"{flags}: a reconstruction takes every instant of every recording; leave the split flags out")
     names = tuple(folder.name for folder in recording_folders(data.root, data.recordings))
-    calibration = data.calibration
+    config = dataclasses.replace(data, validation_recordings=names)  # every instant: the cache's arrays themselves
     recovered = RunDirectory(pathlib.Path(run_dir)).recovered_cameras
-    if calibration is None and recovered.is_file():
+    if data.calibration is None and recovered.is_file():
+        prepared = prepared_project(config, progress, prepare=False)  # the run's own, where the cache holds it
+        if prepared is not None and _holds_rig(prepared, recovered):
+            log.info("the run was trained on the rig recovered from the recordings, %s: the prepared project it was trained on", recovered)
+            return split(prepared, config)
         log.info("the run was trained on the rig recovered from the recordings: its world frame, %s", recovered)
-        calibration = recovered
-    elif calibration is None and find_calibration(data.root) is None:
+        config = dataclasses.replace(config, calibration=recovered)
+    elif data.calibration is None and find_calibration(data.root) is None:
         if not all(find_calibration(data.root / name) for name in names):
             raise ValueError(
                 f"{data.root}: no calibration file, and the run {run_dir} has no {recovered.name} (it was trained on"
                 " a calibrated project): pass --data.calibration; a rig recovered again would have another world frame"
             )
-    config = dataclasses.replace(data, calibration=calibration, validation_recordings=names)
     return load_rig_project(config, progress=progress)
+
+
+def _holds_rig(prepared: PreparedProject, recovered: pathlib.Path) -> bool:
+    """Whether the prepared project's one rig is the run's recovered rig (the file `recovered`): the same
+    cameras to float precision (another recovery gives another world frame, far from it)."""
+    rigs = prepared.meta["rigs"]
+    if prepared.recovered_calibration is None or len(rigs["K"]) != 1:
+        return False
+    rig = read_rig_calibration(recovered)
+    if set(rig.camera_names) != set(prepared.meta["camera_names"]):
+        return False
+    cameras = in_view_order(rig, prepared.meta["camera_names"]).cameras
+    return all(np.allclose(np.asarray(getattr(cameras, field), np.float64), np.asarray(rigs[field][0]), rtol=1e-5, atol=1e-3)
+               for field in ("K", "R", "t"))  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)

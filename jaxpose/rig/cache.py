@@ -1,23 +1,30 @@
-"""A rig project prepared once: its training and validation arrays kept beside the recordings.
+"""A rig project prepared once: every instant of its recordings, kept in one cache folder.
 
 Loading a project (reading every detection, aligning the cameras, undistorting, choosing the person)
-is done once; its result is written to ``PROJECT/.jaxpose_cache/prepared-<key>/``: one ``.npy`` per
-array of each part (``train.keypoints2d.npy``, ...), written row block by row block as the recordings
-are prepared (`Assembly`), and ``project.json`` with the rest (cameras, layout, the per-recording
-summaries; ``recovered.json`` for a recovered rig).  The next run with the same inputs and options
-memory-maps the arrays (`read`): it starts in seconds, and a project larger than memory trains with
-only the rows of each batch read from disk.
+is done once; its result, every instant of every recording on one time axis per recording, is written to
+``CACHE/prepared-<key>/`` (CACHE: ``PROJECT/.jaxpose_cache``, or --data.cache-dir): one ``.npy`` per
+array (``instants.keypoints2d.npy``, ...), written row block by row block as the recordings are prepared
+(`Assembly`), and ``project.json`` with the rest (cameras, layout, the per-recording summaries, the
+inputs' digests; ``recovered.json`` for a recovered rig).  The next run with the same inputs and options
+memory-maps the arrays (`read_arrays`): it starts in seconds, and a project larger than memory trains with
+only the rows of each batch read from disk.  A split (held-out recordings or fraction, strides) is a
+selection of these rows, made after reading (`selected_rows`): training, evaluation, reconstruction and
+searches of every split read the same prepared folder.
 
-The key (`key`) digests every option that changes the arrays, the code's `VERSION`, and each input
-file's path, size, modification and status-change times (``st_ctime``) and inode: a file edited,
-replaced, touched or renamed is a miss.  The status-change time is what makes this safe without
-reading the files: no tool can set it (``cp -p``, ``rsync -t``, archive extraction and ``os.utime``
-keep the modification time but not it), so a file edited in place to the same size with its time
-kept is a miss too.  A copy of the project is a miss once (new inodes and times), never stale.
+The key (`key`) digests every option that changes the arrays (not the split), the code's `VERSION`, and
+each input file's path, size, modification and status-change times (``st_ctime``) and inode, in groups
+(the project's own files, a calibration's, each recording's: `input_digests`): a file edited, replaced,
+touched or renamed is a miss.  The status-change time is what makes this safe without reading the
+files: no tool can set it (``cp -p``, ``rsync -t``, archive extraction and ``os.utime`` keep the
+modification time but not it), so a file edited in place to the same size with its time kept is a miss
+too.  A copy of the project is a miss once (new inodes and times), never stale.
 
-The folder appears whole or not at all: it is written under a temporary name and renamed.  Only the
-`KEEP` most recently used prepared folders are kept.  A cache that cannot be written (a read-only
-project) is a warning; the arrays then stay in memory.
+The folder appears whole or not at all: it is written under a temporary name and renamed.  A prepared
+folder is removed only when it can never be read again: when a group of input files it was made from
+has changed since (`commit`, `_prune`); folders of other options (another --data.min-confidence, another
+subset of recordings) are kept, and the log says how many folders the cache holds and their size.  A
+cache that cannot be written (a read-only project without --data.cache-dir) is a warning; the arrays
+then stay in memory.
 
 Nothing here unpickles: a project folder may sit on a shared drive, and a crafted file in its cache
 must not run code.  The arrays load with ``allow_pickle=False`` and the recovered rig is JSON.
@@ -41,35 +48,45 @@ from typing import Any
 import numpy as np
 
 from jaxpose.formats.errors import DataFormatError
-from jaxpose.formats.file_cache import CACHE_DIR
 from jaxpose.rig.recordings import printable
 
 log = logging.getLogger(__name__)
 
-VERSION = 2  # bump when the prepared arrays change meaning
+VERSION = 3  # bump when the prepared arrays change meaning (3: every instant, the split applied after reading)
 PREFIX = "prepared-"
-KEEP = 2
+PART = "instants"  # the prepared arrays' file prefix
+SELECTION = "rows-"  # a split's rows, written once inside the prepared folder
 RECOVERED_JSON = "recovered.json"
 _HEADER_BYTES = 128  # a fixed-length .npy header: the row count is set at the end without moving the data
 
 
-def key(options: Mapping[str, Any], files: Iterable[Path]) -> str:
-    """The cache key of `options` (every option that changes the prepared arrays, by name) and the input `files`."""
+def input_digests(groups: Mapping[str, Iterable[Path]]) -> dict[str, str]:
+    """{group: the digest of its files' paths, sizes, modification and status-change times and inodes}."""
+    digests = {}
+    for group, files in groups.items():
+        digest = hashlib.blake2b(digest_size=16)
+        for path in sorted(set(files)):
+            try:
+                status = os.stat(path)  # follows links: the content's file
+            except OSError as error:
+                found = "a symbolic link that loops" if error.errno == errno.ELOOP else f"a file that cannot be read ({error.strerror})"
+                raise DataFormatError(printable(path), "a readable input file", found) from None
+            digest.update(os.fsencode(path) + b"\0")
+            digest.update(struct.pack("<5q", status.st_size, status.st_mtime_ns, status.st_ctime_ns, status.st_ino, status.st_dev))
+        digests[group] = digest.hexdigest()
+    return digests
+
+
+def key(options: Mapping[str, Any], inputs: Mapping[str, str]) -> str:
+    """The cache key of `options` (every option that changes the prepared arrays, by name) and the `inputs`
+    (`input_digests`)."""
     digest = hashlib.blake2b(digest_size=16)
-    digest.update(json.dumps({"version": VERSION, **options}, sort_keys=True, default=str).encode())
-    for path in sorted(set(files)):
-        try:
-            status = os.stat(path)  # follows links: the content's file
-        except OSError as error:
-            found = "a symbolic link that loops" if error.errno == errno.ELOOP else f"a file that cannot be read ({error.strerror})"
-            raise DataFormatError(printable(path), "a readable input file", found) from None
-        digest.update(os.fsencode(path) + b"\0")
-        digest.update(struct.pack("<5q", status.st_size, status.st_mtime_ns, status.st_ctime_ns, status.st_ino, status.st_dev))
+    digest.update(json.dumps({"version": VERSION, **options, "inputs": dict(inputs)}, sort_keys=True, default=str).encode())
     return digest.hexdigest()
 
 
-def folder(root: Path, cache_key: str) -> Path:
-    return root / CACHE_DIR / f"{PREFIX}{cache_key}"
+def folder(cache: Path, cache_key: str) -> Path:
+    return cache / f"{PREFIX}{cache_key}"
 
 
 class _GrowingNpy:
@@ -148,11 +165,10 @@ def read_arrays(directory: Path) -> dict[str, dict[str, np.ndarray]]:
     return arrays
 
 
-def start(root: Path, cache_key: str) -> Path | None:
-    """A fresh temporary folder to prepare into (None, with a warning, where the project cannot be written)."""
-    cache = root / CACHE_DIR
+def start(cache: Path, cache_key: str) -> Path | None:
+    """A fresh temporary folder to prepare into (None, with a warning, where `cache` cannot be written)."""
     try:
-        cache.mkdir(exist_ok=True)
+        cache.mkdir(parents=True, exist_ok=True)
         for stale in cache.glob(f"{PREFIX}*.tmp-*"):  # left by a run that was interrupted
             pid = int(stale.name.rsplit("-", 1)[1])
             if not _alive(pid):
@@ -162,7 +178,8 @@ def start(root: Path, cache_key: str) -> Path | None:
         temporary.mkdir()
         return temporary
     except (OSError, ValueError) as error:
-        log.warning("the prepared project is not cached (%s cannot be written: %s); it stays in memory", cache, error)
+        log.warning("the prepared project is not cached (%s cannot be written: %s; --data.cache-dir names a folder that can);"
+                    " it stays in memory", cache, error)
         return None
 
 
@@ -178,7 +195,7 @@ def _alive(pid: int) -> bool:
 
 def commit(temporary: Path, cache_key: str, meta: Mapping[str, Any], recovered: object | None) -> Path:
     """Write the metadata, then move the folder to its final name (another process's finished folder
-    of the same key wins); older prepared folders beyond `KEEP` are removed."""
+    of the same key wins); prepared folders made from inputs that have changed since are removed."""
     (temporary / "project.json").write_text(json.dumps(meta, indent=1))
     if recovered is not None:
         (temporary / RECOVERED_JSON).write_text(json.dumps(_to_json(recovered)))
@@ -187,20 +204,77 @@ def commit(temporary: Path, cache_key: str, meta: Mapping[str, Any], recovered: 
         os.rename(temporary, final)
     except OSError:  # the same key finished meanwhile: keep that one
         shutil.rmtree(temporary, ignore_errors=True)
-    _prune(final.parent)
+    _prune(final.parent, meta.get("inputs", {}))
     return final
 
 
-def _prune(cache: Path) -> None:
-    done = [path for path in cache.glob(f"{PREFIX}*") if ".tmp-" not in path.name]
-    for old in sorted(done, key=lambda path: path.stat().st_mtime, reverse=True)[KEEP:]:
-        log.info("removing the older prepared project %s", old)
-        shutil.rmtree(old, ignore_errors=True)
+def _prune(cache: Path, inputs: Mapping[str, str]) -> None:
+    """Remove the prepared folders that no options can read again: those made from a group of input files
+    (`input_digests`) whose digest is now another.  Folders of other options or other recordings stay."""
+    for other in cache.glob(f"{PREFIX}*"):
+        if ".tmp-" in other.name:
+            continue
+        try:
+            made_from = json.loads((other / "project.json").read_text()).get("inputs", {})
+        except (OSError, ValueError):
+            continue  # being written, or not jaxpose's: left alone
+        changed = sorted(group for group, digest in made_from.items() if group in inputs and inputs[group] != digest)
+        if changed:
+            log.info("removing the prepared project %s: its inputs have changed since (%s)", other, ", ".join(changed)[:200])
+            shutil.rmtree(other, ignore_errors=True)
+
+
+def size_note(cache: Path) -> str:
+    """How many prepared folders `cache` holds and the size of everything in it, for the log."""
+    total = 0
+    for directory, _, files in os.walk(cache):
+        for name in files:
+            try:
+                total += os.stat(os.path.join(directory, name)).st_blocks * 512  # on disk: a growing file's holes are free
+            except OSError:
+                pass
+    prepared = sum(1 for path in cache.glob(f"{PREFIX}*") if ".tmp-" not in path.name)
+    return f"the cache {cache} holds {prepared} prepared project(s), {total / 2**20:,.1f} MiB in all (delete it to free the space)"
+
+
+def selected_rows(directory: Path | None, part: str, arrays: Mapping[str, np.ndarray], rows: np.ndarray) -> dict[str, np.ndarray]:
+    """The rows `rows` (int, increasing) of every prepared array: the arrays themselves for every row; in
+    a prepared folder `directory`, written once to ``rows-<part>-<digest>/<part>.<name>.npy`` and memory-mapped
+    (a later run of the same split reads them, a project larger than memory stays on disk, and the
+    pseudo-labels are kept beside them); in memory otherwise (or where the folder cannot be written)."""
+    total = len(next(iter(arrays.values())))
+    if len(rows) == total and np.array_equal(rows, np.arange(total)):
+        return dict(arrays)
+    if directory is None or not len(rows):
+        return {name: np.asarray(array[rows]) for name, array in arrays.items()}
+    digest = hashlib.blake2b(np.ascontiguousarray(rows, np.int64).tobytes(), digest_size=12).hexdigest()
+    selection = directory / f"{SELECTION}{part}-{digest}"
+    if not selection.is_dir():
+        temporary = directory / f"{selection.name}.tmp-{os.getpid()}"
+        try:
+            temporary.mkdir(exist_ok=True)
+            for name, array in arrays.items():
+                out = np.lib.format.open_memmap(temporary / f"{part}.{name}.npy", mode="w+", dtype=array.dtype, shape=(len(rows), *array.shape[1:]))
+                for start in range(0, len(rows), _COPY_ROWS):  # bounded memory
+                    out[start : start + _COPY_ROWS] = array[rows[start : start + _COPY_ROWS]]
+                out.flush()
+                del out
+            try:
+                os.rename(temporary, selection)  # whole or not at all
+            except OSError:  # another process's finished folder of the same rows: keep that one
+                shutil.rmtree(temporary, ignore_errors=True)
+        except OSError as error:
+            shutil.rmtree(temporary, ignore_errors=True)
+            log.warning("the %s rows are not cached (%s: %s): they stay in memory", part, selection, error)
+            return {name: np.asarray(array[rows]) for name, array in arrays.items()}
+    return {name: np.load(selection / f"{part}.{name}.npy", mmap_mode="r", allow_pickle=False) for name in arrays}
+
+
+_COPY_ROWS = 65536
 
 
 def read_meta(directory: Path, recovered_type: type | None = None) -> tuple[dict[str, Any], object | None]:
-    """(project.json, the recovered calibration as a `recovered_type` or None) of a prepared folder;
-    marks it as just used.  A file that does not decode is a `DataFormatError` naming it."""
+    """(project.json, the recovered calibration as a `recovered_type` or None) of a prepared folder.  A file that does not decode is a `DataFormatError` naming it."""
     meta = json.loads((directory / "project.json").read_text())
     recovered = None
     path = directory / RECOVERED_JSON
@@ -209,7 +283,6 @@ def read_meta(directory: Path, recovered_type: type | None = None) -> tuple[dict
             recovered = _from_json(recovered_type, json.loads(path.read_text()))
         except (ValueError, TypeError, KeyError) as error:
             raise DataFormatError(printable(path), f"a recovered rig written by jaxpose (delete the folder {directory} to prepare again)", str(error)) from None
-    os.utime(directory)
     return meta, recovered
 
 

@@ -25,7 +25,7 @@ main subject occluded, a passer-by detected).
 
 Steps 1-3 run in fixed-size chunks of instants (`proposals`, one compilation whatever the number and
 lengths of the recordings, each instant with its own rig's projections); step 4 per recording
-(`choose`), on the instants kept (a thinned recording's track is the median of the instants kept).
+(`choose`), on every instant of it (the split and its strides come after: `jaxpose.rig.project.split`).
 """
 
 from __future__ import annotations
@@ -177,17 +177,16 @@ def _running_median(points: np.ndarray, window: int, at: np.ndarray) -> np.ndarr
     return track
 
 
-def choose(found: Proposals, keypoints: np.ndarray, confidence: np.ndarray, positions: np.ndarray, instants: int) -> PersonChoice:
-    """Step 4 for one recording: the proposals `found` of its n instants kept, which lie at `positions`
-    int[n] (increasing) of its `instants` instants; keypoints [n, C, K, J, 2] and confidence [n, C, K, J]
-    as `proposals` took them."""
+def choose(found: Proposals, keypoints: np.ndarray, confidence: np.ndarray) -> PersonChoice:
+    """Step 4 for one recording: the proposals `found` of its n instants (every one, in order: the track
+    is a running median over time); keypoints [n, C, K, J, 2] and confidence [n, C, K, J] as `proposals`
+    took them."""
     n, C = keypoints.shape[:2]
     rows = np.arange(n)
     cheapest = np.argmin(found.cost, axis=1)
     exists = np.isfinite(found.cost[rows, cheapest])
-    roots = np.full((instants, 3), np.nan, np.float32)
-    roots[positions] = np.where(exists[:, None], found.root[rows, cheapest], np.nan)
-    track = _running_median(roots, TRACK_WINDOW, positions)
+    roots = np.where(exists[:, None], found.root[rows, cheapest], np.nan).astype(np.float32)
+    track = _running_median(roots, TRACK_WINDOW, rows)
     from_track = np.nan_to_num(np.linalg.norm(found.root - track[:, None], axis=-1), nan=np.inf)  # inf: no track
     near = np.isfinite(found.cost) & (from_track < TRACK_RADIUS_MM)
     winner = np.where(near.any(1), np.argmin(np.where(near, found.cost, np.inf), axis=1), cheapest)
@@ -216,4 +215,4 @@ def choose_person(
     N = len(keypoints)
     P_rows = np.broadcast_to(np.asarray(P, np.float32), (N, *np.shape(P)))
     found = proposals(P_rows, keypoints, confidence, threshold_px)
-    return choose(found, keypoints, confidence, np.arange(N), N)
+    return choose(found, keypoints, confidence)

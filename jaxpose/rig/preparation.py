@@ -1,12 +1,11 @@
 """Preparing a rig project's recordings one at a time, in bounded memory and a fixed number of compilations.
 
-Each recording is read, its cameras put on one time axis at the instants kept (the strides are
-applied here, before anything costly: a thinned recording is read whole but aligned, undistorted and
-searched for its person only where it is kept), then undistorted and searched for the person the
-views agree on in chunks of `geometry.CHUNK` instants that run across recordings (`jaxpose.chunks`),
-so that a short recording does not pay for a chunk of its own and the compiled functions see one
-shape.  Each recording's result is appended to the prepared arrays (`jaxpose.rig.cache.Assembly`)
-as soon as it is chosen, and let go.
+Each recording is read, its cameras put on one time axis at every instant (a split and its strides are
+row selections of the result, made after it: `jaxpose.rig.project.split`), then undistorted and searched
+for the person the views agree on in chunks of `geometry.CHUNK` instants that run across recordings
+(`jaxpose.chunks`), so that a short recording does not pay for a chunk of its own and the compiled
+functions see one shape.  Each recording's result is appended to the prepared arrays
+(`jaxpose.rig.cache.Assembly`) as soon as it is chosen, and let go.
 """
 
 from __future__ import annotations
@@ -22,10 +21,9 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from jaxpose.chunks import ChunkedMap
-from jaxpose.data.dataset import consecutive_spans
 from jaxpose.rig import geometry, people
 from jaxpose.rig.cameras import check_unit_against_people
-from jaxpose.rig.cache import Assembly
+from jaxpose.rig.cache import PART, Assembly
 from jaxpose.rig.recordings import Recording, ground_truth_on_instants
 from jaxpose.rig.recovered import ground_truth_into_recovered_world
 from jaxpose.skeleton import Skeleton
@@ -38,32 +36,15 @@ BACKLOG = 8  # recordings done but waiting for an earlier one before that one's 
 
 @dataclasses.dataclass
 class Aligned:
-    """One recording on one time axis, at the rows kept."""
+    """One recording on one time axis, at every instant."""
 
     recording: Recording
     instants: np.ndarray
     """int[N] every instant of the recording."""
-    rows: np.ndarray
-    """int[n] the positions in `instants` kept: the samples and the frames of their windows."""
-    sample: np.ndarray
-    """bool[n] rows that are samples (the others only frames of a sample's window)."""
-    held_out: np.ndarray
-    """bool[n] rows of the validation part."""
     keypoints: np.ndarray
-    """f32[n, C, K, J, 2] pixels as detected, up to K people per view."""
+    """f32[N, C, K, J, 2] pixels as detected, up to K people per view."""
     confidence: np.ndarray
-    """f32[n, C, K, J]"""
-
-
-def kept_rows(held_out: np.ndarray, train_stride: int, validation_stride: int, window: int) -> tuple[np.ndarray, np.ndarray]:
-    """(rows int[n], sample bool[n]): every `train_stride`-th instant of the training part and
-    `validation_stride`-th of the validation part (`held_out` bool[N]), with the `window` frames
-    centred on each."""
-    position = np.arange(len(held_out))
-    sample = np.where(held_out, position % validation_stride == 0, position % train_stride == 0)
-    near = np.convolve(sample, np.ones(window, bool), mode="same") > 0 if window > 1 else sample
-    rows = np.flatnonzero(near)
-    return rows, sample[rows]
+    """f32[N, C, K, J]"""
 
 
 class Phases:
@@ -104,8 +85,8 @@ class Phases:
 @dataclasses.dataclass
 class Preparation:
     """Undistort every recording, choose its person, attach its ground truth, check the calibrations'
-    unit (`check_unit`) and append it to `assembly`: "train" and "validation" rows, and "context" rows
-    (every frame prepared, for temporal windows) where `context`.  `labels`: the string dtypes of the
+    unit (`check_unit`) and append every instant to `assembly` (its part `jaxpose.rig.cache.PART`).
+    `labels`: the string dtypes of the
     "subject" and "recording" labels (one width for every recording).  `run` takes the recordings as
     they come; the attributes then say what loading did besides the arrays."""
 
@@ -117,13 +98,10 @@ class Preparation:
     threshold_px: float
     recovered: bool
     check_unit: bool
-    context: bool
     labels: dict[str, np.dtype]
     summaries: list[dict] = dataclasses.field(default_factory=list)
     """Per recording (in order) what loading did, for `jaxpose.rig.project.RecordingSummary`."""
     ground_truth_seen: bool = False
-    train_target_complete: bool = True
-    context_rows: int = 0
 
     def run(self, parts: Iterable[Aligned]) -> None:
         units = _UnitCheck(self.rigs, self.skeleton) if self.check_unit else None
@@ -142,7 +120,7 @@ class Preparation:
                 part, (undistorted, confidence, found) = waiting.pop(added)
                 with self.phases("people chosen"):
                     self._finish(dataclasses.replace(part, confidence=confidence), undistorted, people.Proposals(*found), units)
-                self.phases.advance("people chosen", len(part.rows))
+                self.phases.advance("people chosen", len(part.instants))
                 added += 1
             blocked = sum(output is not None for _, output in waiting.values())
             if not final and blocked > BACKLOG and added in waiting:  # the next one waits in another count's part-full chunk
@@ -155,7 +133,7 @@ class Preparation:
             mapper = mappers.setdefault(group, ChunkedMap(self._propose, geometry.CHUNK))
             group_of[index] = group
             waiting[index] = (part, None)
-            rig_rows = np.full(len(part.rows), self.rig_of(part.recording), np.int32)
+            rig_rows = np.full(len(part.instants), self.rig_of(part.recording), np.int32)
             with self.phases("people chosen"):
                 through(mapper.add((rig_rows, part.keypoints, part.confidence), tag=index))
             drain()
@@ -181,36 +159,23 @@ class Preparation:
     def _finish(self, part: Aligned, undistorted: np.ndarray, found: people.Proposals, units: "_UnitCheck | None") -> None:
         """One recording's person chosen, its ground truth attached, its rows appended."""
         recording, rig_index = part.recording, self.rig_of(part.recording)
-        choice = people.choose(found, undistorted, part.confidence, part.rows, len(part.instants))
-        instants = part.instants[part.rows]
+        choice = people.choose(found, undistorted, part.confidence)
+        instants = part.instants
         target, truth_instants = ground_truth_on_instants(recording.folder, self.skeleton(), recording.layout, instants)
         if target is not None and self.recovered:
             target = ground_truth_into_recovered_world(target, choice.keypoints, choice.confidence, self.rigs.calibrations[rig_index])
         self.ground_truth_seen |= target is not None
         if units is not None:
             units.add(rig_index, choice.keypoints, choice.confidence)
-        spans = consecutive_spans({"frame": instants}) + self.context_rows
-        for name, rows in (("train", part.sample & ~part.held_out), ("validation", part.sample & part.held_out)):
-            rows = np.flatnonzero(rows)
-            if not len(rows):
-                continue
-            if name == "train" and (target is None or not np.isfinite(target[rows]).all()):
-                self.train_target_complete = False
-            arrays = {
-                "keypoints2d": choice.keypoints[rows],
-                "confidence": choice.confidence[rows],
-                "rig_index": np.full(len(rows), rig_index, np.int32),
-                "target3d": None if target is None else target[rows],
-                "subject": np.full(len(rows), f"rig{rig_index}", self.labels["subject"]),
-                "recording": np.full(len(rows), recording.name, self.labels["recording"]),
-                "frame": instants[rows].astype(np.int32),
-            }
-            if self.context:
-                arrays |= {"context_row": (self.context_rows + rows).astype(np.int32), "context_span": spans[rows]}
-            self.assembly.add(name, arrays)
-        if self.context:
-            self.assembly.add("context", {"keypoints2d": choice.keypoints, "confidence": choice.confidence})
-            self.context_rows += len(part.rows)
+        self.assembly.add(PART, {
+            "keypoints2d": choice.keypoints,
+            "confidence": choice.confidence,
+            "rig_index": np.full(len(instants), rig_index, np.int32),
+            "target3d": target,
+            "subject": np.full(len(instants), f"rig{rig_index}", self.labels["subject"]),
+            "recording": np.full(len(instants), recording.name, self.labels["recording"]),
+            "frame": instants.astype(np.int32),
+        })  # fmt: skip
         self.summaries.append(
             {
                 "name": recording.name,

@@ -28,8 +28,8 @@ What loading does to each recording, in order (one recording at a time: `jaxpose
    treated as missing;
 3. aligns the cameras in time: camera c's frame f shows instant f + offset[c]; offsets given, or
    estimated (`jaxpose.rig.timeline`, `jaxpose.rig.sync`); instants seen by no camera are absent, a
-   camera without a frame at an instant has confidence 0 there; only the instants the strides keep
-   (and the frames of their temporal windows) go further;
+   camera without a frame at an instant has confidence 0 there; every instant goes further (the split
+   and the strides are applied to the prepared instants: `split`);
 4. without any calibration, recovers the rig from all recordings (`jaxpose.rig.recovered`);
 5. undistorts the keypoints with the calibration (the data sets' rigs are then pinhole);
 6. keeps one person per instant, the one the views agree on (`jaxpose.rig.people`), and checks a
@@ -38,10 +38,14 @@ What loading does to each recording, in order (one recording at a time: `jaxpose
    skeleton by name (the derived root from the hips where the ground truth has both:
    `jaxpose.data.ground_truth`), moved into a recovered rig's world.
 
-The result is prepared once: written beside the recordings (``PROJECT/.jaxpose_cache/prepared-<key>/``,
-`jaxpose.rig.cache`) and memory-mapped from there by every later run with the same inputs and options.
-Steps 5 and 6 run in chunks of one fixed size across recordings (`jaxpose.rig.geometry`): the compilations
-of loading do not grow with the number or the lengths of the recordings.
+The result, every instant of every recording, is prepared once: written to the project's cache
+(``PROJECT/.jaxpose_cache/prepared-<key>/``, or --data.cache-dir, `jaxpose.rig.cache`) and memory-mapped
+from there by every later run with the same inputs and options, whatever its split: the training and
+validation parts are row selections of it (`split`: held-out recordings or each recording's final
+fraction, then the strides), and a temporal lifter's window is the neighbouring rows of the same
+recording.  Every JSON file parsed is cached there too (`jaxpose.formats.keypoint_files`).  Steps 5 and 6
+run in chunks of one fixed size across recordings (`jaxpose.rig.geometry`): the compilations of loading do
+not grow with the number or the lengths of the recordings.
 """
 
 from __future__ import annotations
@@ -51,23 +55,24 @@ import logging
 import pathlib
 import shutil
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Literal
 
 import numpy as np
 
 from jaxpose.camera import Cameras
 from jaxpose.data import ground_truth
-from jaxpose.data.dataset import FrameContext, MultiViewDataset
+from jaxpose.data.dataset import FrameContext, MultiViewDataset, consecutive_spans
 from jaxpose.formats.rig_cameras import CalibrationUnit
 from jaxpose.formats import keypoint_files
+from jaxpose.formats.file_cache import CACHE_DIR
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.layouts import lifting_skeleton
 from jaxpose.rig import cache
 from jaxpose.rig.cameras import attach_calibrations, in_view_order
 from jaxpose.rig.geometry import Rigs
 from jaxpose.rig.people import DEFAULT_THRESHOLD_PX
-from jaxpose.rig.preparation import Aligned, Phases, Preparation, kept_rows
+from jaxpose.rig.preparation import Aligned, Phases, Preparation
 from jaxpose.rig.recordings import (
     Recording,
     find_recording,
@@ -86,7 +91,9 @@ from jaxpose.rig.timeline import (
 log = logging.getLogger(__name__)
 
 SPLIT_FIELDS = ("validation_recordings", "validation_fraction", "train_stride", "validation_stride")
-"""RigProjectConfig's fields of a training split (a reconstruction takes every instant of every recording)."""
+"""RigProjectConfig's fields of a training split: row selections of the prepared instants (`split`), not
+part of the cache's key (a reconstruction takes every instant of every recording)."""
+_NOT_PREPARED = ("root", "cache_dir", *SPLIT_FIELDS)  # where the project and its cache are; the split
 _NOT_RECORDED = ("recordings", *SPLIT_FIELDS)  # which recordings a command reads is its own choice
 
 
@@ -141,6 +148,9 @@ class RigProjectConfig:
     """Keep every n-th instant of the training part."""
     validation_stride: int = 1
     """Keep every n-th instant of the validation part."""
+    cache_dir: pathlib.Path | None = None
+    """Where the prepared project and the parsed JSON are cached; None = PROJECT/.jaxpose_cache.  Name a
+    folder that can be written for a read-only project (without one it is prepared in memory every run)."""
 
     def __post_init__(self):
         if self.subject_height_mm is not None and not 500.0 <= self.subject_height_mm <= 2800.0:
@@ -153,7 +163,7 @@ class RigProjectConfig:
 
 @dataclasses.dataclass(frozen=True)
 class RecordingSummary:
-    """What loading did to one recording, for the report (counts over the instants the strides keep)."""
+    """What loading did to one recording, for the report (counts over all its instants)."""
 
     name: str
     cameras: tuple[str, ...]
@@ -184,59 +194,91 @@ class RigProject:
     """How the prepared arrays were had: read from the cache, prepared and cached, or prepared in memory."""
 
 
-def load_rig_project(config: RigProjectConfig, progress: bool = True, window: int = 1) -> RigProject:
-    """Every recording of the project, read, aligned, calibrated and reduced to one person, split into
-    training and validation parts (see the module docstring), or all that from the cache.
+@dataclasses.dataclass(frozen=True)
+class PreparedProject:
+    """Every instant of every recording prepared (`load_rig_project`'s steps 1-7), as the cache holds it:
+    the recordings one after the other, each on its time axis in order."""
 
-    `window`: the frames a temporal lifter's input spans (--model.temporal-window); above 1 the frames
-    around each sample are prepared too and kept as the data sets' context (`MultiViewDataset.windows`).
-    """
-    if window < 1:
-        raise ValueError(f"load_rig_project: window must be >= 1, got {window}")
+    meta: Mapping
+    """project.json: camera_names, layout, recordings (their summaries), ground_truth_seen, rigs, inputs."""
+    arrays: Mapping[str, np.ndarray]
+    """Per instant: keypoints2d, confidence, rig_index, subject, recording, frame, and target3d where some
+    recording has ground truth; memory-mapped from the cache, or in memory."""
+    recovered_calibration: object | None
+    folder: pathlib.Path | None
+    """The prepared folder in the cache (None: prepared in memory)."""
+    how: str
+    """How the arrays were had: read from the cache, prepared and cached, or prepared in memory."""
+
+
+def load_rig_project(config: RigProjectConfig, progress: bool = True) -> RigProject:
+    """Every recording of the project, read, aligned, calibrated and reduced to one person (see the module
+    docstring), or all that from the cache, split into training and validation parts (`split`)."""
+    unknown = sorted(set(config.validation_recordings) - {folder.name for folder in recording_folders(config.root, config.recordings)})
+    if unknown:
+        names = [folder.name for folder in recording_folders(config.root, config.recordings)]
+        raise ValueError(f"--data.validation-recordings {unknown}: no such recording (have {names})")
+    return split(prepared_project(config, progress), config)
+
+
+def cache_folder(config: RigProjectConfig) -> pathlib.Path:
+    """The project's cache: --data.cache-dir, else PROJECT/.jaxpose_cache."""
+    return config.cache_dir if config.cache_dir is not None else config.root / CACHE_DIR
+
+
+def prepared_project(config: RigProjectConfig, progress: bool = True, prepare: bool = True) -> PreparedProject | None:
+    """Every instant of the project from the cache, else prepared (and cached where the cache can be
+    written); with `prepare` False, None where the cache does not hold it."""
     started = time.perf_counter()
     recordings = [find_recording(folder) for folder in recording_folders(config.root, config.recordings)]
-    cache_key = cache.key(_options(config, window), _input_files(config, recordings))
-    cached = cache.folder(config.root, cache_key)
+    inputs = cache.input_digests(_input_files(config, recordings))
+    cache_key = cache.key(_options(config), inputs)
+    cached = cache.folder(cache_folder(config), cache_key)
     if cached.is_dir():
         try:
             meta, recovered = cache.read_meta(cached, _recovered_type(cached))
-            project = _project(meta, cache.read_arrays(cached), recovered, f"read from the cache {cached}")
+            prepared = PreparedProject(meta, cache.read_arrays(cached)[cache.PART], recovered, cached, f"read from the cache {cached}")
         except Exception as error:  # noqa: BLE001 - an unreadable cache is only a missed shortcut
             log.warning("ignoring the unreadable prepared project %s (%s: %s); preparing it again", cached, type(error).__name__, error)
             shutil.rmtree(cached, ignore_errors=True)  # jaxpose's own folder: replaced by the one prepared now
         else:
-            log.info("prepared project read from the cache %s in %.1f s (%d recordings)", cached, time.perf_counter() - started, len(recordings))
-            return project
-    return _prepare(config, recordings, progress, window, cache_key)
+            log.info("prepared project read from the cache %s in %.1f s (%d recordings, %d instants); %s", cached,
+                     time.perf_counter() - started, len(recordings), len(prepared.arrays["frame"]), cache.size_note(cached.parent))  # fmt: skip
+            return prepared
+    if not prepare:
+        return None
+    return _prepare(config, recordings, progress, cache_key, inputs)
 
 
-def _options(config: RigProjectConfig, window: int) -> dict:
-    """Every option that changes the prepared arrays (the project folder is where they are kept), and the
-    version of the JSON parsing whose results they hold."""
-    options = {field.name: getattr(config, field.name) for field in dataclasses.fields(config) if field.name != "root"}
+def _options(config: RigProjectConfig) -> dict:
+    """Every option that changes the prepared arrays (not where the project and its cache are, not the
+    split), and the version of the JSON parsing whose results they hold."""
+    options = {field.name: getattr(config, field.name) for field in dataclasses.fields(config) if field.name not in _NOT_PREPARED}
     options["calibration"] = None if config.calibration is None else str(config.calibration.resolve())
-    return options | {"window": window, "parsed_frames": keypoint_files.CACHE_VERSION}
+    return options | {"parsed_frames": keypoint_files.CACHE_VERSION}
 
 
-def _input_files(config: RigProjectConfig, recordings: Sequence[Recording]) -> list[pathlib.Path]:
-    """Every file loading may read: the project's and each recording folder's files, every camera's
-    detections, and --data.calibration with its siblings of the same kind (EasyMocap's extri.yml)."""
+def _input_files(config: RigProjectConfig, recordings: Sequence[Recording]) -> dict[str, list[pathlib.Path]]:
+    """Every file loading may read, by group (`jaxpose.rig.cache.input_digests`): the project folder's
+    files, --data.calibration with its siblings of the same kind (EasyMocap's extri.yml), and each
+    recording's (its folder's files and every camera's detections), named by their absolute folders."""
 
     def plain_files(folder: pathlib.Path, suffix: str = "") -> list[pathlib.Path]:
         return [entry for entry in folder.iterdir() if not entry.name.startswith(".") and entry.suffix.endswith(suffix) and not entry.is_dir()]
 
-    files = plain_files(config.root)
+    groups = {f"project {config.root.resolve()}": plain_files(config.root)}
     if config.calibration is not None:
-        files += [config.calibration, *plain_files(config.calibration.parent, config.calibration.suffix)]
+        groups[f"calibration {config.calibration.resolve()}"] = [config.calibration, *plain_files(config.calibration.parent, config.calibration.suffix)]
     for recording in recordings:
-        files += plain_files(recording.folder)
+        files = plain_files(recording.folder)
         for source in recording.sources.values():
             files += plain_files(source, ".json") if source.is_dir() else [source]
-    return files
+        groups[f"recording {recording.folder.resolve()}"] = files
+    return groups
 
 
-def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bool, window: int, cache_key: str) -> RigProject:
-    """The project prepared from its recordings (`jaxpose.rig.preparation`), and cached."""
+def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bool, cache_key: str, inputs: dict[str, str]) -> PreparedProject:
+    """Every instant of the project prepared from its recordings (`jaxpose.rig.preparation`), and cached."""
     started = time.perf_counter()
     project_calibration = attach_calibrations(recordings, config.root, config.calibration, config.calibration_unit)
     present = set().union(*(recording.cameras for recording in recordings))
@@ -247,12 +289,9 @@ def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bo
     for recording in recordings:
         if recording.calibration is not None:  # every detection folder needs its camera
             recording.calibration.select(sorted(recording.cameras), f"detection folders of recording {recording.name}")
-    unknown_validation = sorted(set(config.validation_recordings) - {recording.name for recording in recordings})
-    if unknown_validation:
-        raise ValueError(f"--data.validation-recordings {unknown_validation}: no such recording (have {[r.name for r in recordings]})")
     phases = Phases(len(recordings), progress)
     layouts: dict[str, str] = {}
-    parts = _aligned(config, recordings, camera_order, parse_frame_offsets(config.frame_offsets, recordings), window, phases, layouts)
+    parts = _aligned(config, recordings, camera_order, parse_frame_offsets(config.frame_offsets, recordings), phases, layouts)
     recovered_calibration = None
     if project_calibration is None and all(recording.calibration is None for recording in recordings):
         parts = list(parts)
@@ -270,17 +309,18 @@ def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bo
         rig_index.setdefault(id(recording.calibration), len(rig_index))
     distinct = {id(recording.calibration): recording.calibration for recording in recordings}
     rigs = Rigs.of([in_view_order(distinct[key], camera_order) for key in rig_index])
-    temporary = cache.start(config.root, cache_key)
+    cache_dir = cache_folder(config)
+    temporary = cache.start(cache_dir, cache_key)
     preparation = Preparation(
         rigs, lambda recording: rig_index[id(recording.calibration)], lambda: lifting_skeleton(next(iter(layouts.values()))),
         cache.Assembly(temporary), phases, threshold_px=config.person_threshold_px, recovered=recovered_calibration is not None,
-        check_unit=config.calibration_unit == "auto" and recovered_calibration is None, context=window > 1,
+        check_unit=config.calibration_unit == "auto" and recovered_calibration is None,
         labels={"subject": np.dtype(f"<U{len(f'rig{len(rig_index) - 1}')}"),
                 "recording": np.dtype(f"<U{max(len(recording.name) for recording in recordings)}")},
     )  # fmt: skip
     try:
         preparation.run(parts)
-        arrays = preparation.assembly.close() or cache.read_arrays(temporary)
+        in_memory = preparation.assembly.close()
     except BaseException:
         if temporary is not None:
             shutil.rmtree(temporary, ignore_errors=True)
@@ -294,18 +334,17 @@ def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bo
         "layout": next(iter(layouts.values())),
         "recordings": preparation.summaries,
         "ground_truth_seen": preparation.ground_truth_seen,
-        "train_target_complete": preparation.train_target_complete,
         "rigs": {field: np.stack([np.asarray(getattr(c.cameras, field), np.float32) for c in rigs.calibrations]).tolist() for field in ("K", "R", "t")},
+        "inputs": inputs,
     }
-    validation = _dataset(meta, arrays, "validation")
-    meta["ground_truth_joints"] = list(ground_truth.ground_truth_joint_names(validation)) if preparation.ground_truth_seen else []
     if temporary is None:
-        how = "prepared in memory (the project folder cannot be written: not cached)"
+        arrays, final, how = in_memory[cache.PART], None, f"prepared in memory ({cache_dir} cannot be written: not cached)"
     else:
         final = cache.commit(temporary, cache_key, meta, recovered_calibration)
-        arrays, how = cache.read_arrays(final), f"prepared and written to the cache {final}"
-    log.info("%d recordings %s in %.1f s", len(recordings), how, time.perf_counter() - started)
-    return _project(meta, arrays, recovered_calibration, how)
+        arrays, how = cache.read_arrays(final)[cache.PART], f"prepared and written to the cache {final}"
+    note = "" if final is None else f"; {cache.size_note(cache_dir)}"
+    log.info("%d recordings (%d instants) %s in %.1f s%s", len(recordings), len(arrays["frame"]), how, time.perf_counter() - started, note)
+    return PreparedProject(meta, arrays, recovered_calibration, final, how)
 
 
 def _aligned(
@@ -313,16 +352,16 @@ def _aligned(
     recordings: Sequence[Recording],
     camera_order: Sequence[str],
     given: dict[tuple[str, str], int],
-    window: int,
     phases: Phases,
     layouts: dict[str, str],
 ) -> Iterator[Aligned]:
-    """Each recording read, on one time axis at the instants kept, one at a time (its offsets set:
-    `given` by --data.frame-offsets, or estimated with --data.sync auto); `layouts` collects each
-    recording's layout."""
+    """Each recording read, on one time axis at every instant, one at a time (its offsets set: `given` by
+    --data.frame-offsets, or estimated with --data.sync auto); `layouts` collects each recording's layout."""
+    parsed = cache_folder(config) / PARSED
     for recording in recordings:
         with phases("recordings read"):
-            views = lifting_views(recording, read_detections(recording, config.skeleton, phases.progress), config.min_confidence)
+            detections = read_detections(recording, config.skeleton, phases.progress, parsed / recording.name)
+            views = lifting_views(recording, detections, config.min_confidence)
         layouts[recording.name] = recording.layout
         if len(set(layouts.values())) > 1:
             raise DataFormatError(config.root, "one keypoint layout in every recording", f"layouts {layouts}")
@@ -340,32 +379,59 @@ def _aligned(
             instants = instants_of(views, recording.offsets)
             if not len(instants):
                 raise DataFormatError(recording.folder, "detections in at least one frame", "no frame")
-            held_out = _held_out(config, recording.name, len(instants))
-            rows, sample = kept_rows(held_out, config.train_stride, config.validation_stride, window)
-            keypoints, confidence = align(views, camera_order, recording.offsets, instants[rows])
+            keypoints, confidence = align(views, camera_order, recording.offsets, instants)
         phases.advance("recordings read", len(instants))
-        yield Aligned(recording, instants, rows, sample, held_out[rows], keypoints, confidence)
+        yield Aligned(recording, instants, keypoints, confidence)
 
 
-def _dataset(meta: dict, arrays: dict[str, dict[str, np.ndarray]], part: str) -> MultiViewDataset:
-    """One part ("train", "validation") of the prepared arrays as a data set; the training part keeps its
-    ground truth only where it covers every instant and joint (the supervised twin needs it all)."""
+PARSED = "parsed"
+"""The cache's folder of parsed JSON detections, one sub-folder per recording."""
+
+
+def split(prepared: PreparedProject, config: RigProjectConfig) -> RigProject:
+    """The training and validation parts of the prepared instants: per recording, the validation part is
+    the whole recording where --data.validation-recordings names it, else its final
+    --data.validation-fraction; then every --data.train-stride-th / --data.validation-stride-th instant of
+    the recording in each part.  Each part's windows of frames are cut from every instant (its context)."""
+    meta, arrays = prepared.meta, prepared.arrays
+    held_out, sample = [], []
+    for summary in meta["recordings"]:
+        out = _held_out(config, summary["name"], summary["instants"])
+        position = np.arange(summary["instants"])
+        held_out.append(out)
+        sample.append(np.where(out, position % config.validation_stride == 0, position % config.train_stride == 0))
+    held_out, sample = np.concatenate(held_out), np.concatenate(sample)
+    spans = consecutive_spans({"frame": arrays["frame"], "sequence": arrays["recording"]})
+    train = _dataset(prepared, spans, "train", np.flatnonzero(sample & ~held_out))
+    validation = _dataset(prepared, spans, "validation", np.flatnonzero(sample & held_out))
+    if train.target3d is not None and not np.isfinite(train.target3d).all():
+        # Ground truth for only some joints or recordings serves evaluation, not the supervised twin.
+        log.info("the ground truth does not cover every training instant and joint: no --supervision full")
+        train = dataclasses.replace(train, target3d=None)
+    return RigProject(
+        train=train,
+        validation=validation,
+        camera_names=tuple(meta["camera_names"]),
+        layout=meta["layout"],
+        recordings=tuple(RecordingSummary(**summary | {"cameras": tuple(summary["cameras"])}) for summary in meta["recordings"]),
+        ground_truth_joints=ground_truth.ground_truth_joint_names(validation),
+        recovered_calibration=prepared.recovered_calibration,
+        prepared=prepared.how,
+    )
+
+
+def _dataset(prepared: PreparedProject, spans: np.ndarray, part: str, rows: np.ndarray) -> MultiViewDataset:
+    """The prepared instants `rows` as a data set (`jaxpose.rig.cache.selected_rows`), with every instant as
+    its context (`spans`: each instant's stretch of consecutive frames)."""
+    meta, arrays = prepared.meta, prepared.arrays
     skeleton = lifting_skeleton(meta["layout"])
     rigs = Cameras(**{field: np.asarray(values, np.float32) for field, values in meta["rigs"].items()})
-    C, J = len(meta["camera_names"]), skeleton.num_joints
-    rows, context = arrays.get(part, {}), arrays.get("context")
-    empty = {"keypoints2d": ((C, J, 2), np.float32), "confidence": ((C, J), np.float32), "rig_index": ((), np.int32),
-             "frame": ((), np.int32), "subject": ((), "<U1"), "recording": ((), "<U1"), "context_row": ((), np.int32),
-             "context_span": ((2,), np.int32)}  # fmt: skip
-    get = {name: rows[name] if name in rows else np.zeros((0, *shape), dtype) for name, (shape, dtype) in empty.items()}
-    target = meta["ground_truth_seen"] and (part != "train" or meta["train_target_complete"])
+    selected = cache.selected_rows(prepared.folder, part, arrays, rows)
     return MultiViewDataset(
-        skeleton=skeleton, keypoints2d=get["keypoints2d"], confidence=get["confidence"], rigs=rigs, rig_index=get["rig_index"],
-        target3d=(rows["target3d"] if "target3d" in rows else np.full((len(get["frame"]), J, 3), np.nan, np.float32)) if target else None,
-        labels={"subject": get["subject"], "recording": get["recording"], "sequence": get["recording"], "frame": get["frame"]},
-        context=None if context is None else FrameContext(context["keypoints2d"], context["confidence"]),
-        context_row=None if context is None else get["context_row"],
-        context_span=None if context is None else get["context_span"],
+        skeleton=skeleton, keypoints2d=selected["keypoints2d"], confidence=selected["confidence"], rigs=rigs,
+        rig_index=selected["rig_index"], target3d=selected.get("target3d"),
+        labels={"subject": selected["subject"], "recording": selected["recording"], "sequence": selected["recording"], "frame": selected["frame"]},
+        context=FrameContext(arrays["keypoints2d"], arrays["confidence"]), context_row=rows.astype(np.int32), context_span=spans[rows],
     )  # fmt: skip
 
 
@@ -405,23 +471,6 @@ def _recovered_type(cached: pathlib.Path) -> type | None:
     from jaxpose.calibration import Calibration
 
     return Calibration
-
-
-def _project(meta: dict, arrays: dict[str, dict[str, np.ndarray]], recovered: object | None, how: str) -> RigProject:
-    """The loaded project from the prepared arrays (memory-mapped from the cache, or in memory) and their metadata."""
-    if meta["ground_truth_seen"] and not meta["train_target_complete"]:
-        # Ground truth for only some joints or recordings serves evaluation, not the supervised twin.
-        log.info("the ground truth does not cover every training instant and joint: no --supervision full")
-    return RigProject(
-        train=_dataset(meta, arrays, "train"),
-        validation=_dataset(meta, arrays, "validation"),
-        camera_names=tuple(meta["camera_names"]),
-        layout=meta["layout"],
-        recordings=tuple(RecordingSummary(**summary | {"cameras": tuple(summary["cameras"])}) for summary in meta["recordings"]),
-        ground_truth_joints=tuple(meta["ground_truth_joints"]),
-        recovered_calibration=recovered,
-        prepared=how,
-    )
 
 
 def _held_out(config: RigProjectConfig, recording: str, instants: int) -> np.ndarray:

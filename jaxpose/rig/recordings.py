@@ -193,9 +193,10 @@ def _layout(
     return layout
 
 
-def read_detections(recording: Recording, skeleton: str, progress: bool) -> dict[str, CameraDetections]:
+def read_detections(recording: Recording, skeleton: str, progress: bool, parsed: pathlib.Path) -> dict[str, CameraDetections]:
     """The recording's detections, per camera; sets its layout (`skeleton`: see `RigProjectConfig.skeleton`)
-    and, from a detections.npz, what it gives of each camera."""
+    and, from a detections.npz, what it gives of each camera.  JSON detections are parsed once and cached
+    in the folder `parsed` (the project's cache), one file per camera."""
     npz = None
     if DETECTIONS_NPZ in recording.sources:
         npz = detections_npz.read(recording.sources[DETECTIONS_NPZ])
@@ -206,7 +207,7 @@ def read_detections(recording: Recording, skeleton: str, progress: bool) -> dict
             for index, camera in enumerate(npz.camera_names)
         }
     else:
-        cameras = {name: read_camera_detections(path, progress=progress) for name, path in recording.sources.items()}
+        cameras = {name: read_camera_detections(path, progress, parsed / f"{path.name}.npz") for name, path in recording.sources.items()}
     recording.layout = _layout(skeleton, recording.name, cameras, npz)
     return cameras
 
