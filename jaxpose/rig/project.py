@@ -233,18 +233,24 @@ def prepared_project(config: RigProjectConfig, progress: bool = True, prepare: b
     recordings = [find_recording(folder) for folder in recording_folders(config.root, config.recordings)]
     inputs = cache.input_digests(_input_files(config, recordings))
     cache_key = cache.key(_options(config), inputs)
-    cached = cache.folder(cache_folder(config), cache_key)
-    if cached.is_dir():
+    # A layout named (as a run records the one it resolved) reads what --data.skeleton auto prepared as it.
+    auto = [] if config.skeleton == "auto" else [cache.key(_options(dataclasses.replace(config, skeleton="auto")), inputs)]
+    for key in [cache_key, *auto]:
+        cached = cache.folder(cache_folder(config), key)
+        if not cached.is_dir():
+            continue
         try:
             meta, recovered = cache.read_meta(cached, _recovered_type(cached))
             prepared = PreparedProject(meta, cache.read_arrays(cached)[cache.PART], recovered, cached, f"read from the cache {cached}")
         except Exception as error:  # noqa: BLE001 - an unreadable cache is only a missed shortcut
             log.warning("ignoring the unreadable prepared project %s (%s: %s); preparing it again", cached, type(error).__name__, error)
             shutil.rmtree(cached, ignore_errors=True)  # jaxpose's own folder: replaced by the one prepared now
-        else:
-            log.info("prepared project read from the cache %s in %.1f s (%d recordings, %d instants); %s", cached,
-                     time.perf_counter() - started, len(recordings), len(prepared.arrays["frame"]), cache.size_note(cached.parent))  # fmt: skip
-            return prepared
+            continue
+        if key != cache_key and meta["layout"] != config.skeleton:
+            continue
+        log.info("prepared project read from the cache %s in %.1f s (%d recordings, %d instants); %s", cached,
+                 time.perf_counter() - started, len(recordings), len(prepared.arrays["frame"]), cache.size_note(cached.parent))  # fmt: skip
+        return prepared
     if not prepare:
         return None
     return _prepare(config, recordings, progress, cache_key, inputs)
@@ -453,7 +459,7 @@ def with_recorded_settings(config: RigProjectConfig, recorded: dict, source: str
         value = recorded[field.name]
         if isinstance(value, list):
             value = tuple(tuple(v) if isinstance(v, list) else v for v in value)
-        if field.name in ("root", "calibration") and value is not None:
+        if field.name in ("root", "calibration", "cache_dir") and value is not None:
             value = pathlib.Path(value)
         given = getattr(config, field.name)
         if given == getattr(defaults, field.name):

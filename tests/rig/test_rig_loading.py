@@ -67,6 +67,10 @@ def test_loading_compiles_no_more_for_more_and_longer_recordings(small, tmp_path
     assert eight["lowered"] <= 10 and eight["compiled"] <= 10, (two, eight)
 
 
+def _prepared_folders(root) -> list[str]:
+    return sorted(p.name for p in (root / ".jaxpose_cache").iterdir() if p.name.startswith("prepared-"))
+
+
 def test_the_prepared_project_is_cached_and_memory_mapped(small, tmp_path):
     root = tmp_path / "project"
     shutil.copytree(small, root, ignore=shutil.ignore_patterns(".jaxpose_cache"))
@@ -80,8 +84,17 @@ def test_the_prepared_project_is_cached_and_memory_mapped(small, tmp_path):
             np.testing.assert_array_equal(getattr(getattr(cold, part), name), getattr(getattr(warm, part), name))
         assert {k: v.tolist() for k, v in getattr(cold, part).labels.items()} == {k: v.tolist() for k, v in getattr(warm, part).labels.items()}
     assert cold.recordings == warm.recordings and cold.ground_truth_joints == warm.ground_truth_joints
-    # Another option, or one frame edited in place to the same size with its times put back: prepared again.
-    assert load_rig_project(dataclasses.replace(config, train_stride=2), progress=False).prepared.startswith("prepared")
+    # The parsed JSON is cached in the project's cache, none inside the recording folders.
+    assert (root / ".jaxpose_cache" / "parsed").is_dir() and not [p for p in root.glob("*/**/.jaxpose_cache")]
+    # Another split reads the same prepared folder; another option that changes the arrays prepares a
+    # second one, and the first stays (another command's options select it).
+    (first,) = _prepared_folders(root)
+    assert load_rig_project(dataclasses.replace(config, train_stride=2, validation_recordings=("walking01",)), progress=False).prepared.startswith("read from the cache")
+    assert load_rig_project(dataclasses.replace(config, min_confidence=0.2), progress=False).prepared.startswith("prepared and written")
+    assert first in _prepared_folders(root) and len(_prepared_folders(root)) == 2
+    assert load_rig_project(config, progress=False).prepared.startswith("read from the cache")
+    # One frame edited in place to the same size with its times put back: prepared again, and the two
+    # folders made from the frame as it was, which no options can read any more, are removed.
     frame = sorted((sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith("."))[0] / "cam01_json").glob("*.json"))[3]
     times = frame.stat()
     text = frame.read_text()
@@ -90,8 +103,52 @@ def test_the_prepared_project_is_cached_and_memory_mapped(small, tmp_path):
     os.utime(frame, ns=(times.st_atime_ns, times.st_mtime_ns))
     assert frame.stat().st_size == times.st_size
     assert load_rig_project(config, progress=False).prepared.startswith("prepared and written")
-    kept = [p.name for p in (root / ".jaxpose_cache").iterdir() if p.name.startswith("prepared-")]
-    assert len(kept) == 2  # the two most recently used
+    assert len(_prepared_folders(root)) == 1 and first not in _prepared_folders(root)
+
+
+def test_a_split_is_a_selection_of_the_prepared_instants(small, tmp_path):
+    """The split and the strides are applied to every prepared instant: each part is the rows the split
+    rule names (checked by hand on the instants of every recording), with every instant as its context;
+    the held-out recordings, the fractions and the strides read one prepared folder."""
+    root = tmp_path / "project"
+    shutil.copytree(small, root, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    base = RigProjectConfig(root=root, frame_offsets=("cam03=3",))
+    names = tuple(p.name for p in sorted(root.iterdir()) if p.is_dir() and not p.name.startswith("."))
+    every = load_rig_project(dataclasses.replace(base, validation_recordings=names), progress=False)
+    assert len(every.train) == 0 and len(every.validation) == sum(r.instants for r in every.recordings)
+    assert isinstance(every.validation.keypoints2d, np.memmap)  # every instant: the prepared arrays themselves
+    whole = every.validation
+    for config in (
+        dataclasses.replace(base, train_stride=3, validation_stride=2),
+        dataclasses.replace(base, validation_recordings=names[:1], train_stride=2),
+        dataclasses.replace(base, validation_fraction=0.5),
+    ):
+        project = load_rig_project(config, progress=False)
+        assert project.prepared.startswith("read from the cache")
+        expected = {"train": [], "validation": []}
+        for name in names:
+            rows = np.flatnonzero(whole.labels["recording"] == name)
+            n = len(rows)
+            held = np.ones(n, bool) if name in config.validation_recordings else (
+                np.zeros(n, bool) if config.validation_recordings else np.arange(n) >= int(round(n * (1 - config.validation_fraction))))
+            position = np.arange(n)
+            expected["train"] += rows[~held & (position % config.train_stride == 0)].tolist()
+            expected["validation"] += rows[held & (position % config.validation_stride == 0)].tolist()
+        for part, rows in expected.items():
+            dataset = getattr(project, part)
+            np.testing.assert_array_equal(dataset.keypoints2d, whole.keypoints2d[rows])
+            np.testing.assert_array_equal(dataset.confidence, whole.confidence[rows])
+            np.testing.assert_array_equal(dataset.labels["frame"], whole.labels["frame"][rows])
+            np.testing.assert_array_equal(dataset.target3d, whole.target3d[rows])
+            # A window of 3 frames: the instant and its neighbours of the same recording, from every instant.
+            if len(rows):
+                windows, _ = dataset.windows(np.arange(len(rows)), 3)
+                np.testing.assert_array_equal(windows[:, :, 1], whole.keypoints2d[rows])
+                for row, window in zip(rows, windows):
+                    same = np.flatnonzero(whole.labels["recording"] == whole.labels["recording"][row])
+                    neighbours = np.clip(np.array([row - 1, row + 1]), same[0], same[-1])
+                    np.testing.assert_array_equal(window[:, [0, 2]], np.moveaxis(whole.keypoints2d[neighbours], 0, 1))
+    assert len(_prepared_folders(root)) == 1
 
 
 def test_the_pseudo_labels_of_a_prepared_project_are_cached_beside_it(small, tmp_path):

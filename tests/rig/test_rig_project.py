@@ -386,3 +386,82 @@ def test_the_rig_loader_is_given_the_runs_progress_bars_and_window():
     experiment.loader(config)(config.data)
     experiment.loader()(config.data)
     assert calls == [(config.data, {"progress": False, "window": 9}), (config.data, {})]
+
+
+_ONE_STEP = ["--model.width", "16", "--train.batch-size", "16", "--train.max-steps", "1", "--train.eval-samples", "20",
+             "--run.no-progress", "--run.plot-samples", "0", "--run.no-tensorboard"]  # fmt: skip
+
+
+def _prepared(root):
+    return {p.name: p.stat().st_ino for p in (root / ".jaxpose_cache").iterdir() if p.name.startswith("prepared-")}
+
+
+@pytest.mark.slow  # two one-step runs and a reconstruction, ~60 s on 2 cores
+@pytest.mark.trains
+def test_training_reconstruction_and_training_again_share_one_prepared_project(project_copy, tmp_path, capsys):
+    """Issue 41: `experiments.rig`, then `jaxpose.reconstruct` (every instant, as "validation"), then
+    `experiments.rig` again on one project: the second and third read the prepared project the first
+    wrote and prepare nothing; no command removes it."""
+    from jaxpose import reconstruct
+
+    root = str(project_copy)
+    rig_job.main(["--data.root", root, "--run.run-dir", str(tmp_path / "run"), *_ONE_STEP])
+    first = capsys.readouterr().err
+    assert "prepared and written to the cache" in first and "people chosen" in first
+    prepared = _prepared(project_copy)
+    assert len(prepared) == 1
+    reconstruct.main(["--checkpoint", str(tmp_path / "run"), "--data.root", root, "--output", str(tmp_path / "motion"),
+                      "--fps", "50", "--no-progress"])  # fmt: skip
+    second = capsys.readouterr().err
+    rig_job.main(["--data.root", root, "--run.run-dir", str(tmp_path / "again"), "--data.validation-fraction", "0.3", *_ONE_STEP])
+    third = capsys.readouterr().err
+    (folder,) = prepared
+    for log in (second, third):
+        assert f"prepared project read from the cache {project_copy / '.jaxpose_cache' / folder}" in log
+        assert "people chosen" not in log and "recordings read" not in log and "prepared and written" not in log
+    assert _prepared(project_copy) == prepared
+    assert not [p for p in project_copy.glob("*/**/.jaxpose_cache")]
+
+
+_READ_ONLY_RUN = """
+import sys
+from experiments import rig
+from jaxpose import reconstruct
+project, cache, run, motion = sys.argv[1:5]
+rig.main(["--data.root", project, "--data.cache-dir", cache, "--run.run-dir", run, *sys.argv[5:]])
+reconstruct.main(["--checkpoint", run, "--data.root", project, "--output", motion, "--fps", "50", "--no-progress"])
+rig.main(["--data.root", project, "--run.run-dir", run + "_in_memory", *sys.argv[5:]])
+"""
+
+
+@pytest.mark.slow  # two one-step runs and a reconstruction in a child process, ~70 s on 2 cores
+@pytest.mark.trains
+def test_a_read_only_project_trains_and_reconstructs_with_a_cache_folder_given(project_copy, tmp_path):
+    """A project on a read-only file system (a read-only bind mount where the suite runs as root, else the
+    files' write permissions removed): `experiments.rig --data.cache-dir DIR` prepares into DIR,
+    `jaxpose.reconstruct` (the run records the folder) reads it from there, and without a cache folder
+    the project is prepared in memory; the project is left as it was."""
+    import os
+    import subprocess
+    import sys
+
+    before = sorted((str(p.relative_to(project_copy)), p.stat().st_mtime_ns) for p in project_copy.rglob("*"))
+    command = [sys.executable, "-c", _READ_ONLY_RUN, str(project_copy), str(tmp_path / "cache"), str(tmp_path / "run"),
+               str(tmp_path / "motion"), *_ONE_STEP]  # fmt: skip
+    if os.geteuid() == 0:
+        mount = f"mount --bind -o ro {project_copy} {project_copy} && exec \"$@\""
+        probe = subprocess.run(["unshare", "-m", "sh", "-c", f"{mount}", "sh", "true"], capture_output=True)
+        if probe.returncode:
+            pytest.skip(f"running as root without a read-only bind mount (unshare: {probe.stderr.decode().strip()})")
+        command = ["unshare", "-m", "sh", "-c", mount, "sh", *command]
+    else:
+        for path in [project_copy, *project_copy.rglob("*")]:
+            path.chmod(path.stat().st_mode & ~0o222)
+    done = subprocess.run(command, capture_output=True, text=True, cwd=os.getcwd(), timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    log = done.stderr
+    assert f"prepared and written to the cache {tmp_path / 'cache'}" in log
+    assert log.count(f"prepared project read from the cache {tmp_path / 'cache'}") == 1  # the reconstruction
+    assert "cannot be written" in log and "prepared in memory" in log  # the run without --data.cache-dir
+    assert (tmp_path / "motion" / "report.json").is_file() and (tmp_path / "cache" / "parsed").is_dir()
+    assert sorted((str(p.relative_to(project_copy)), p.stat().st_mtime_ns) for p in project_copy.rglob("*")) == before
