@@ -31,7 +31,8 @@ from jaxpose.training.run_directory import RECOVERED_CAMERAS_FILE, RunDirectory,
 from jaxpose.training.splits import Splits
 from jaxpose.training.config import InputAugmentation
 from jaxpose.formats.camera_file import save_cameras
-from jaxpose.rig.project import RigProject, RigProjectConfig, load_rig_project, recorded_settings
+from jaxpose.rig.project import RigProjectConfig, load_rig_project, recorded_settings
+from jaxpose.rig.split import RigProject
 
 log = logging.getLogger("jaxpose")
 

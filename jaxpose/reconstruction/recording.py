@@ -39,7 +39,8 @@ from jaxpose.reconstruction.fusion import MIN_DEPTH_MM, Fusion, FusionConfig, Pr
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, complete_segments, fill_gaps
 from jaxpose.reconstruction.trajectory import TrajectoryConfig, limb_lengths, solve_trajectory
 from jaxpose.rig.cameras import in_view_order
-from jaxpose.rig.project import SPLIT_FIELDS, PreparedProject, RigProject, RigProjectConfig, load_rig_project, prepared_project, split
+from jaxpose.rig.project import RigProjectConfig, load_rig_project, prepared_project
+from jaxpose.rig.split import SPLIT_FIELDS, PreparedProject, RigProject, split
 from jaxpose.training.run_directory import RunDirectory
 from jaxpose.rig.recordings import recording_folders
 from jaxpose.skeleton import ROOT, Skeleton

@@ -169,10 +169,7 @@ def start(cache: Path, cache_key: str) -> Path | None:
     """A fresh temporary folder to prepare into (None, with a warning, where `cache` cannot be written)."""
     try:
         cache.mkdir(parents=True, exist_ok=True)
-        for stale in cache.glob(f"{PREFIX}*.tmp-*"):  # left by a run that was interrupted
-            pid = int(stale.name.rsplit("-", 1)[1])
-            if not _alive(pid):
-                shutil.rmtree(stale, ignore_errors=True)
+        _remove_interrupted(cache, PREFIX)
         temporary = cache / f"{PREFIX}{cache_key}.tmp-{os.getpid()}"
         shutil.rmtree(temporary, ignore_errors=True)
         temporary.mkdir()
@@ -181,6 +178,14 @@ def start(cache: Path, cache_key: str) -> Path | None:
         log.warning("the prepared project is not cached (%s cannot be written: %s; --data.cache-dir names a folder that can);"
                     " it stays in memory", cache, error)
         return None
+
+
+def _remove_interrupted(folder: Path, prefix: str) -> None:
+    """Remove the temporary folders `prefix`*.tmp-PID in `folder` of runs that were interrupted."""
+    for stale in folder.glob(f"{prefix}*.tmp-*"):
+        pid = int(stale.name.rsplit("-", 1)[1])
+        if not _alive(pid):
+            shutil.rmtree(stale, ignore_errors=True)
 
 
 def _alive(pid: int) -> bool:
@@ -252,6 +257,7 @@ def selected_rows(directory: Path | None, part: str, arrays: Mapping[str, np.nda
     if not selection.is_dir():
         temporary = directory / f"{selection.name}.tmp-{os.getpid()}"
         try:
+            _remove_interrupted(directory, SELECTION)
             temporary.mkdir(exist_ok=True)
             for name, array in arrays.items():
                 out = np.lib.format.open_memmap(temporary / f"{part}.{name}.npy", mode="w+", dtype=array.dtype, shape=(len(rows), *array.shape[1:]))

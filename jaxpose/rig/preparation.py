@@ -100,7 +100,7 @@ class Preparation:
     check_unit: bool
     labels: dict[str, np.dtype]
     summaries: list[dict] = dataclasses.field(default_factory=list)
-    """Per recording (in order) what loading did, for `jaxpose.rig.project.RecordingSummary`."""
+    """Per recording (in order) what loading did, for `jaxpose.rig.split.RecordingSummary`."""
     ground_truth_seen: bool = False
 
     def run(self, parts: Iterable[Aligned]) -> None:

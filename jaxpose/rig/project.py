@@ -55,14 +55,11 @@ import logging
 import pathlib
 import shutil
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterator, Sequence
 from typing import Literal
 
 import numpy as np
 
-from jaxpose.camera import Cameras
-from jaxpose.data import ground_truth
-from jaxpose.data.dataset import FrameContext, MultiViewDataset, consecutive_spans
 from jaxpose.formats.rig_cameras import CalibrationUnit
 from jaxpose.formats import keypoint_files
 from jaxpose.formats.file_cache import CACHE_DIR
@@ -73,6 +70,7 @@ from jaxpose.rig.cameras import attach_calibrations, in_view_order
 from jaxpose.rig.geometry import Rigs
 from jaxpose.rig.people import DEFAULT_THRESHOLD_PX
 from jaxpose.rig.preparation import Aligned, Phases, Preparation
+from jaxpose.rig.split import SPLIT_FIELDS, PreparedProject, RigProject, split
 from jaxpose.rig.recordings import (
     Recording,
     find_recording,
@@ -90,9 +88,6 @@ from jaxpose.rig.timeline import (
 
 log = logging.getLogger(__name__)
 
-SPLIT_FIELDS = ("validation_recordings", "validation_fraction", "train_stride", "validation_stride")
-"""RigProjectConfig's fields of a training split: row selections of the prepared instants (`split`), not
-part of the cache's key (a reconstruction takes every instant of every recording)."""
 _NOT_PREPARED = ("root", "cache_dir", *SPLIT_FIELDS)  # where the project and its cache are; the split
 _NOT_RECORDED = ("recordings", *SPLIT_FIELDS)  # which recordings a command reads is its own choice
 
@@ -159,56 +154,6 @@ class RigProjectConfig:
             raise ValueError(f"--data.validation-fraction must lie in (0, 1), got {self.validation_fraction}")
         if self.train_stride < 1 or self.validation_stride < 1 or self.max_sync_offset < 0:
             raise ValueError("--data.train-stride and --data.validation-stride must be >= 1, --data.max-sync-offset >= 0")
-
-
-@dataclasses.dataclass(frozen=True)
-class RecordingSummary:
-    """What loading did to one recording, for the report (counts over all its instants)."""
-
-    name: str
-    cameras: tuple[str, ...]
-    instants: int
-    calibration: str
-    offsets: dict[str, int]
-    offsets_estimated: bool
-    sync_reliable: bool | None
-    instants_with_choice: int
-    views_without_match: int
-    ground_truth_instants: int
-
-
-@dataclasses.dataclass(frozen=True)
-class RigProject:
-    """A loaded project: the training and validation parts and how they were made."""
-
-    train: MultiViewDataset
-    validation: MultiViewDataset
-    camera_names: tuple[str, ...]
-    layout: str
-    recordings: tuple[RecordingSummary, ...]
-    ground_truth_joints: tuple[str, ...]
-    """The lifting skeleton's joints that the ground truth has (empty without ground truth)."""
-    recovered_calibration: object | None = None
-    """The `jaxpose.calibration.Calibration` recovered from the recordings, when there was no calibration."""
-    prepared: str = ""
-    """How the prepared arrays were had: read from the cache, prepared and cached, or prepared in memory."""
-
-
-@dataclasses.dataclass(frozen=True)
-class PreparedProject:
-    """Every instant of every recording prepared (`load_rig_project`'s steps 1-7), as the cache holds it:
-    the recordings one after the other, each on its time axis in order."""
-
-    meta: Mapping
-    """project.json: camera_names, layout, recordings (their summaries), ground_truth_seen, rigs, inputs."""
-    arrays: Mapping[str, np.ndarray]
-    """Per instant: keypoints2d, confidence, rig_index, subject, recording, frame, and target3d where some
-    recording has ground truth; memory-mapped from the cache, or in memory."""
-    recovered_calibration: object | None
-    folder: pathlib.Path | None
-    """The prepared folder in the cache (None: prepared in memory)."""
-    how: str
-    """How the arrays were had: read from the cache, prepared and cached, or prepared in memory."""
 
 
 def load_rig_project(config: RigProjectConfig, progress: bool = True) -> RigProject:
@@ -394,53 +339,6 @@ PARSED = "parsed"
 """The cache's folder of parsed JSON detections, one sub-folder per recording."""
 
 
-def split(prepared: PreparedProject, config: RigProjectConfig) -> RigProject:
-    """The training and validation parts of the prepared instants: per recording, the validation part is
-    the whole recording where --data.validation-recordings names it, else its final
-    --data.validation-fraction; then every --data.train-stride-th / --data.validation-stride-th instant of
-    the recording in each part.  Each part's windows of frames are cut from every instant (its context)."""
-    meta, arrays = prepared.meta, prepared.arrays
-    held_out, sample = [], []
-    for summary in meta["recordings"]:
-        out = _held_out(config, summary["name"], summary["instants"])
-        position = np.arange(summary["instants"])
-        held_out.append(out)
-        sample.append(np.where(out, position % config.validation_stride == 0, position % config.train_stride == 0))
-    held_out, sample = np.concatenate(held_out), np.concatenate(sample)
-    spans = consecutive_spans({"frame": arrays["frame"], "sequence": arrays["recording"]})
-    train = _dataset(prepared, spans, "train", np.flatnonzero(sample & ~held_out))
-    validation = _dataset(prepared, spans, "validation", np.flatnonzero(sample & held_out))
-    if train.target3d is not None and not np.isfinite(train.target3d).all():
-        # Ground truth for only some joints or recordings serves evaluation, not the supervised twin.
-        log.info("the ground truth does not cover every training instant and joint: no --supervision full")
-        train = dataclasses.replace(train, target3d=None)
-    return RigProject(
-        train=train,
-        validation=validation,
-        camera_names=tuple(meta["camera_names"]),
-        layout=meta["layout"],
-        recordings=tuple(RecordingSummary(**summary | {"cameras": tuple(summary["cameras"])}) for summary in meta["recordings"]),
-        ground_truth_joints=ground_truth.ground_truth_joint_names(validation),
-        recovered_calibration=prepared.recovered_calibration,
-        prepared=prepared.how,
-    )
-
-
-def _dataset(prepared: PreparedProject, spans: np.ndarray, part: str, rows: np.ndarray) -> MultiViewDataset:
-    """The prepared instants `rows` as a data set (`jaxpose.rig.cache.selected_rows`), with every instant as
-    its context (`spans`: each instant's stretch of consecutive frames)."""
-    meta, arrays = prepared.meta, prepared.arrays
-    skeleton = lifting_skeleton(meta["layout"])
-    rigs = Cameras(**{field: np.asarray(values, np.float32) for field, values in meta["rigs"].items()})
-    selected = cache.selected_rows(prepared.folder, part, arrays, rows)
-    return MultiViewDataset(
-        skeleton=skeleton, keypoints2d=selected["keypoints2d"], confidence=selected["confidence"], rigs=rigs,
-        rig_index=selected["rig_index"], target3d=selected.get("target3d"),
-        labels={"subject": selected["subject"], "recording": selected["recording"], "sequence": selected["recording"], "frame": selected["frame"]},
-        context=FrameContext(arrays["keypoints2d"], arrays["confidence"]), context_row=rows.astype(np.int32), context_span=spans[rows],
-    )  # fmt: skip
-
-
 def recorded_settings(config: RigProjectConfig, layout: str) -> dict:
     """The settings a run records of its project (`RunRecord.project`): every field but the recordings and
     the split, JSON-ready, with the layout the loader resolved."""
@@ -477,13 +375,3 @@ def _recovered_type(cached: pathlib.Path) -> type | None:
     from jaxpose.calibration import Calibration
 
     return Calibration
-
-
-def _held_out(config: RigProjectConfig, recording: str, instants: int) -> np.ndarray:
-    """bool[instants]: which of a recording's instants validate (--data.validation-recordings, else the
-    final --data.validation-fraction of each recording)."""
-    if recording in config.validation_recordings:
-        return np.ones(instants, bool)
-    if config.validation_recordings:
-        return np.zeros(instants, bool)
-    return np.arange(instants) >= int(round(instants * (1.0 - config.validation_fraction)))

@@ -373,9 +373,10 @@ def test_a_lost_marker_costs_its_instant_not_the_report(project):
     assert summary["mpjpe"] == 0.0 and summary["count"] == valid.sum()
 
 
-def test_the_rig_loader_is_given_the_runs_progress_bars_and_window():
-    # The rig loader prepares each sample's input window and shows progress: the run's settings
-    # reach it (every entry point that takes an Experiment's loader: cli.main, ablations, searches).
+def test_the_rig_loader_is_given_the_runs_progress_bars_and_no_window():
+    # The rig loader shows progress: the run's setting reaches it (every entry point that takes an
+    # Experiment's loader: cli.main, ablations, searches).  It prepares every instant, so a temporal
+    # window is cut from them (test_rig_loading) and is no option of loading: one cache for every lifter.
     calls = []
     experiment = dataclasses.replace(rig_job.EXPERIMENT, load_splits=lambda data, **settings: calls.append((data, settings)))
     config = dataclasses.replace(
@@ -385,7 +386,7 @@ def test_the_rig_loader_is_given_the_runs_progress_bars_and_window():
     )
     experiment.loader(config)(config.data)
     experiment.loader()(config.data)
-    assert calls == [(config.data, {"progress": False, "window": 9}), (config.data, {})]
+    assert calls == [(config.data, {"progress": False}), (config.data, {})]
 
 
 _ONE_STEP = ["--model.width", "16", "--train.batch-size", "16", "--train.max-steps", "1", "--train.eval-samples", "20",
