@@ -29,7 +29,7 @@ What loading does to each recording, in order (one recording at a time: `jaxpose
 3. aligns the cameras in time: camera c's frame f shows instant f + offset[c]; offsets given, or
    estimated (`jaxpose.rig.timeline`, `jaxpose.rig.sync`); instants seen by no camera are absent, a
    camera without a frame at an instant has confidence 0 there; every instant goes further (the split
-   and the strides are applied to the prepared instants: `split`);
+   and the strides are applied to the prepared instants: `jaxpose.rig.split`);
 4. without any calibration, recovers the rig from all recordings (`jaxpose.rig.recovered`);
 5. undistorts the keypoints with the calibration (the data sets' rigs are then pinhole);
 6. keeps one person per instant, the one the views agree on (`jaxpose.rig.people`), and checks a
@@ -41,8 +41,8 @@ What loading does to each recording, in order (one recording at a time: `jaxpose
 The result, every instant of every recording, is prepared once: written to the project's cache
 (``PROJECT/.jaxpose_cache/prepared-<key>/``, or --data.cache-dir, `jaxpose.rig.cache`) and memory-mapped
 from there by every later run with the same inputs and options, whatever its split: the training and
-validation parts are row selections of it (`split`: held-out recordings or each recording's final
-fraction, then the strides), and a temporal lifter's window is the neighbouring rows of the same
+validation parts are row selections of it (`jaxpose.rig.split`: held-out recordings or each
+recording's final fraction, then the strides), and a temporal lifter's window is the neighbouring rows of the same
 recording.  Every JSON file parsed is cached there too (`jaxpose.formats.keypoint_files`).  Steps 5 and 6
 run in chunks of one fixed size across recordings (`jaxpose.rig.geometry`): the compilations of loading do
 not grow with the number or the lengths of the recordings.
@@ -159,9 +159,9 @@ class RigProjectConfig:
 def load_rig_project(config: RigProjectConfig, progress: bool = True) -> RigProject:
     """Every recording of the project, read, aligned, calibrated and reduced to one person (see the module
     docstring), or all that from the cache, split into training and validation parts (`split`)."""
-    unknown = sorted(set(config.validation_recordings) - {folder.name for folder in recording_folders(config.root, config.recordings)})
-    if unknown:
-        names = [folder.name for folder in recording_folders(config.root, config.recordings)]
+    names = [folder.name for folder in recording_folders(config.root, config.recordings)]
+    unknown = sorted(set(config.validation_recordings) - set(names))
+    if unknown:  # before any work
         raise ValueError(f"--data.validation-recordings {unknown}: no such recording (have {names})")
     return split(prepared_project(config, progress), config)
 
