@@ -142,3 +142,17 @@ def test_interrupted_cache_write_leaves_no_cache(tmp_path, monkeypatch):
     with pytest.warns(UserWarning, match="No space left on device"):
         check_matches(kf.read_camera_detections(folder, progress=False), written)
     assert list((tmp_path / file_cache.CACHE_DIR).iterdir()) == []
+
+
+def test_a_cache_file_named_by_the_caller_is_used_and_nothing_is_written_beside_the_input(tmp_path, monkeypatch):
+    """A rig project keeps its parsed JSON in its own cache (`jaxpose.rig.project`): the file named, its
+    folders made, reused while unchanged, and no `.jaxpose_cache` beside the camera folder."""
+    folder = tmp_path / "recording" / "cam01_json"
+    written = write_folder(folder, [1, 2, 0, 1])
+    named = tmp_path / "cache" / "parsed" / "recording" / "cam01_json.npz"
+    check_matches(kf.read_camera_detections(folder, progress=False, cache=named), written)
+    assert named.is_file() and not _cache_file(folder).exists()
+    with monkeypatch.context() as patch:
+        _no_parsing(patch)
+        check_matches(kf.read_camera_detections(folder, progress=False, cache=named), written)
+    assert sorted(p.name for p in (tmp_path / "recording").iterdir()) == ["cam01_json"]
