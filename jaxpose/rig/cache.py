@@ -209,23 +209,25 @@ def commit(temporary: Path, cache_key: str, meta: Mapping[str, Any], recovered: 
         os.rename(temporary, final)
     except OSError:  # the same key finished meanwhile: keep that one
         shutil.rmtree(temporary, ignore_errors=True)
-    _prune(final.parent, meta.get("inputs", {}))
+    _prune(final, meta.get("inputs", {}))
     return final
 
 
-def _prune(cache: Path, inputs: Mapping[str, str]) -> None:
-    """Remove the prepared folders that no options can read again: those made from a group of input files
-    (`input_digests`) whose digest is now another.  Folders of other options or other recordings stay."""
-    for other in cache.glob(f"{PREFIX}*"):
-        if ".tmp-" in other.name:
+def _prune(kept: Path, inputs: Mapping[str, str]) -> None:
+    """Remove the prepared folders beside `kept` that no options can read again: those made from a group
+    of input files (`input_digests`) whose digest is now another, and those of an earlier jaxpose (no
+    digests: their `VERSION` is in no key made now).  Folders of other options or other recordings stay."""
+    for other in kept.parent.glob(f"{PREFIX}*"):
+        if ".tmp-" in other.name or other == kept:
             continue
         try:
-            made_from = json.loads((other / "project.json").read_text()).get("inputs", {})
-        except (OSError, ValueError):
+            made_from = json.loads((other / "project.json").read_text()).get("inputs")
+        except (OSError, ValueError, AttributeError):
             continue  # being written, or not jaxpose's: left alone
-        changed = sorted(group for group, digest in made_from.items() if group in inputs and inputs[group] != digest)
+        changed = ["an earlier version of jaxpose"] if made_from is None else sorted(
+            group for group, digest in made_from.items() if group in inputs and inputs[group] != digest)  # fmt: skip
         if changed:
-            log.info("removing the prepared project %s: its inputs have changed since (%s)", other, ", ".join(changed)[:200])
+            log.info("removing the prepared project %s: made from inputs that have changed since (%s)", other, ", ".join(changed)[:200])
             shutil.rmtree(other, ignore_errors=True)
 
 

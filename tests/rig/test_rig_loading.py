@@ -94,7 +94,10 @@ def test_the_prepared_project_is_cached_and_memory_mapped(small, tmp_path):
     assert first in _prepared_folders(root) and len(_prepared_folders(root)) == 2
     assert load_rig_project(config, progress=False).prepared.startswith("read from the cache")
     # One frame edited in place to the same size with its times put back: prepared again, and the two
-    # folders made from the frame as it was, which no options can read any more, are removed.
+    # folders made from the frame as it was, which no options can read any more, are removed; so is a
+    # folder of an earlier jaxpose (no input digests: its version is in no key made now).
+    (root / ".jaxpose_cache" / "prepared-earlier").mkdir()
+    (root / ".jaxpose_cache" / "prepared-earlier" / "project.json").write_text('{"layout": "coco17"}')
     frame = sorted((sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith("."))[0] / "cam01_json").glob("*.json"))[3]
     times = frame.stat()
     text = frame.read_text()

@@ -283,6 +283,25 @@ def test_a_project_without_calibration_recovers_the_rig(tmp_path):
     assert labelled.sum() > 100 and reference.camera_names == data.camera_names
     scale = (triangulated * truth).sum((-2, -1), keepdims=True) / (triangulated**2).sum((-2, -1), keepdims=True)
     assert np.median(np.linalg.norm(truth - scale * triangulated, axis=-1).mean(-1)[labelled]) < 30
+    # A reconstruction of a run trained on this rig (its recovered_cameras.json, as experiments.rig writes
+    # it) reads the prepared project the run was trained on: every instant, in the same world.
+    from jaxpose.formats.camera_file import save_cameras
+    from jaxpose.reconstruction import recording
+    from jaxpose.training.run_directory import RunDirectory
+
+    run = RunDirectory(tmp_path / "run")
+    run.path.mkdir()
+    save_cameras(run.recovered_cameras, {"rig": (list(recovered.camera_names), recovered.cameras)})
+    config = RigProjectConfig(root=root, image_size=(1920, 1080), recovery_frames=120)
+    every = recording.load_every_instant(config, run.path, progress=False)
+    assert every.prepared == data.prepared.replace("prepared and written to", "read from")
+    assert len(every.validation) == len(data.train) + len(data.validation)
+    np.testing.assert_array_equal(every.validation.rigs.R, data.validation.rigs.R)
+    # Another rig in the run's file (not the one the cache holds): prepared in that rig's world instead.
+    moved = dataclasses.replace(recovered.cameras, t=np.asarray(recovered.cameras.t) + 100.0)
+    save_cameras(run.recovered_cameras, {"rig": (list(recovered.camera_names), moved)})
+    elsewhere = recording.load_every_instant(config, run.path, progress=False)
+    assert elsewhere.prepared.startswith("prepared and written") and elsewhere.recordings[0].calibration == str(run.recovered_cameras)
 
 
 def test_ground_truth_for_some_recordings_serves_evaluation_only(project_copy):
