@@ -68,7 +68,6 @@ from jaxpose.training.checkpoint import CheckpointError
 from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.formats import detection_file, intrinsics, pose_files
 from jaxpose.formats.outputs import OutputError, check_output, check_output_folder
-from jaxpose.training.run_directory import RECORD_FILE, read_record
 from jaxpose.layouts import LAYOUTS, check_body25_layout, infer_layout, layout_joint_names, layout_of, to_skeleton
 from jaxpose.logs import show_logs
 
@@ -157,7 +156,7 @@ def run(args: PredictArgs) -> np.ndarray:
     if detections.clipped_scores:
         print(f"{detections.clipped_scores} scores above 1 clipped to 1 (docs/files.md)", file=sys.stderr)
     lifter = inference.load(args.checkpoint, batch_size=args.batch_size)
-    args = dataclasses.replace(args, min_confidence=score_threshold(args.checkpoint, args.min_confidence))
+    args = dataclasses.replace(args, min_confidence=inference.score_threshold(args.checkpoint, args.min_confidence))
     camera = input_camera(args, detections)
     layout = args.format or input_layout(lifter.skeleton, detections)
     scores = detections.scores if detections.scores is not None else np.ones(detections.keypoints.shape[:2], np.float32)
@@ -231,18 +230,6 @@ def check_args(args: PredictArgs) -> None:
         raise ValueError(f"--outside-margin must be >= 0, got {args.outside_margin}")
     if args.reject_inconsistent is not None and not args.reject_inconsistent > 0:
         raise ValueError(f"--reject-inconsistent must be > 0, got {args.reject_inconsistent}")
-
-
-def score_threshold(run: pathlib.Path, given: float | None) -> float:
-    """--min-confidence, else the threshold the run recorded it was trained with, else the default; an
-    override that differs from the run's is said in one line."""
-    record = read_record(run)
-    trained = None if record is None else record.min_confidence
-    if given is None:
-        return inference.DEFAULT_MIN_CONFIDENCE if trained is None else trained
-    if trained is not None and given != trained:
-        print(f"--min-confidence {given:g} differs from the run's {trained:g} ({run}/{RECORD_FILE}): using {given:g}", file=sys.stderr)
-    return given
 
 
 def check_outputs(args: PredictArgs) -> list[pathlib.Path]:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import pathlib
+import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -30,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpose.training import checkpoint
-from jaxpose.training.run_directory import RunDirectory
+from jaxpose.training.run_directory import RECORD_FILE, RunDirectory, read_record
 from jaxpose.camera import Cameras, masked_median, normalize_keypoints, undistort_points
 from jaxpose.training.config import ModelConfig
 from jaxpose.chunks import map_in_chunks
@@ -52,6 +53,19 @@ DEFAULT_OUTSIDE_MARGIN = 0.1
 """`jaxpose.predict --outside-margin`: a keypoint more than this fraction of the larger image side outside
 the image is missing.  Detectors do place truncated joints a little past the border; a joint hundreds of
 pixels away is a detector failure (docs/robust_input.md)."""
+
+
+def score_threshold(run: pathlib.Path, given: float | None) -> float:
+    """--min-confidence of `jaxpose.predict` and `jaxpose.export`: the value given, else the threshold the run
+    recorded it was trained with (its run.json), else `DEFAULT_MIN_CONFIDENCE`; a value given that differs
+    from the run's is said in one line."""
+    record = read_record(run)
+    trained = None if record is None else record.min_confidence
+    if given is None:
+        return DEFAULT_MIN_CONFIDENCE if trained is None else trained
+    if trained is not None and given != trained:
+        print(f"--min-confidence {given:g} differs from the run's {trained:g} ({run}/{RECORD_FILE}): using {given:g}", file=sys.stderr)
+    return given
 
 
 def implausible_joints(
