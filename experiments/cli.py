@@ -40,7 +40,7 @@ import jax
 import tyro
 
 from experiments import paper_tables
-from jaxpose.training.experiment import ExperimentConfig
+from jaxpose.training.experiment import ExperimentConfig, recipe_summary
 from jaxpose.training.runner import run
 from jaxpose.training.splits import Splits
 from jaxpose.formats.errors import DataFormatError
@@ -61,7 +61,8 @@ class Experiment:
     presets: Mapping[str, ExperimentConfig]
     """Complete configurations by name: `--preset NAME` picks one."""
     preset_notes: Mapping[str, str]
-    """One line per preset for `--help`."""
+    """One line per preset for `--help`, saying what its config does not (what it is for, how long it takes);
+    the recipe itself is listed from the config (`jaxpose.training.experiment.recipe_summary`)."""
     load_splits: Callable[..., Splits]
     """The data config -> train and test splits; with `loads_with_run_settings`, also given the
     keywords `progress` (--run.progress) and `window` (--model.temporal-window)."""
@@ -131,7 +132,8 @@ def parse(
     name, rest = choose(argv, "--preset", list(presets), default_preset, prog)
     width = max(len(name) for name in presets)
     listing = "\n".join(
-        f"  {preset:<{width}}  {experiment.preset_notes[preset]} ({presets[preset].run.run_dir})" for preset in presets
+        f"  {preset:<{width}}  {experiment.preset_notes[preset]} ({presets[preset].run.run_dir})\n  {'':<{width}}  {recipe_summary(presets[preset])}"
+        for preset in presets
     )
     text = (
         f"{description.rstrip()}\n\nPresets (--preset NAME, default {default_preset}; the defaults shown"
