@@ -38,7 +38,7 @@ from jaxpose.chunks import map_in_chunks
 from jaxpose.data.dataset import window_rows
 from jaxpose.flip import flip_averaged
 from jaxpose.skeleton import ROOT, Skeleton
-from jaxpose.training.step import make_eval_step
+from jaxpose.model import make_eval_step
 
 DEFAULT_BATCH_SIZE = 1024
 

@@ -22,7 +22,8 @@ from jaxpose.training import checkpoint, evaluation, parallel, pseudo_labelling,
 from jaxpose.data import ground_truth
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.data.dataset import MultiViewDataset
-from jaxpose.training.step import TrainState, init_train_state, jit_train_step, make_eval_step, make_train_step
+from jaxpose.model import make_eval_step
+from jaxpose.training.step import TrainState, init_train_state, jit_train_step, make_train_step
 
 log = logging.getLogger("jaxpose")
 

@@ -19,7 +19,8 @@ from jaxpose.data import ground_truth
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.flip import flip_averaged
 from jaxpose.losses import TERMS
-from jaxpose.training.step import GRADIENT_SHARE_PREFIX, TrainState, make_eval_step
+from jaxpose.model import make_eval_step
+from jaxpose.training.step import GRADIENT_SHARE_PREFIX, TrainState
 
 
 def evaluate_and_report(

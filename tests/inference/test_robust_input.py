@@ -24,7 +24,8 @@ from jaxpose.serving import inference
 from jaxpose.camera import MEDIAN_RADIUS_LIMIT, masked_median, normalize_keypoints, project
 from jaxpose.training.config import InputAugmentation, LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.skeleton import H36M_17
-from jaxpose.training.step import augment_inputs, init_train_state, make_eval_step, make_train_step
+from jaxpose.model import make_eval_step
+from jaxpose.training.step import augment_inputs, init_train_state, make_train_step
 
 IMAGE = (1000.0, 1000.0)
 
