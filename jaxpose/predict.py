@@ -298,13 +298,11 @@ def lift_frames(
     with tqdm(total=count, desc="lifting", unit="pose", disable=count <= LIFT_BLOCK) as bar:
         for start in range(0, count, LIFT_BLOCK):
             rows = slice(start, min(start + LIFT_BLOCK, count))
-            K = camera.of_poses(rows)
+            inputs = lifter.prepare(keypoints[rows], camera.of_poses(rows), confidence[rows], camera.dist, camera.image_size)
             if reject is not None:
-                rejected[rows] = lifter.inconsistent_joints(
-                    keypoints[rows], K, confidence[rows], camera.dist, camera.image_size, threshold=reject
-                )
-            kept = np.where(rejected[rows], 0.0, confidence[rows]).astype(np.float32)
-            poses[rows] = lifter.predict(keypoints[rows], K, kept, camera.dist, camera.image_size, flip=flip)
+                rejected[rows] = lifter.inconsistent_joints(inputs, threshold=reject)
+                inputs = inputs.without(rejected[rows])
+            poses[rows] = lifter.lift(inputs, flip=flip)
             bar.update(rows.stop - rows.start)
     return poses, rejected
 
