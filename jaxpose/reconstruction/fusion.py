@@ -335,9 +335,10 @@ def _solve(ev: _Evidence, rays: np.ndarray, lifts: np.ndarray, config: FusionCon
     weighted_lift = lifts[..., None] * ev.precision_lift  # [n, C, J, 3]
     # Per view, its coupling's transpose [n, C, 4, 3J]: the rows of T_c (lambda P) and s_c (lambda P R^T L)
     # against the joints' coordinates (index 3 j + axis), contiguous so that the sum over views is one product.
-    coupling = np.concatenate(
-        [(lifts[:, :, None, :, None] * ev.precision[:, :, :, None, :]).reshape(n, C, 3, 3 * J), weighted_lift.reshape(n, C, 1, 3 * J)], 2
-    )  # fmt: skip
+    coupling = np.empty((n, C, 4, J, 3))
+    np.multiply(lifts[:, :, None, :, None], ev.precision[:, :, :, None, :], out=coupling[:, :, :3])
+    coupling[:, :, 3] = weighted_lift
+    coupling = coupling.reshape(n, C, 4, 3 * J)
     placement_matrix = np.zeros((n, C, 4, 4))
     placement_matrix[..., :3, :3] = lifts.sum(-1)[..., None, None] * ev.precision
     placement_matrix[..., :3, 3] = placement_matrix[..., 3, :3] = weighted_lift.sum(2)
