@@ -19,7 +19,8 @@ detected with the calibration as a TOML in metres, its distortion included (Pose
 (`--disagreeing-joints` left out), P-MPJPE on the instants a method gives every joint, acceleration
 error (mm/frame^2, the second difference against the ground truth's), each limb's length spread over
 time (standard deviation, mm), and coverage and MPJPE by the number of views that detected the joint,
-and the instants some camera sees that have a gap.
+and the instants some camera sees that have a gap; and the world error split into each joint's mean
+offset per recording and what varies about it (`peers_scores.Scores`).
 
 Timing (`--part timing`): `--cameras` of a synthetic rig (`jaxpose.synthetic`, one recording of
 `--timing-frames` frames, detector noise `--noise-scale` times its per-joint sigma and `--outlier-rate`
@@ -402,6 +403,13 @@ def accuracy_tables(result: dict) -> list[str]:
                 cells.append(f"{covered:.0f}%, {_number(float(np.mean(errors)) if errors else None)}")
             cells.append(str(sum(r["instants_with_a_gap"] for r in rows)))
             lines.append("| " + " | ".join(cells) + " |")
+        lines += ["", "The world error split: per recording and joint, its mean over the instants (the offset) and what varies about it (mm):", "",
+                  "| method | MPJPE | offset | about the offset |", "|---|---|---|---|"]  # fmt: skip
+        for method in first["methods"]:
+            rows = [conditions[m]["methods"].get(method) for m in members]
+            if all(r is not None and r.get("offset_mm") is not None for r in rows):
+                split = [_number(float(np.mean([r[key] for r in rows]))) for key in ("mpjpe_mm", "offset_mm", "about_offset_mm")]
+                lines.append("| " + " | ".join([method, *split]) + " |")
         lines.append("")
     return lines
 
