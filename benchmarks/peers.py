@@ -211,13 +211,14 @@ def run_peer(python: pathlib.Path, family: str, methods: list[str], work: pathli
     return results, times, problem
 
 
-def write_calibration(path: pathlib.Path, names: Sequence[str], cameras: Cameras, image_size: np.ndarray, source: str) -> pathlib.Path:
-    """The rig as the peers read it: Anipose / Pose2Sim TOML in metres."""
+def write_calibration(path: pathlib.Path, names: Sequence[str], cameras: Cameras, image_size: np.ndarray, source: str,
+                      overwrite: bool = False) -> pathlib.Path:  # fmt: skip
+    """The rig as the peers read it: Anipose / Pose2Sim TOML in metres (an earlier run's replaced with `overwrite`)."""
     fields = {name: getattr(cameras, name) for name in ("K", "R", "t", "dist")}
     fields = {name: None if value is None else np.asarray(value, np.float64) for name, value in fields.items()}
     cameras = Cameras(**fields, distortion_model=cameras.distortion_model)
     rig = RigCalibration(tuple(names), cameras, np.asarray(image_size), source, "mm")
-    write_anipose_toml(path, rig, unit="m")
+    write_anipose_toml(path, rig, unit="m", overwrite=overwrite)
     return path
 
 
@@ -258,7 +259,7 @@ def accuracy(args: PeersArgs, lifter: inference.Lifter3D, python: pathlib.Path |
         raise SystemExit(f"{source}: no image sizes, which Pose2Sim needs")
     args.output.mkdir(parents=True, exist_ok=True)
     rigs = dataset.rigs[int(dataset.rig_index[0])]
-    calibration = write_calibration(args.output / "calibration.toml", project.camera_names, rigs, rig.image_size, str(source))
+    calibration = write_calibration(args.output / "calibration.toml", project.camera_names, rigs, rig.image_size, str(source), args.overwrite)
     skeleton = dataset.skeleton
     agreeing = np.array([name not in args.disagreeing_joints for name in skeleton.joint_names])
     as_detected = list(recording_inputs(dataclasses.replace(dataset, rigs=dataset.rigs.without_distortion())))
@@ -338,7 +339,7 @@ def timing(args: PeersArgs, lifter: inference.Lifter3D, python: pathlib.Path | N
         work = args.output / "timing" / f"{count}_cameras"
         work.mkdir(parents=True, exist_ok=True)
         sizes = np.tile(config.image_size, (count, 1))
-        calibration = write_calibration(work / "calibration.toml", names, inputs.cameras, sizes, "synthetic")
+        calibration = write_calibration(work / "calibration.toml", names, inputs.cameras, sizes, "synthetic", args.overwrite)
         row = {}
         error = lambda points: float(np.nanmean(np.linalg.norm(points - inputs.target3d, axis=-1)))  # noqa: E731
         for method, function in JAXPOSE_METHODS.items():
