@@ -259,7 +259,9 @@ def accuracy(args: PeersArgs, lifter: inference.Lifter3D, python: pathlib.Path |
         raise SystemExit(f"{source}: no image sizes, which Pose2Sim needs")
     args.output.mkdir(parents=True, exist_ok=True)
     rigs = dataset.rigs[int(dataset.rig_index[0])]
-    calibration = write_calibration(args.output / "calibration.toml", project.camera_names, rigs, rig.image_size, str(source), args.overwrite)
+    calibration = write_calibration(
+        args.output / "calibration.toml", project.camera_names, rigs, rig.image_size, str(source), args.overwrite
+    )
     skeleton = dataset.skeleton
     agreeing = np.array([name not in args.disagreeing_joints for name in skeleton.joint_names])
     as_detected = list(recording_inputs(dataclasses.replace(dataset, rigs=dataset.rigs.without_distortion())))
@@ -404,8 +406,8 @@ def accuracy_tables(result: dict) -> list[str]:
                 cells.append(f"{covered:.0f}%, {_number(float(np.mean(errors)) if errors else None)}")
             cells.append(str(sum(r["instants_with_a_gap"] for r in rows)))
             lines.append("| " + " | ".join(cells) + " |")
-        lines += ["", "The world error split: per recording and joint, its mean over the instants (the offset) and what varies about it (mm):", "",
-                  "| method | MPJPE | offset | about the offset |", "|---|---|---|---|"]  # fmt: skip
+        lines += ["", "The world error split: per recording and joint, its mean over the instants (the offset) and what varies",
+                  "about it (mm):", "", "| method | MPJPE | offset | about the offset |", "|---|---|---|---|"]  # fmt: skip
         for method in first["methods"]:
             rows = [conditions[m]["methods"].get(method) for m in members]
             if all(r is not None and r.get("offset_mm") is not None for r in rows):

@@ -383,7 +383,8 @@ def test_the_solve_is_the_dense_least_squares(seed, num_views):
                     row[:, 3 * J_ + 4 * c + 3] = -weight @ ev.lift[n, c, j]
                     rows.append(row)
                     rhs.append(np.zeros(3))
-        prior = np.sqrt(np.concatenate([np.full(3 * J_, fusion.PRIOR_PRECISION), np.tile([fusion.PRIOR_PRECISION] * 3 + [SIMULATED.scale_sigma**-2], C)]))
+        placement_prior = np.tile([fusion.PRIOR_PRECISION] * 3 + [SIMULATED.scale_sigma**-2], C)
+        prior = np.sqrt(np.concatenate([np.full(3 * J_, fusion.PRIOR_PRECISION), placement_prior]))
         rows.append(np.diag(prior))
         rhs.append(np.concatenate([np.zeros(3 * J_), np.tile([0.0, 0, 0, SIMULATED.scale_sigma**-1], C)]))
         A, b = np.concatenate(rows), np.concatenate(rhs)
