@@ -19,7 +19,8 @@ detected with the calibration as a TOML in metres, its distortion included (Pose
 (`--disagreeing-joints` left out), P-MPJPE on the instants a method gives every joint, acceleration
 error (mm/frame^2, the second difference against the ground truth's), each limb's length spread over
 time (standard deviation, mm), and coverage and MPJPE by the number of views that detected the joint,
-and the instants some camera sees that have a gap.
+and the instants some camera sees that have a gap; and the world error split into each joint's mean
+offset per recording and what varies about it (`peers_scores.Scores`).
 
 Timing (`--part timing`): `--cameras` of a synthetic rig (`jaxpose.synthetic`, one recording of
 `--timing-frames` frames, detector noise `--noise-scale` times its per-joint sigma and `--outlier-rate`
@@ -210,13 +211,14 @@ def run_peer(python: pathlib.Path, family: str, methods: list[str], work: pathli
     return results, times, problem
 
 
-def write_calibration(path: pathlib.Path, names: Sequence[str], cameras: Cameras, image_size: np.ndarray, source: str) -> pathlib.Path:
-    """The rig as the peers read it: Anipose / Pose2Sim TOML in metres."""
+def write_calibration(path: pathlib.Path, names: Sequence[str], cameras: Cameras, image_size: np.ndarray, source: str,
+                      overwrite: bool = False) -> pathlib.Path:  # fmt: skip
+    """The rig as the peers read it: Anipose / Pose2Sim TOML in metres (an earlier run's replaced with `overwrite`)."""
     fields = {name: getattr(cameras, name) for name in ("K", "R", "t", "dist")}
     fields = {name: None if value is None else np.asarray(value, np.float64) for name, value in fields.items()}
     cameras = Cameras(**fields, distortion_model=cameras.distortion_model)
     rig = RigCalibration(tuple(names), cameras, np.asarray(image_size), source, "mm")
-    write_anipose_toml(path, rig, unit="m")
+    write_anipose_toml(path, rig, unit="m", overwrite=overwrite)
     return path
 
 
@@ -257,7 +259,9 @@ def accuracy(args: PeersArgs, lifter: inference.Lifter3D, python: pathlib.Path |
         raise SystemExit(f"{source}: no image sizes, which Pose2Sim needs")
     args.output.mkdir(parents=True, exist_ok=True)
     rigs = dataset.rigs[int(dataset.rig_index[0])]
-    calibration = write_calibration(args.output / "calibration.toml", project.camera_names, rigs, rig.image_size, str(source))
+    calibration = write_calibration(
+        args.output / "calibration.toml", project.camera_names, rigs, rig.image_size, str(source), args.overwrite
+    )
     skeleton = dataset.skeleton
     agreeing = np.array([name not in args.disagreeing_joints for name in skeleton.joint_names])
     as_detected = list(recording_inputs(dataclasses.replace(dataset, rigs=dataset.rigs.without_distortion())))
@@ -337,7 +341,7 @@ def timing(args: PeersArgs, lifter: inference.Lifter3D, python: pathlib.Path | N
         work = args.output / "timing" / f"{count}_cameras"
         work.mkdir(parents=True, exist_ok=True)
         sizes = np.tile(config.image_size, (count, 1))
-        calibration = write_calibration(work / "calibration.toml", names, inputs.cameras, sizes, "synthetic")
+        calibration = write_calibration(work / "calibration.toml", names, inputs.cameras, sizes, "synthetic", args.overwrite)
         row = {}
         error = lambda points: float(np.nanmean(np.linalg.norm(points - inputs.target3d, axis=-1)))  # noqa: E731
         for method, function in JAXPOSE_METHODS.items():
@@ -402,6 +406,13 @@ def accuracy_tables(result: dict) -> list[str]:
                 cells.append(f"{covered:.0f}%, {_number(float(np.mean(errors)) if errors else None)}")
             cells.append(str(sum(r["instants_with_a_gap"] for r in rows)))
             lines.append("| " + " | ".join(cells) + " |")
+        lines += ["", "The world error split: per recording and joint, its mean over the instants (the offset) and what varies",
+                  "about it (mm):", "", "| method | MPJPE | offset | about the offset |", "|---|---|---|---|"]  # fmt: skip
+        for method in first["methods"]:
+            rows = [conditions[m]["methods"].get(method) for m in members]
+            if all(r is not None and r.get("offset_mm") is not None for r in rows):
+                split = [_number(float(np.mean([r[key] for r in rows]))) for key in ("mpjpe_mm", "offset_mm", "about_offset_mm")]
+                lines.append("| " + " | ".join([method, *split]) + " |")
         lines.append("")
     return lines
 

@@ -5,7 +5,9 @@ truth's; P-MPJPE (Procrustes per instant, `jaxpose.metrics.p_mpjpe`) on the inst
 every joint; the acceleration error (mm/frame^2: the second difference against the ground truth's, on
 joints and instants whose neighbours both have); each limb's length spread over time (standard
 deviation, mm); coverage and MPJPE by the number of views that detected the joint; the instants some
-camera sees that have a gap.
+camera sees that have a gap.  And the world error split in two: per recording and joint, its mean error
+vector over the covered instants (the offset: a joint the detector defines otherwise than the ground
+truth, which no model of motion removes), and what varies about it; each as a mean over the cells.
 """
 
 from __future__ import annotations
@@ -43,7 +45,8 @@ class Scores:
 
     def __init__(self, agreeing: np.ndarray):
         self.agreeing = agreeing  # bool[J]
-        names = ("error", "cells", "covered", "agreeing_error", "agreeing_covered", "pa", "pa_frames", "accel", "accel_count", "gaps", "seen")
+        names = ("error", "cells", "covered", "agreeing_error", "agreeing_covered", "pa", "pa_frames", "accel", "accel_count", "gaps",
+                 "seen", "offset", "about_offset")  # fmt: skip
         self.sums = dict.fromkeys(names, 0.0)
         self.bucket = {name: np.zeros(len(BUCKETS)) for name in ("cells", "covered", "error")}
         self.spreads: list[np.ndarray] = []
@@ -58,6 +61,10 @@ class Scores:
         s["error"] += error[covered].sum()
         s["agreeing_covered"] += covered[:, self.agreeing].sum()
         s["agreeing_error"] += error[:, self.agreeing][covered[:, self.agreeing]].sum()
+        difference = np.where(covered[..., None], points - truth, 0.0)
+        offset = difference.sum(0) / np.maximum(covered.sum(0), 1)[:, None]  # [J, 3] per joint over the recording
+        s["offset"] += np.sum(covered.sum(0) * np.linalg.norm(offset, axis=-1))
+        s["about_offset"] += np.linalg.norm(difference - offset, axis=-1)[covered].sum()
         complete = covered.all(-1)
         if complete.any():
             s["pa"] += float(np.asarray(p_mpjpe(points[complete], truth[complete])).sum())
@@ -86,6 +93,8 @@ class Scores:
             "complete_frames": int(s["pa_frames"]),
             "accel_error_mm_per_frame2": ratio(s["accel"], s["accel_count"]),
             "limb_spread_mm": float(np.nanmean(np.stack(self.spreads))) if self.spreads else None,
+            "offset_mm": ratio(s["offset"], s["covered"]),
+            "about_offset_mm": ratio(s["about_offset"], s["covered"]),
             "instants_with_a_gap": int(s["gaps"]),
             "instants_seen": int(s["seen"]),
             "buckets": {

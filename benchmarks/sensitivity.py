@@ -157,7 +157,7 @@ def wild_joint_errors(lifter, data_dir: pathlib.Path, reject: float, flip: bool 
     confidence = sh.confidence.reshape(N * C, J)
     target, valid = ground_truth_in_views(sh)
     target, valid = target.reshape(N * C, J, 3), valid.reshape(N * C)
-    rejected = lifter.inconsistent_joints(keypoints, K, confidence, threshold=reject)
+    rejected = lifter.inconsistent_joints(lifter.prepare(keypoints, K, confidence), threshold=reject)
     lifts = {
         "as_given": confidence,
         "rejecting": np.where(rejected, 0.0, confidence),

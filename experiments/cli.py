@@ -18,9 +18,10 @@ where, what was found, the files this run reads, and the manual's "Getting the d
 non-zero exit status, not a traceback.  The runner loads the data before it creates the run
 directory, so a failed start leaves nothing behind; a batch larger than the training set is refused there too.
 
-The budget.  A preset may cap the samples a run sees (`--train.max-samples`: min(its epochs, e.g. the
-rig preset's 5.0M samples, the Human3.6M cpu recipe's time) on a project of any size).  `--train.epochs` given on the command
-line asks for that many full epochs: it lifts the preset's cap, unless `--train.max-samples` is given too.
+The budget.  A preset may cap the samples a run sees (`--train.max-samples`, e.g. the rig preset's 5.0M,
+the Human3.6M cpu recipe's time on a project of any size).  The cap is a value like any other: a config
+means what its fields say, whatever the command line that made it; `--train.max-samples 0` lifts it, so
+that `--train.epochs N` trains N full epochs.
 
 Compiled programs are cached on disk for the next run (`jaxpose.compilation_cache`;
 JAXPOSE_COMPILATION_CACHE=off to disable).
@@ -28,19 +29,18 @@ JAXPOSE_COMPILATION_CACHE=off to disable).
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import functools
 import pathlib
 import sys
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import Any, Literal
 
 import jax
 import tyro
 
 from experiments import paper_tables
-from jaxpose.training.experiment import ExperimentConfig
+from jaxpose.training.experiment import ExperimentConfig, recipe_summary
 from jaxpose.training.runner import run
 from jaxpose.training.splits import Splits
 from jaxpose.formats.errors import DataFormatError
@@ -61,7 +61,8 @@ class Experiment:
     presets: Mapping[str, ExperimentConfig]
     """Complete configurations by name: `--preset NAME` picks one."""
     preset_notes: Mapping[str, str]
-    """One line per preset for `--help`."""
+    """One line per preset for `--help`, saying what its config does not (what it is for, how long it takes);
+    the recipe itself is listed from the config (`jaxpose.training.experiment.recipe_summary`)."""
     load_splits: Callable[..., Splits]
     """The data config -> train and test splits; with `loads_with_run_settings`, also given the
     keyword `progress` (--run.progress)."""
@@ -102,13 +103,13 @@ class Experiment:
 
 
 def choose(argv: Sequence[str], flag: str, choices: Sequence[str], default: str, prog: str) -> tuple[str, list[str]]:
-    """(the value of `flag` among `choices`, the other arguments): a selector read before tyro parses
-    the rest, because it decides what the rest means (which preset supplies the defaults, which
-    experiment's flags apply)."""
-    chooser = argparse.ArgumentParser(prog=prog, add_help=False, allow_abbrev=False)
-    chooser.add_argument(flag, choices=list(choices), default=default)
-    chosen, rest = chooser.parse_known_args(list(argv))
-    return getattr(chosen, flag.lstrip("-").replace("-", "_")), rest
+    """(the value of `flag` among `choices`, the other arguments): a selector read by tyro before the rest
+    is parsed, because it decides what the rest means (which preset supplies the defaults, which
+    experiment's flags apply); `--help` is left to the second parse."""
+    name = flag.lstrip("-").replace("-", "_")
+    selector = dataclasses.make_dataclass("Selector", [(name, Literal[tuple(choices)], default)], frozen=True)
+    chosen, rest = tyro.cli(selector, args=list(argv), prog=prog, return_unknown_args=True, add_help=False)
+    return getattr(chosen, name), rest
 
 
 def parse(
@@ -131,7 +132,8 @@ def parse(
     name, rest = choose(argv, "--preset", list(presets), default_preset, prog)
     width = max(len(name) for name in presets)
     listing = "\n".join(
-        f"  {preset:<{width}}  {experiment.preset_notes[preset]} ({presets[preset].run.run_dir})" for preset in presets
+        f"  {preset:<{width}}  {experiment.preset_notes[preset]} ({presets[preset].run.run_dir})\n  {'':<{width}}  {recipe_summary(presets[preset])}"
+        for preset in presets
     )
     text = (
         f"{description.rstrip()}\n\nPresets (--preset NAME, default {default_preset}; the defaults shown"
@@ -140,19 +142,10 @@ def parse(
     usage_prog = f"{prog} [--preset {{{','.join(presets)}}}]"
     preset = presets[name]
     config = tyro.cli(experiment.config_type, default=preset, args=rest, description=text, prog=usage_prog)
-    if config.train.max_samples and given(rest, "--train.epochs") and not given(rest, "--train.max-samples"):
-        config = dataclasses.replace(config, train=dataclasses.replace(config.train, max_samples=0))
     if config.loss.supervision == "full" and config.run.run_dir == preset.run.run_dir:
         supervised_dir = pathlib.Path(f"{preset.run.run_dir}{SUPERVISED_SUFFIX}")
         config = dataclasses.replace(config, run=dataclasses.replace(config.run, run_dir=supervised_dir))
     return config
-
-
-def given(argv: Sequence[str], flag: str) -> bool:
-    """Whether `flag` (tyro's spelling, e.g. --train.max-samples) is among the arguments, in either
-    spelling tyro accepts (hyphens or underscores), as `--flag value` or `--flag=value`."""
-    spellings = {flag, flag.replace("-", "_").replace("__", "--", 1)}
-    return any(argument.split("=", 1)[0] in spellings for argument in argv)
 
 
 def main(experiment: Experiment, argv: Sequence[str] | None, description: str) -> dict:

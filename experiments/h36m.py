@@ -23,10 +23,9 @@ from typing import Literal
 import numpy as np
 
 from experiments import cli, paper_tables
-from jaxpose.training.experiment import ExperimentConfig, RunConfig, TrainConfig, paper_note, paper_preset
+from jaxpose.training.experiment import ExperimentConfig, cpu_recipe, paper_preset
 from jaxpose.training.experiment import calibration_lines, mocap_calibration, on_training_calibration
 from jaxpose.training.splits import Splits
-from jaxpose.training.config import RESCALED_LOSS, ModelConfig, OptimizerConfig, PseudoLabelConfig
 from jaxpose.datasets.h36m import DETECTION_FILES, POSES_3D_FILE, TEST_SUBJECTS, TRAIN_SUBJECTS, load_h36m, subject_rigs
 
 
@@ -168,15 +167,7 @@ def expected_files(data: H36MData) -> str:
 #   effect there is within the seed spread; docs/benchmarks.md "Development protocol").  Frames per epoch: every 5th frame (10 fps) for 30 epochs
 #   was as good as every frame for 6 epochs (84.2 vs 84.0 mm) and triangulates 5x fewer frames.
 # - Cosine decay after a warm-up of ~4% of the steps ends the short run at a low learning rate.
-CPU = ExperimentConfig(
-    data=H36MData(),
-    model=ModelConfig(width=512, dropout_rate=0.1, stages=1),
-    loss=dataclasses.replace(RESCALED_LOSS, label_robust_scale_mm=50.0),
-    pseudo_labels=PseudoLabelConfig(method="ransac"),
-    optimizer=OptimizerConfig(schedule="cosine", warmup_steps=1700),
-    train=TrainConfig(batch_size=128, epochs=70, checkpoint_every=4000),
-    run=RunConfig(run_dir=pathlib.Path("runs/h36m_cpu")),
-)
+CPU = cpu_recipe(H36MData(), warmup_steps=1700, run_dir="runs/h36m_cpu")
 
 # The cpu recipe's budget in samples seen: on the full benchmark 70 epochs x 606 steps x batch 128 =
 # 5,429,760 samples, about the time of the two-stage recipe's 2.3M (docs/benchmarks.md).  A preset of
@@ -191,18 +182,15 @@ PAPER = paper_preset(H36MData(), batch_size=8192, epochs=500, checkpoint_every=2
 # every action to train and the other to test, Stacked Hourglass detections, the cpu preset's
 # recipe at a proportional budget: the same epochs over ~6k training samples, so ~1,400 steps and a
 # warm-up scaled to the same ~4% of them.  About 2 minutes on 2 cores.
-DEV = dataclasses.replace(
-    CPU,
-    data=H36MData(detections="sh", train_subjects=("S1",), test_subjects=(), split="trials"),
-    optimizer=dataclasses.replace(CPU.optimizer, warmup_steps=150),
-    run=RunConfig(run_dir=pathlib.Path("runs/h36m_dev")),
+DEV = cpu_recipe(
+    H36MData(detections="sh", train_subjects=("S1",), test_subjects=(), split="trials"), warmup_steps=150, run_dir="runs/h36m_dev"
 )
 
 PRESETS: dict[str, ExperimentConfig] = {"cpu": CPU, "paper": PAPER, "dev": DEV}
 PRESET_NOTES = {
-    "cpu": "width-512 lifter of one stage, batch 128, 70 epochs, cosine schedule, RANSAC pseudo-labels, rescaled loss weights: ~21 min on 2 CPU cores",
-    "paper": paper_note(PAPER),
-    "dev": "development protocol: S1 only, first trial of each action trains, the other tests; SH 2D; cpu recipe",
+    "cpu": "the cpu recipe: ~21 min on 2 CPU cores",
+    "paper": "Sec. IV-A of the paper",
+    "dev": "the cpu recipe on the development protocol (S1 only, the first trial of each action trains, the other tests; SH 2D): ~2 min",
 }
 DEFAULT = CPU
 EXPERIMENT = cli.Experiment(

@@ -21,15 +21,12 @@ directory is used by `jaxpose.predict` and `jaxpose.export` like any other.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
-import pathlib
 
-from experiments import cli, h36m
-from jaxpose.training.experiment import ExperimentConfig, RunConfig
+from experiments import cli
+from jaxpose.training.experiment import ExperimentConfig, cpu_recipe, paper_preset
 from jaxpose.training.run_directory import RECOVERED_CAMERAS_FILE, RunDirectory, RunRecord
 from jaxpose.training.splits import Splits
-from jaxpose.training.config import InputAugmentation
 from jaxpose.formats.camera_file import save_cameras
 from jaxpose.rig.project import RigProjectConfig, load_rig_project, recorded_settings
 from jaxpose.rig.split import RigProject
@@ -129,22 +126,16 @@ RIG_SAMPLES = 5_000_000
 # about 0.1 mm (55 of 70 epochs cost 0.3-0.5 mm on the development split, docs/benchmarks.md), under the
 # seed spread.  The periodic evaluation (the ground-truth-free measures, ~0.5 s each) every 2,000 steps:
 # ~20 of them over the capped budget, where every 500 steps made 84 (~45 s).
-CPU = dataclasses.replace(
-    h36m.CPU,
-    data=RigProjectConfig(),
-    optimizer=h36m.DEV.optimizer,
-    train=dataclasses.replace(h36m.CPU.train, eval_every=2000, max_samples=RIG_SAMPLES, augment=InputAugmentation(drop=0.1)),
-    run=RunConfig(run_dir=pathlib.Path("runs/rig")),
-)
+CPU = cpu_recipe(RigProjectConfig(), warmup_steps=150, run_dir="runs/rig", max_samples=RIG_SAMPLES, drop=0.1, eval_every=2000)
 
 # Preset "paper": Sec. IV-A of the paper on your recordings (the authors' network, Adam 1e-3, the
 # paper's loss weights, batch 8192): an accelerator's job on a large project.
-PAPER = dataclasses.replace(h36m.PAPER, data=RigProjectConfig(), run=RunConfig(run_dir=pathlib.Path("runs/rig_paper")))
+PAPER = paper_preset(RigProjectConfig(), batch_size=8192, epochs=500, checkpoint_every=250, run_dir="runs/rig_paper")
 
 PRESETS: dict[str, ExperimentConfig] = {"cpu": CPU, "paper": PAPER}
 PRESET_NOTES = {
-    "cpu": "the Human3.6M cpu recipe (width 512, one stage, batch 128, 70 epochs but at most 5.0M samples (the cpu recipe's time), RANSAC pseudo-labels, rescaled losses, joints dropped at 0.1)",
-    "paper": "the paper: authors' network, Adam 1e-3 constant, batch 8192, 500 epochs",
+    "cpu": "the cpu recipe, at most Human3.6M's time: ~21 min on 2 CPU cores for a project of its size or larger",
+    "paper": "Sec. IV-A of the paper",
 }
 EXPERIMENT = cli.Experiment(
     name="rig",

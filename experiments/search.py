@@ -27,7 +27,6 @@ costs against the truly best variant.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import itertools
 import json
@@ -35,8 +34,10 @@ import pathlib
 import re
 import sys
 from collections.abc import Sequence
+from typing import Annotated
 
 import numpy as np
+import tyro
 from scipy.stats import kendalltau, spearmanr
 
 from experiments import ablation, cli, rig
@@ -56,6 +57,8 @@ class Variant:
 
     name: str
     flags: tuple[str, ...]
+    axes: tuple[str, ...] = ()
+    """The flag names it varies (e.g. model.width)."""
 
     @property
     def directory(self) -> str:
@@ -73,7 +76,7 @@ def grid(axes: Sequence[Sequence[str]]) -> list[Variant]:
     for values in itertools.product(*(axis[1:] for axis in axes)):
         pairs = [(axis[0], value) for axis, value in zip(axes, values)]
         flags = tuple(token for name, value in pairs for token in (f"--{name}", value))
-        variants.append(Variant(", ".join(f"{name}={value}" for name, value in pairs), flags))
+        variants.append(Variant(", ".join(f"{name}={value}" for name, value in pairs), flags, tuple(axis[0] for axis in axes)))
     return variants
 
 
@@ -82,7 +85,7 @@ def variant_config(experiment: cli.Experiment, argv: Sequence[str], base: Experi
     and with `seed`, in <run_dir>/<variant>/seed<S>."""
     config = cli.parse(experiment, [*argv, *variant.flags], __doc__, PROG, _presets(experiment))
     train = dataclasses.replace(config.train, seed=seed)
-    if not cli.given(variant.flags, "--train.max-samples"):
+    if not any(axis.replace("_", "-") == "train.max-samples" for axis in variant.axes):
         train = dataclasses.replace(train, max_samples=base.train.max_samples)
     run_dir = base.run.run_dir / variant.directory / f"seed{seed}"
     return dataclasses.replace(config, train=train, run=dataclasses.replace(config.run, run_dir=run_dir))
@@ -189,13 +192,20 @@ def _cell(values: list[float]) -> str:
     return mean if len(values) == 1 else f"{mean} ({' / '.join(f'{v:.1f}' for v in values)})"
 
 
+@dataclasses.dataclass(frozen=True)
+class SearchFlags:
+    """The search's own flags; the others are the entry point's (the base recipe)."""
+
+    vary: Annotated[tuple[tuple[str, ...], ...], tyro.conf.UseAppendAction] = ()
+    """NAME VALUE [VALUE ...]: one axis of the grid (repeatable)."""
+    seeds: tuple[int, ...] = ()
+    """Seeds each variant trains with; empty = the base's --train.seed."""
+
+
 def main(argv: Sequence[str] | None = None) -> str:
     argv = sys.argv[1:] if argv is None else list(argv)
     dataset, argv = cli.choose(argv, "--dataset", list(EXPERIMENTS), "rig", PROG)
-    own = argparse.ArgumentParser(prog=PROG, add_help=False, allow_abbrev=False)
-    own.add_argument("--vary", nargs="+", action="append", default=[], metavar="NAME VALUE")
-    own.add_argument("--seeds", nargs="+", type=int, default=None)
-    searched, argv = own.parse_known_args(argv)
+    searched, argv = tyro.cli(SearchFlags, args=argv, prog=PROG, return_unknown_args=True, add_help=False)
     experiment = EXPERIMENTS[dataset]
     description = (
         f"{__doc__}\n--dataset {dataset}: the search's own flags are --vary NAME VALUE [VALUE ...] (one axis of the"

@@ -62,8 +62,8 @@ TINY = dataclasses.replace(
 
 PRESETS: dict[str, ExperimentConfig] = {"main": DEFAULT, "tiny": TINY}
 PRESET_NOTES = {
-    "main": "the main job: width-512 lifter of one stage, batch 256, 15 epochs, cosine schedule: ~3 min on 2 CPU cores",
-    "tiny": "a smoke test: the main recipe on a width-64 lifter, 200 instants per subject, 1 epoch (3 steps): seconds",
+    "main": "the main job: ~3 min on 2 CPU cores",
+    "tiny": "a smoke test, 200 instants per subject (3 steps): seconds",
 }
 
 

@@ -15,7 +15,8 @@ The model takes what `jaxpose.serving.inference.Lifter3D.predict` takes, for any
 
   keypoints   f32[B, J, 2]  undistorted pixels, in the skeleton's joint order
   K           f32[B, 3, 3]  the intrinsics of each pose's camera
-  confidence  f32[B, J]     > 0 detected, 0 missing (a missing joint's coordinates are ignored)
+  confidence  f32[B, J]     detector scores; a joint scored below the run's threshold (--min-confidence,
+                            by default the one it was trained with) or 0 is missing, its coordinates ignored
 
 and returns `pose3d_mm` f32[B, J, 3]: root-relative millimetres in each camera's frame (x right,
 y down, z forward); rows whose root (joint 0) is missing are NaN.  A temporal lifter (window T > 1)
@@ -47,7 +48,7 @@ import tyro
 
 from jaxpose.training import checkpoint
 from jaxpose.formats.outputs import OutputError, atomic_output, check_output
-from jaxpose.serving.inference import Lifter3D, load
+from jaxpose.serving.inference import Lifter3D, load, score_threshold
 from jaxpose.skeleton import ROOT
 
 INPUT_NAMES = ("keypoints", "K", "confidence")
@@ -55,16 +56,20 @@ OUTPUT_NAME = "pose3d_mm"
 JAX_SUFFIX = ".jax_export"
 
 
-def single_view_function(lifter: Lifter3D, flip: bool = False) -> Callable[[jax.Array, jax.Array, jax.Array], jax.Array]:
+def single_view_function(
+    lifter: Lifter3D, flip: bool = False, min_confidence: float = 0.0
+) -> Callable[[jax.Array, jax.Array, jax.Array], jax.Array]:
     """The lifter as one pure function (keypoints, K, confidence) -> pose3d_mm, its variables baked
-    in: what `Lifter3D.predict(..., flip=flip)` computes for undistorted keypoints, missing joints and
-    roots included; with `flip` the mirror image's lift and the average are part of the function."""
+    in: what `Lifter3D.predict(..., flip=flip, min_confidence=min_confidence)` computes for undistorted
+    keypoints, missing joints and roots included (a joint scored below `min_confidence` is missing); with
+    `flip` the mirror image's lift and the average are part of the function."""
 
     centre = lifter.model_config.temporal_window // 2
     eval_step = lifter.flipped_eval_step if flip else lifter.eval_step
 
     def lift(keypoints: jax.Array, K: jax.Array, confidence: jax.Array) -> jax.Array:
-        detected = confidence > 0
+        detected = (confidence > 0) & (confidence >= min_confidence)
+        confidence = jnp.where(detected, confidence, 0.0)
         keypoints = jnp.where(detected[..., None], keypoints, 0.0)  # NaN in a missing joint stays out
         poses = eval_step(lifter.variables, keypoints, K, confidence)
         root = detected[:, ROOT] if detected.ndim == 2 else detected[:, centre, ROOT]
@@ -73,7 +78,7 @@ def single_view_function(lifter: Lifter3D, flip: bool = False) -> Callable[[jax.
     return lift
 
 
-def metadata(lifter: Lifter3D, flip: bool = False) -> dict[str, Any]:
+def metadata(lifter: Lifter3D, flip: bool = False, min_confidence: float = 0.0) -> dict[str, Any]:
     """What a user of the exported model needs to know, without jaxpose."""
     J, T = lifter.num_joints, lifter.model_config.temporal_window
     frames = "" if T == 1 else f"{T}, "
@@ -85,8 +90,9 @@ def metadata(lifter: Lifter3D, flip: bool = False) -> dict[str, Any]:
         "inputs": {
             "keypoints": f"f32[B, {frames}{J}, 2] undistorted pixels{window}, joints in joint_names order",
             "K": "f32[B, 3, 3] camera intrinsics",
-            "confidence": f"f32[B, {frames}{J}] > 0 detected, 0 missing",
+            "confidence": f"f32[B, {frames}{J}] detector scores: a joint scored below min_confidence (or 0) is missing",
         },
+        "min_confidence": min_confidence,
         "output": {OUTPUT_NAME: f"f32[B, {J}, 3] root-relative mm in the camera frame (x right, y down, z forward); NaN rows where the root is missing"},
         "test_time_flip": flip,
         "step": lifter.step,
@@ -103,17 +109,17 @@ def _input_shapes(lifter: Lifter3D, batch) -> list[jax.ShapeDtypeStruct]:
     ]
 
 
-def export_jax(lifter: Lifter3D, path: str | pathlib.Path, flip: bool = False) -> pathlib.Path:
+def export_jax(lifter: Lifter3D, path: str | pathlib.Path, flip: bool = False, min_confidence: float = 0.0) -> pathlib.Path:
     """Write the `jax.export` serialization of `single_view_function`, for any batch size."""
     (batch,) = jax.export.symbolic_shape("B")
-    exported = jax.export.export(jax.jit(single_view_function(lifter, flip)))(*_input_shapes(lifter, batch))
+    exported = jax.export.export(jax.jit(single_view_function(lifter, flip, min_confidence)))(*_input_shapes(lifter, batch))
     path = pathlib.Path(path)
     with atomic_output(path) as temporary:
         temporary.write_bytes(exported.serialize())
     return path
 
 
-def export_onnx(lifter: Lifter3D, path: str | pathlib.Path, flip: bool = False) -> pathlib.Path:
+def export_onnx(lifter: Lifter3D, path: str | pathlib.Path, flip: bool = False, min_confidence: float = 0.0) -> pathlib.Path:
     """Write `single_view_function` as an ONNX model with a dynamic batch axis and the metadata.
 
     Raises ImportError without the `export` extra (jax2onnx, onnx), and whatever jax2onnx raises for
@@ -126,10 +132,10 @@ def export_onnx(lifter: Lifter3D, path: str | pathlib.Path, flip: bool = False) 
     logging.getLogger("onnx_ir.serde").setLevel(logging.ERROR)
     shapes = [("B", *s.shape[1:]) for s in _input_shapes(lifter, 1)]
     model = to_onnx(
-        single_view_function(lifter, flip), shapes, model_name="jaxpose_lifter",
+        single_view_function(lifter, flip, min_confidence), shapes, model_name="jaxpose_lifter",
         input_names=list(INPUT_NAMES), output_names=[OUTPUT_NAME],
     )  # fmt: skip
-    onnx.helper.set_model_props(model, {key: json.dumps(value) for key, value in metadata(lifter, flip).items()})
+    onnx.helper.set_model_props(model, {key: json.dumps(value) for key, value in metadata(lifter, flip, min_confidence).items()})
     path = pathlib.Path(path)
     with atomic_output(path) as temporary:
         onnx.save(model, temporary)
@@ -149,6 +155,9 @@ class ExportArgs:
     flip: bool = False
     """Test-time flip augmentation inside both exported forms (`jaxpose.flip`): each pose and its mirror
     image are lifted and averaged, at twice the cost; the metadata's test_time_flip says which."""
+    min_confidence: float | None = None
+    """Joints scored below this are lifted as missing, inside the exported graph.  Default: the threshold the
+    run was trained with (its run.json; a rig project's --data.min-confidence), else 0.05, as `jaxpose.predict`."""
     overwrite: bool = False
     """Replace existing output files; without it the command stops before any work.  A file of the run
     directory is never replaced."""
@@ -170,16 +179,19 @@ def main(argv: list[str] | None = None) -> None:
     try:
         check_outputs(args)
         lifter = load(args.run_dir)
-    except (FileNotFoundError, checkpoint.CheckpointError, OutputError) as error:
+        if args.min_confidence is not None and not 0.0 <= args.min_confidence <= 1.0:
+            raise ValueError(f"--min-confidence must lie in [0, 1], got {args.min_confidence}")
+    except (FileNotFoundError, checkpoint.CheckpointError, OutputError, ValueError) as error:
         raise SystemExit(f"error: {error}") from None
+    threshold = score_threshold(args.run_dir, args.min_confidence)
     output = args.output.with_suffix(".onnx")
     with atomic_output(output.with_suffix(".json")) as temporary:
-        temporary.write_text(json.dumps(metadata(lifter, args.flip), indent=2) + "\n")
-    print(f"wrote {export_jax(lifter, output.with_suffix(JAX_SUFFIX), args.flip)} and {output.with_suffix('.json')}")
+        temporary.write_text(json.dumps(metadata(lifter, args.flip, threshold), indent=2) + "\n")
+    print(f"wrote {export_jax(lifter, output.with_suffix(JAX_SUFFIX), args.flip, threshold)} and {output.with_suffix('.json')}")
     if not args.onnx:
         return
     try:
-        print(f"wrote {export_onnx(lifter, output, args.flip)}")
+        print(f"wrote {export_onnx(lifter, output, args.flip, threshold)}")
     except ImportError as error:
         raise SystemExit(f"error: the ONNX export needs jax2onnx and onnx ({error}); pip install 'jaxpose[export]'") from None
     except Exception as error:  # noqa: BLE001 - a conversion failure: report it, the JAX form is written

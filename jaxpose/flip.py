@@ -43,7 +43,7 @@ def mirror_input(keypoints: jax.Array, K: jax.Array, confidence: jax.Array, skel
 
 def flip_averaged(lift: Callable[..., jax.Array], skeleton: Skeleton) -> Callable[..., jax.Array]:
     """The flip-averaged counterpart of an eval step: lift(variables, keypoints, K, confidence) -> poses
-    [N, J, 3] mm (`jaxpose.training.step.make_eval_step`'s signature), returning (lift(x) + mirror(lift(mirror(x)))) / 2.
+    [N, J, 3] mm (`jaxpose.model.make_eval_step`'s signature), returning (lift(x) + mirror(lift(mirror(x)))) / 2.
     Two lifts per pose; jitted, so it traces into an exported graph like the plain step."""
     if skeleton.flip_permutation()[ROOT] != ROOT:
         raise ValueError(f"skeleton {skeleton.name}: the root cannot be one of a left/right pair")

@@ -21,12 +21,17 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
 from flax import linen as nn
 
-from jaxpose.camera import MM_PER_M
+from jaxpose.camera import MM_PER_M, normalize_keypoints
+
+if TYPE_CHECKING:  # the config builds the network (`ModelConfig.build`); here only its input_normalization is read
+    from jaxpose.training.config import ModelConfig
 
 
 def dropout_keep_mask(key: jax.Array, shape: tuple[int, ...], rate: float) -> jax.Array:
@@ -259,3 +264,23 @@ class LifterNetwork(nn.Module):
         x = nn.Dense(self.num_joints * 3, kernel_init=nn.initializers.variance_scaling(1e-3, "fan_in", "normal"))(x)
         pose = x.reshape(*leading, self.num_joints, 3) * MM_PER_M
         return pose.at[..., 0, :].set(0.0)
+
+
+def normalize_views(keypoints2d: jax.Array, K: jax.Array, confidence: jax.Array, mode: str) -> jax.Array:
+    """`normalize_keypoints` of poses [N..., J, 2] or windows [N..., T, J, 2] of views whose intrinsics
+    are K [N..., 3, 3]: every frame of a window is normalized on its own, as the frame lifter's input."""
+    K = K.reshape(K.shape[:-2] + (1,) * (confidence.ndim - 1 - (K.ndim - 2)) + K.shape[-2:])
+    return normalize_keypoints(keypoints2d, K, confidence, mode)
+
+
+def make_eval_step(model: LifterNetwork, model_config: ModelConfig) -> Callable[..., jax.Array]:
+    """Jitted single-view inference: eval_step(variables, keypoints2d [N, J, 2] undistorted px (a temporal
+    lifter: windows [N, T, J, 2]), K [N, 3, 3], confidence [N, J] ([N, T, J])) -> [N, J, 3] mm, root-relative
+    in the camera frame (of the window's centre frame).  Training evaluates, and serving lifts, with it."""
+
+    @jax.jit
+    def eval_step(variables, keypoints2d, K, confidence):
+        inputs = normalize_views(keypoints2d, K, confidence, model_config.input_normalization)
+        return model.apply(variables, inputs, train=False)
+
+    return eval_step

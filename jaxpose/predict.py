@@ -68,7 +68,6 @@ from jaxpose.training.checkpoint import CheckpointError
 from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.formats import detection_file, intrinsics, pose_files
 from jaxpose.formats.outputs import OutputError, check_output, check_output_folder
-from jaxpose.training.run_directory import RECORD_FILE, read_record
 from jaxpose.layouts import LAYOUTS, check_body25_layout, infer_layout, layout_joint_names, layout_of, to_skeleton
 from jaxpose.logs import show_logs
 
@@ -157,7 +156,7 @@ def run(args: PredictArgs) -> np.ndarray:
     if detections.clipped_scores:
         print(f"{detections.clipped_scores} scores above 1 clipped to 1 (docs/files.md)", file=sys.stderr)
     lifter = inference.load(args.checkpoint, batch_size=args.batch_size)
-    args = dataclasses.replace(args, min_confidence=score_threshold(args.checkpoint, args.min_confidence))
+    args = dataclasses.replace(args, min_confidence=inference.score_threshold(args.checkpoint, args.min_confidence))
     camera = input_camera(args, detections)
     layout = args.format or input_layout(lifter.skeleton, detections)
     scores = detections.scores if detections.scores is not None else np.ones(detections.keypoints.shape[:2], np.float32)
@@ -233,18 +232,6 @@ def check_args(args: PredictArgs) -> None:
         raise ValueError(f"--reject-inconsistent must be > 0, got {args.reject_inconsistent}")
 
 
-def score_threshold(run: pathlib.Path, given: float | None) -> float:
-    """--min-confidence, else the threshold the run recorded it was trained with, else the default; an
-    override that differs from the run's is said in one line."""
-    record = read_record(run)
-    trained = None if record is None else record.min_confidence
-    if given is None:
-        return inference.DEFAULT_MIN_CONFIDENCE if trained is None else trained
-    if trained is not None and given != trained:
-        print(f"--min-confidence {given:g} differs from the run's {trained:g} ({run}/{RECORD_FILE}): using {given:g}", file=sys.stderr)
-    return given
-
-
 def check_outputs(args: PredictArgs) -> list[pathlib.Path]:
     """Refuse, before any work, an output that exists (without --overwrite), that is a folder (a file for
     --plot) or that is one of the command's inputs (`jaxpose.formats.outputs.check_output`).  A .trc output
@@ -311,13 +298,11 @@ def lift_frames(
     with tqdm(total=count, desc="lifting", unit="pose", disable=count <= LIFT_BLOCK) as bar:
         for start in range(0, count, LIFT_BLOCK):
             rows = slice(start, min(start + LIFT_BLOCK, count))
-            K = camera.of_poses(rows)
+            inputs = lifter.prepare(keypoints[rows], camera.of_poses(rows), confidence[rows], camera.dist, camera.image_size)
             if reject is not None:
-                rejected[rows] = lifter.inconsistent_joints(
-                    keypoints[rows], K, confidence[rows], camera.dist, camera.image_size, threshold=reject
-                )
-            kept = np.where(rejected[rows], 0.0, confidence[rows]).astype(np.float32)
-            poses[rows] = lifter.predict(keypoints[rows], K, kept, camera.dist, camera.image_size, flip=flip)
+                rejected[rows] = lifter.inconsistent_joints(inputs, threshold=reject)
+                inputs = inputs.without(rejected[rows])
+            poses[rows] = lifter.lift(inputs, flip=flip)
             bar.update(rows.stop - rows.start)
     return poses, rejected
 

@@ -32,7 +32,8 @@ from jaxpose.training.config import LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.synthetic import SyntheticConfig
 from jaxpose.model import LifterNetwork
-from jaxpose.training.step import TrainState, init_train_state, jit_train_step, lifter_input_2d, make_train_step, normalize_views
+from jaxpose.model import normalize_views
+from jaxpose.training.step import TrainState, init_train_state, jit_train_step, lifter_input_2d, make_train_step
 
 STEPS = 5
 SMALL = ModelConfig(width=64)  # dropout 0.5 and BatchNorm on, as in the paper's network

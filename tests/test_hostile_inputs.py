@@ -268,7 +268,7 @@ def test_the_run_record_carries_the_project_settings_to_the_commands_that_use_th
     """Issue 42 case 8 / issue 41's run record: a run trained with --data.sync auto, offsets, a calibration in
     metres and a score threshold of 0.2 is read back so by reconstruct (flags left at their defaults), and
     predict takes its threshold; a flag given that differs is said in one line and used."""
-    from jaxpose.predict import score_threshold
+    from jaxpose.serving.inference import score_threshold
     from jaxpose.rig.project import recorded_settings, with_recorded_settings
     from jaxpose.training.run_directory import RunRecord, prepare_run_dir, read_record, write_record
 

@@ -46,7 +46,7 @@ from jaxpose.formats.camera_file import read_calibration, select_views
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.files import read_h5_dataset
-from jaxpose.datasets.recordings import PlannedSequence, Recording, SequencePlan, build_dataset, stack_views
+from jaxpose.datasets.sequences import CapturedSequence, PlannedSequence, SequencePlan, build_dataset, stack_views
 from jaxpose.datasets.videopose3d import load_positions, subject_poses3d, subject_views2d
 from jaxpose.skeleton import H36M_16, H36M_17, H36M_32_TO_17
 
@@ -247,7 +247,7 @@ def _npz_2d(path: Path, positions: Mapping, subject: str) -> Sources2D:
     return sources
 
 
-def _read_recording(sequence: PlannedSequence, stride: int, joints3d: np.ndarray) -> Recording:
+def _read_recording(sequence: PlannedSequence, stride: int, joints3d: np.ndarray) -> CapturedSequence:
     """Read one sequence, every frame (the samples are every `stride`-th), and check that its 2D covers its 3D."""
     subject, name = sequence.subject, sequence.name
     points = sequence.poses3d()
@@ -256,7 +256,7 @@ def _read_recording(sequence: PlannedSequence, stride: int, joints3d: np.ndarray
     if sequence.views is not None:
         read = {camera: reader() for camera, reader in sequence.views.items()}
         keypoints, confidence = stack_views(f"Human3.6M {subject} {name!r}", read, CAMERA_NAMES, len(points), frames)
-    return Recording(
+    return CapturedSequence(
         subject=subject,
         action=sequence_action(name),
         sequence=name,

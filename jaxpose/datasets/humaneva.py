@@ -24,7 +24,7 @@ from tqdm.auto import tqdm
 from jaxpose.formats.camera_file import load_cameras, select_views
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.formats.errors import DataFormatError
-from jaxpose.datasets.recordings import PlannedSequence, Recording, SequencePlan, build_dataset, stack_views
+from jaxpose.datasets.sequences import CapturedSequence, PlannedSequence, SequencePlan, build_dataset, stack_views
 from jaxpose.datasets.videopose3d import load_positions, subject_poses3d, subject_views2d
 from jaxpose.skeleton import HUMANEVA_15
 
@@ -124,7 +124,7 @@ def subject_rigs(path: Path, subjects: tuple[str, ...]) -> dict:
     return rigs
 
 
-def _read_recording(sequence: PlannedSequence, stride: int) -> tuple[Recording, int]:
+def _read_recording(sequence: PlannedSequence, stride: int) -> tuple[CapturedSequence, int]:
     """One sequence, every frame, with its invalid frames dropped (the samples are the valid ones among every
     `stride`-th); also returns how many of those were dropped."""
     subject, name, poses = sequence.subject, sequence.name, sequence.poses3d
@@ -136,7 +136,7 @@ def _read_recording(sequence: PlannedSequence, stride: int) -> tuple[Recording, 
         keypoints, confidence = stack_views(f"HumanEva-I {subject} {name!r}", sequence.views, CAMERA_NAMES, len(poses), frames)
         valid &= np.isfinite(keypoints).all((1, 2, 3))
         keypoints, confidence = keypoints[valid], confidence[valid]
-    recording = Recording(
+    recording = CapturedSequence(
         subject=subject.split("/")[-1],
         action=_action(name),
         sequence=name,

@@ -146,8 +146,9 @@ def recording_inputs(dataset: MultiViewDataset) -> Iterator[RecordingInput]:
 
 def lift_views(lifter: Lifter3D, inputs: RecordingInput, roots: np.ndarray | None = None) -> np.ndarray:
     """f32[F, C, J, 3]: each camera's detections lifted (mm, root-relative, that camera's axes; NaN where
-    the view's root is neither detected nor derived from the hips, `root_from_hips`), camera by camera as
-    a sequence, so a temporal lifter reads its windows of frames.
+    the view's root is neither detected nor derived from the hips, `root_from_hips`): for a temporal
+    lifter camera by camera as a sequence, so that it reads its windows of frames; for a frame lifter
+    every view-frame in one call.
 
     `roots` (f32[F, 3] world mm, `root_track`): lift only the view-frames whose root neither the detector
     nor the hips give, with the root put where `roots` projects into that view (`root_from_world`)."""
@@ -161,11 +162,13 @@ def lift_views(lifter: Lifter3D, inputs: RecordingInput, roots: np.ndarray | Non
         keypoints, confidence = root_from_world(inputs.cameras, keypoints, confidence, roots)
         liftable = (confidence[..., ROOT] > 0) & ~liftable
     lifted = np.full((F, C, J, 3), np.nan, np.float32)
-    for view in range(C):
-        if liftable[:, view].any():
-            K = np.asarray(inputs.cameras.K[view], np.float32)
-            lift = lifter.predict(keypoints[:, view], intrinsics=K, confidence=confidence[:, view])
-            lifted[:, view] = np.where(liftable[:, view, None, None], lift, np.nan)
+    # A temporal lifter reads each camera's frames as a sequence; a frame lifter takes every view-frame in one call.
+    groups = [[view] for view in range(C)] if lifter.model_config.temporal_window > 1 else [list(range(C))]
+    for views in groups:
+        if liftable[:, views].any():
+            K = np.broadcast_to(np.asarray(inputs.cameras.K, np.float32)[views], (F, len(views), 3, 3)).reshape(-1, 3, 3)
+            lift = lifter.predict(keypoints[:, views].reshape(-1, J, 2), intrinsics=K, confidence=confidence[:, views].reshape(-1, J))
+            lifted[:, views] = np.where(liftable[:, views, None, None], lift.reshape(F, len(views), J, 3), np.nan)
     return lifted
 
 

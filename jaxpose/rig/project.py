@@ -321,7 +321,7 @@ def _aligned(
             with phases("offsets"):
                 recording.sync = estimate_recording_offsets(recording, views, cameras, config.max_sync_offset)
             recording.offsets = dict(zip(cameras, recording.sync.offsets.tolist()))
-            state = "" if recording.sync.reliable else " (UNRELIABLE: the person hardly moves between frames)"
+            state = "" if recording.sync.reliable else f" (UNRELIABLE: {recording.sync.doubt})"
             log.info("recording %s: estimated frame offsets %s%s", recording.name, recording.offsets, state)
             phases.advance("offsets")
         else:

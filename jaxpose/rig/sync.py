@@ -41,6 +41,9 @@ MIN_CORRESPONDENCES = 50
 CLIP_PX = 20.0
 RELIABLE_MARGIN = 0.1  # an offset is trusted where it fits 10% better than any two or more frames away
 MIN_GAIN = 0.05  # a camera's offset moves only where that fits its detections 5% better
+# A camera with under 0.6 or over 1/0.6 times the others' median frame count, where the offsets cannot be
+# told apart, most likely runs at another frame rate (25 beside 50 fps is 0.5): no integer offset aligns it.
+RATE_RATIO = 0.6
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,6 +58,8 @@ class SyncEstimate:
     reliable: bool
     """Whether every curve's best offset clearly beats those two or more frames away (by `RELIABLE_MARGIN`):
     a person who moves enough for the frames to be told apart."""
+    doubt: str = ""
+    """Why the estimate is not reliable, in words ("" where it is)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -154,22 +159,40 @@ def estimate_offsets(
     min_confidence: float = 0.3,
     max_instants: int = 3000,
     seed: int = 0,
+    camera_names: list[str] | None = None,
 ) -> SyncEstimate:
     """Offsets of C cameras from one person's detections (see the module docstring).
 
     Per camera c: frames int[F_c] (its own frame numbers), keypoints f[F_c, J, 2] undistorted pixels
     (one person per frame), confidence f[F_c, J].  projections: f[C, 3, 4] of a calibration, or None
     to fit a fundamental matrix per pair and offset.  At most `max_instants` instants (evenly spread)
-    are scored.
+    are scored.  `camera_names` name the cameras in `SyncEstimate.doubt`.
     """
     tracks = [
         _track(f, k, (c > min_confidence) & np.isfinite(k).all(-1)) for f, k, c in zip(frames, keypoints, confidence)
     ]  # fmt: skip
     shifts = np.arange(-max_offset, max_offset + 1)
     if projections is not None and len(frames) >= 3:
-        return _offsets_by_triangulation(tracks, projections, shifts, max_instants)
-    # Two cameras (nothing to triangulate the left-out one from) or no calibration: epipolar lines.
-    return _offsets_by_epipolar_fit(tracks, shifts, 20000, seed, projections)
+        estimate = _offsets_by_triangulation(tracks, projections, shifts, max_instants)
+    else:  # two cameras (nothing to triangulate the left-out one from) or no calibration: epipolar lines
+        estimate = _offsets_by_epipolar_fit(tracks, shifts, 20000, seed, projections)
+    if estimate.reliable:
+        return estimate
+    names = camera_names or [str(c) for c in range(len(frames))]
+    return dataclasses.replace(estimate, doubt=_doubt([len(f) for f in frames], names))
+
+
+def _doubt(counts: list[int], names: list[str]) -> str:
+    """Why offsets could not be told apart: a camera whose frame count is far from the others' (another
+    frame rate), else a person who hardly moves between frames."""
+    for c, count in enumerate(counts):
+        others = float(np.median([n for i, n in enumerate(counts) if i != c])) if len(counts) > 1 else count
+        if others > 0 and not RATE_RATIO <= count / others <= 1 / RATE_RATIO:
+            return (
+                f"camera {names[c]} has {count} frames against the others' {others:.0f}: another frame rate? Every camera"
+                " must run at one rate (resample it, or leave it out)"
+            )
+    return "the person hardly moves between frames"
 
 
 def _offsets_by_triangulation(tracks: list[_Track], projections: np.ndarray, shifts: np.ndarray, max_instants: int) -> SyncEstimate:

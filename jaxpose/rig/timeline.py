@@ -52,7 +52,7 @@ def estimate_recording_offsets(recording: Recording, views: Views, camera_order:
     if recording.calibration is not None:
         rig = recording.calibration.select(camera_order, f"cameras of recording {recording.name}")
         projections = np.asarray(projection_matrices(rig.cameras.without_distortion()), np.float64)
-    return estimate_offsets(frames, keypoints, confidence, projections, max_offset)
+    return estimate_offsets(frames, keypoints, confidence, projections, max_offset, camera_names=list(camera_order))
 
 
 def instants_of(views: Views, offsets: Mapping[str, int]) -> np.ndarray:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import pathlib
+import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -30,14 +31,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpose.training import checkpoint
-from jaxpose.training.run_directory import RunDirectory
+from jaxpose.training.run_directory import RECORD_FILE, RunDirectory, read_record
 from jaxpose.camera import Cameras, masked_median, normalize_keypoints, undistort_points
 from jaxpose.training.config import ModelConfig
 from jaxpose.chunks import map_in_chunks
 from jaxpose.data.dataset import window_rows
 from jaxpose.flip import flip_averaged
 from jaxpose.skeleton import ROOT, Skeleton
-from jaxpose.training.step import make_eval_step
+from jaxpose.model import make_eval_step
 
 DEFAULT_BATCH_SIZE = 1024
 
@@ -52,6 +53,19 @@ DEFAULT_OUTSIDE_MARGIN = 0.1
 """`jaxpose.predict --outside-margin`: a keypoint more than this fraction of the larger image side outside
 the image is missing.  Detectors do place truncated joints a little past the border; a joint hundreds of
 pixels away is a detector failure (docs/robust_input.md)."""
+
+
+def score_threshold(run: pathlib.Path, given: float | None) -> float:
+    """--min-confidence of `jaxpose.predict` and `jaxpose.export`: the value given, else the threshold the run
+    recorded it was trained with (its run.json), else `DEFAULT_MIN_CONFIDENCE`; a value given that differs
+    from the run's is said in one line."""
+    record = read_record(run)
+    trained = None if record is None else record.min_confidence
+    if given is None:
+        return DEFAULT_MIN_CONFIDENCE if trained is None else trained
+    if trained is not None and given != trained:
+        print(f"--min-confidence {given:g} differs from the run's {trained:g} ({run}/{RECORD_FILE}): using {given:g}", file=sys.stderr)
+    return given
 
 
 def implausible_joints(
@@ -171,6 +185,29 @@ def _chunk_size(count: int, batch_size: int) -> int:
 
 
 @dataclasses.dataclass(frozen=True)
+class LifterInput:
+    """N single-view poses as the lifter reads them, prepared once (`Lifter3D.prepare`) and used alike by
+    the lift (`Lifter3D.lift`) and the inconsistency check (`Lifter3D.inconsistent_joints`)."""
+
+    keypoints: np.ndarray
+    """f32[N, J, 2] undistorted pixels, 0 where missing."""
+    K: np.ndarray
+    """f32[N, 3, 3] each pose's intrinsics."""
+    confidence: np.ndarray
+    """f32[N, J] the detector's scores, 0 where missing (not detected, below the score threshold, outside
+    the image, or beyond what the lens model undistorts)."""
+
+    def __len__(self) -> int:
+        return len(self.keypoints)
+
+    def without(self, joints: np.ndarray) -> LifterInput:
+        """The same poses with `joints` (bool[N, J]) missing."""
+        return LifterInput(
+            np.where(joints[..., None], 0.0, self.keypoints).astype(np.float32), self.K, np.where(joints, 0.0, self.confidence).astype(np.float32)
+        )
+
+
+@dataclasses.dataclass(frozen=True)
 class Lifter3D:
     """A trained lifter, ready to lift single-view 2D poses; build it with `load`."""
 
@@ -234,14 +271,16 @@ class Lifter3D:
         Rows whose root (joint 0) is missing are NaN.  Non-finite keypoints with confidence > 0 are an
         error here (`jaxpose.predict` reports them and lifts them as missing).
         """
-        single = np.ndim(keypoints2d) == 2
-        keypoints, K, confidence = self._prepare(
-            keypoints2d, intrinsics, confidence, distortion, image_size, min_confidence, outside_margin
-        )
+        inputs = self.prepare(keypoints2d, intrinsics, confidence, distortion, image_size, min_confidence, outside_margin)
         if reject_inconsistent is not None:
-            rejected = self._inconsistent(keypoints, K, confidence, reject_inconsistent)
-            confidence = np.where(rejected, 0.0, confidence).astype(np.float32)
-            keypoints = np.where(rejected[..., None], 0.0, keypoints).astype(np.float32)
+            inputs = inputs.without(self.inconsistent_joints(inputs, reject_inconsistent))
+        poses = self.lift(inputs, flip)
+        return poses[0] if np.ndim(keypoints2d) == 2 else poses
+
+    def lift(self, inputs: LifterInput, flip: bool = False) -> np.ndarray:
+        """Root-relative 3D poses f32[N, J, 3] in mm of prepared poses (`prepare`), NaN where the root is
+        missing; `flip` as `predict`'s."""
+        keypoints, K, confidence = inputs.keypoints, inputs.K, inputs.confidence
         count = len(keypoints)
         poses = np.full((count, self.num_joints, 3), np.nan, np.float32)
         liftable = np.flatnonzero(confidence[:, ROOT] > 0)
@@ -250,38 +289,21 @@ class Lifter3D:
             window = self.model_config.temporal_window
             if window > 1:  # [N, T, J, 2]: each frame's window in the sequence
                 frames = window_rows(liftable, np.array([[0, count]]).repeat(len(liftable), 0), window)
-                inputs = (keypoints[frames], K[liftable], confidence[frames])
+                batch = (keypoints[frames], K[liftable], confidence[frames])
             else:
-                inputs = (keypoints[liftable], K[liftable], confidence[liftable])
-            poses[liftable] = map_in_chunks(lift, inputs, _chunk_size(len(liftable), self.batch_size))
-        return poses[0] if single else poses
+                batch = (keypoints[liftable], K[liftable], confidence[liftable])
+            poses[liftable] = map_in_chunks(lift, batch, _chunk_size(len(liftable), self.batch_size))
+        return poses
 
-    def inconsistent_joints(
-        self,
-        keypoints2d,
-        intrinsics=None,
-        confidence=None,
-        distortion=None,
-        image_size: Sequence[float] | None = None,
-        min_confidence: float = 0.0,
-        outside_margin: float | None = None,
-        threshold: float = DEFAULT_INCONSISTENT_RESIDUAL,
-    ) -> np.ndarray:
-        """bool[N, J]: per pose, the joint `predict(..., reject_inconsistent=threshold)` lifts as missing
-        (at most one: the largest `leave_one_out_residuals`, where it exceeds `threshold`).  Arguments as
-        `predict`'s; the joints missing already (given so, or by `min_confidence` / `outside_margin`) are
-        not counted."""
-        keypoints, K, confidence = self._prepare(
-            keypoints2d, intrinsics, confidence, distortion, image_size, min_confidence, outside_margin
-        )
-        rejected = self._inconsistent(keypoints, K, confidence, threshold)
-        return rejected[0] if np.ndim(keypoints2d) == 2 else rejected
-
-    def _inconsistent(self, keypoints: np.ndarray, K: np.ndarray, confidence: np.ndarray, threshold: float) -> np.ndarray:
+    def inconsistent_joints(self, inputs: LifterInput, threshold: float = DEFAULT_INCONSISTENT_RESIDUAL) -> np.ndarray:
+        """bool[N, J]: per prepared pose (`prepare`), the joint `predict(..., reject_inconsistent=threshold)`
+        lifts as missing (at most one: the largest `leave_one_out_residuals`, where it exceeds `threshold`);
+        the joints missing already are not counted.  Frame lifters only."""
         if self.model_config.temporal_window > 1:
             raise ValueError("rejecting inconsistent joints needs a frame lifter; this one reads windows of frames")
         if not threshold > 0:
             raise ValueError(f"reject_inconsistent (the residual threshold) must be > 0, got {threshold}")
+        keypoints, K, confidence = inputs.keypoints, inputs.K, inputs.confidence
         rows = np.flatnonzero(confidence[:, ROOT] > 0)
         rejected = np.zeros(confidence.shape, bool)
         if len(rows):
@@ -295,11 +317,18 @@ class Lifter3D:
             rejected[rows[flagged], worst[flagged]] = True
         return rejected
 
-    def _prepare(
-        self, keypoints2d, intrinsics, confidence, distortion, image_size, min_confidence=0.0, outside_margin=None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Checked [N, J, 2] undistorted keypoints (missing ones zero), K [N, 3, 3] and confidence [N, J]
-        (0 where missing, below `min_confidence` or outside the image by `outside_margin`)."""
+    def prepare(
+        self,
+        keypoints2d,
+        intrinsics=None,
+        confidence=None,
+        distortion=None,
+        image_size: Sequence[float] | None = None,
+        min_confidence: float = 0.0,
+        outside_margin: float | None = None,
+    ) -> LifterInput:
+        """The lifter's input of poses given as `predict`'s arguments (one pose [J, 2] becomes N = 1): checked,
+        undistorted, the joints below `min_confidence` or outside the image by `outside_margin` missing."""
         keypoints = np.asarray(keypoints2d, np.float32)
         if keypoints.ndim == 2:
             keypoints = keypoints[None]
@@ -321,7 +350,7 @@ class Lifter3D:
             # model cannot undistort (far outside the image: NaN, `camera.UNDISTORTION_TOLERANCE`) is missing too.
             confidence = np.where(np.isfinite(keypoints).all(-1), confidence, 0.0).astype(np.float32)
             keypoints = np.where(confidence[..., None] > 0, keypoints, 0.0).astype(np.float32)
-        return keypoints, K, confidence
+        return LifterInput(keypoints, K, confidence)
 
     def _check_keypoints(self, keypoints: np.ndarray, confidence) -> tuple[np.ndarray, np.ndarray]:
         """Shapes and values of keypoints/confidence; returns them with missing joints zeroed."""

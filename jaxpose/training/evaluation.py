@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpose.camera import world_to_camera
-from jaxpose.chunks import map_in_chunks
+from jaxpose.chunks import map_in_chunks, map_over_parts
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.data.ground_truth import ground_truth_joints
 from jaxpose.metrics import JOINT_METRICS, per_joint_metrics, pose_metrics
@@ -48,7 +48,8 @@ def lift_every_view(
     """Single-view predictions for every view of every sample: [N, C, J, 3] mm.  With `window` > 1
     each view is lifted from its window of frames (`MultiViewDataset.windows`), gathered chunk by chunk.
 
-    Chunks are padded to a fixed size (`jaxpose.chunks.map_in_chunks`) so the eval step compiles once.
+    Chunks of exactly `batch_size` // C samples, the last padded (`jaxpose.chunks.map_over_parts`): the eval
+    step compiles once, whatever the data set's size.
     """
     dataset = dataset.undistorted()
     N, C, J, _ = dataset.keypoints2d.shape
@@ -64,7 +65,7 @@ def lift_every_view(
                          confidence.reshape(n * C, *confidence.shape[2:]))  # fmt: skip
         return flat.reshape(n, C, J, 3)
 
-    return map_in_chunks(lift, (np.arange(N), K), max(1, min(batch_size, N * C) // C))
+    return next(map_over_parts(lift, [(np.arange(N), K)], max(1, batch_size // C)))
 
 
 def compute_metrics(pred: np.ndarray, target: np.ndarray, chunk: int = 65536) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:

@@ -15,7 +15,7 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Generic, TypeVar
 
 from jaxpose.camera import Cameras
-from jaxpose.training.config import InputAugmentation, LossConfig, ModelConfig, OptimizerConfig, PseudoLabelConfig
+from jaxpose.training.config import RESCALED_LOSS, InputAugmentation, LossConfig, ModelConfig, OptimizerConfig, PseudoLabelConfig
 from jaxpose.data.dataset import MultiViewDataset
 
 DataT = TypeVar("DataT")
@@ -136,9 +136,47 @@ def paper_preset(data: DataT, *, batch_size: int, epochs: int, checkpoint_every:
     )
 
 
-def paper_note(preset: ExperimentConfig) -> str:
-    """The `--help` line of a `paper_preset`."""
-    return f"the paper: authors' network, Adam 1e-3 constant, batch {preset.train.batch_size}, {preset.train.epochs} epochs"
+def cpu_recipe(
+    data: DataT, *, warmup_steps: int, run_dir: str, max_samples: int = 0, drop: float = 0.0, eval_every: int | None = None
+) -> ExperimentConfig[DataT]:
+    """The cpu recipe on `data`, the one measured best on Human3.6M for 2 CPU cores (the measurements beside
+    `experiments.h36m.CPU`), from which Human3.6M's cpu and development presets and a user's rig preset derive
+    (each with its own data and budget, none a diff of another): a width-512 lifter of one stage, dropout 0.1, the rescaled loss weights with a
+    pseudo-Huber label penalty (50 mm), RANSAC pseudo-labels, Adam with a cosine schedule after `warmup_steps`,
+    batch 128, 70 epochs (at most `max_samples` samples where > 0); joints dropped from the input at `drop`."""
+    train = TrainConfig(batch_size=128, epochs=70, checkpoint_every=4000, max_samples=max_samples, augment=InputAugmentation(drop=drop))
+    return ExperimentConfig(
+        data=data,
+        model=ModelConfig(width=512, dropout_rate=0.1, stages=1),
+        loss=dataclasses.replace(RESCALED_LOSS, label_robust_scale_mm=50.0),
+        pseudo_labels=PseudoLabelConfig(method="ransac"),
+        optimizer=OptimizerConfig(schedule="cosine", warmup_steps=warmup_steps),
+        train=train if eval_every is None else dataclasses.replace(train, eval_every=eval_every),
+        run=RunConfig(run_dir=pathlib.Path(run_dir)),
+    )
+
+
+def recipe_summary(config: ExperimentConfig) -> str:
+    """A preset's recipe in one line for `--help`, made from its fields (so it cannot disagree with them)."""
+    model, train, optimizer = config.model, config.train, config.optimizer
+    parts = [
+        f"width-{model.width} lifter of {model.stages} stage{'s' * (model.stages > 1)}",
+        f"dropout {model.dropout_rate:g}",
+        f"batch {train.batch_size}",
+        f"{train.epochs} epoch{'s' * (train.epochs != 1)}" + (f" but at most {train.max_samples / 1e6:.1f}M samples" if train.max_samples else ""),
+        f"Adam {optimizer.learning_rate:g} {optimizer.schedule}",
+        f"{config.pseudo_labels.method} pseudo-labels",
+        "the paper's loss weights" if config.loss == LossConfig() else "rescaled loss weights" if _without_penalty(config.loss) == RESCALED_LOSS else "own loss weights",
+    ]
+    if train.augment.drop:
+        parts.append(f"joints dropped at {train.augment.drop:g}")
+    if model.temporal_window > 1:
+        parts.append(f"window of {model.temporal_window} frames")
+    return ", ".join(parts)
+
+
+def _without_penalty(loss: LossConfig) -> LossConfig:
+    return dataclasses.replace(loss, label_robust_scale_mm=RESCALED_LOSS.label_robust_scale_mm)
 
 
 def mocap_calibration(given: pathlib.Path | None, default: pathlib.Path, training: pathlib.Path | None) -> pathlib.Path:

@@ -18,11 +18,11 @@ from tqdm.auto import tqdm
 
 from jaxpose.training.experiment import ExperimentConfig, TrainConfig
 from jaxpose.training.run_directory import RunDirectory, RunLog
-from jaxpose.training import checkpoint, evaluation, parallel, pseudo_labelling, self_consistency
-from jaxpose.data import ground_truth
+from jaxpose.training import checkpoint, parallel
+from jaxpose.training.evaluator import Evaluator
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.data.dataset import MultiViewDataset
-from jaxpose.training.step import TrainState, init_train_state, jit_train_step, make_eval_step, make_train_step
+from jaxpose.training.step import TrainState, init_train_state, jit_train_step, make_train_step
 
 log = logging.getLogger("jaxpose")
 
@@ -163,29 +163,9 @@ class _SignalFlag:
 
 
 def periodic_evaluation(config: ExperimentConfig, test: MultiViewDataset, model) -> Callable[[Any], dict]:
-    """variables -> metrics on `config.train.eval_samples` evenly spaced test samples: the ground-truth-free
-    `jaxpose.training.self_consistency` measures (eval_disagreement_mm, eval_reprojection_px,
-    eval_triangulation_p_mpjpe_mm) and, where the test split has 3D ground truth, eval_p_mpjpe / eval_mpjpe (mm)."""
+    """variables -> `Evaluator.overall` on `config.train.eval_samples` evenly spaced test samples."""
     rows = np.unique(np.linspace(0, len(test) - 1, min(config.train.eval_samples, len(test))).astype(int))
-    subset = pseudo_labelling.label(test.subset(rows), config.pseudo_labels)  # its views' triangulation, once
-    truth = None
-    if subset.target3d is not None:
-        joints = ground_truth.ground_truth_joints(subset)
-        target, valid = evaluation.ground_truth_in_views(subset)
-        truth = (joints, target[..., joints, :], valid)
-    eval_step = make_eval_step(model, config.model)
-
-    def evaluate(variables) -> dict:
-        pred = evaluation.lift_every_view(eval_step, variables, subset, config.train.eval_batch_size, config.model.temporal_window)
-        record = {}
-        if truth is not None:
-            joints, target, valid = truth
-            overall = evaluation.evaluate_poses(pred[..., joints, :], target, None, valid)["overall"]
-            record = {"eval_p_mpjpe": overall["p_mpjpe"], "eval_mpjpe": overall["mpjpe"]}
-        consistency = self_consistency.self_consistency(pred, subset, subset.pseudo3d, subset.pseudo3d_weight > 0)
-        return record | {f"eval_{name}": values["overall"] for name, values in consistency.items()}
-
-    return evaluate
+    return Evaluator.of(config, test.subset(rows), model).overall
 
 
 def train(

@@ -30,7 +30,7 @@ from tqdm.auto import tqdm
 
 from jaxpose import robust
 from jaxpose.camera import projection_matrices
-from jaxpose.chunks import chunk_rows, map_over_parts
+from jaxpose.chunks import map_over_parts
 from jaxpose.training.config import PseudoLabelConfig
 from jaxpose.data.dataset import MultiViewDataset
 
@@ -57,10 +57,11 @@ log = logging.getLogger(__name__)
 # Module-level, so that every data set (train and test splits, repeated calls) shares its
 # compilations; the config is static (a frozen dataclass hashes by value).
 _solve = jax.jit(_labels_and_agreeing_views, static_argnames="config")
+LABEL_CHUNK = 4096
 
 
 def label(
-    dataset: MultiViewDataset, config: PseudoLabelConfig = PseudoLabelConfig(), chunk_size: int = 16384, progress: bool = False
+    dataset: MultiViewDataset, config: PseudoLabelConfig = PseudoLabelConfig(), chunk_size: int = LABEL_CHUNK, progress: bool = False
 ) -> MultiViewDataset:
     """The data set, undistorted, with `pseudo3d` and `pseudo3d_weight` (and, for the outlier-rejecting
     methods, `detection_weight`) set from the detections of all its views.
@@ -73,8 +74,10 @@ def label(
     "irls" and "ransac" also set `detection_weight`: 0 for a detection that does not agree with
     its joint's label, so that the losses do not take an outlier as a target either.
 
-    Chunks of `jaxpose.chunks.chunk_rows` rows (at most `chunk_size`): a few compilations whatever
-    the data set's size, bounded memory, and a memory-mapped data set read chunk by chunk.
+    Chunks of exactly `chunk_size` rows (the last padded): one compilation whatever the data set's size
+    (4,096 rows solve fastest per row on CPU: 0.17 ms against 0.24 at 1,024 and 0.18 at 16,384), bounded
+    memory, and a memory-mapped data set read chunk by chunk.  The projection matrices are made once per
+    rig and gathered per row (numpy), not computed per chunk.
     `progress`: a progress bar over the chunks; either way one timed log line.
     """
     started = time.perf_counter()
@@ -84,11 +87,12 @@ def label(
         labels = {name: np.load(cache / f"{name}.npy", mmap_mode="r") for name in _STORED if (cache / f"{name}.npy").exists()}
         log.info("pseudo-labels (%s) of %s instants read from %s", config.method, f"{len(dataset):,}", cache)
         return dataclasses.replace(dataset, **({"detection_weight": None} | labels))
-    size = chunk_rows(len(dataset), chunk_size)
+    size = chunk_size
+    rig_matrices = np.asarray(projection_matrices(dataset.rigs))  # [R, C, 3, 4]
     bar = tqdm(total=len(dataset), desc="pseudo-labels", unit="instant", unit_scale=True, disable=not progress, leave=False)
 
     def solve_rows(rows, keypoints2d, confidence):
-        P = projection_matrices(dataset.cameras_for(rows))
+        P = rig_matrices[dataset.rig_index[rows]]
         points, weight, views = jax.device_get(_solve(P, jnp.asarray(keypoints2d), jnp.asarray(confidence), config=config))
         bar.update(min(len(rows), len(dataset) - bar.n))
         weight = weight.astype(np.float32) * weight[:, :1]

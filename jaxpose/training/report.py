@@ -14,12 +14,11 @@ from jaxpose.training.run_directory import RunDirectory, read_jsonl
 from jaxpose.training.splits import Splits
 from jaxpose.training.loop import training_budget
 from jaxpose import viz
-from jaxpose.training import evaluation, pseudo_labelling, self_consistency
-from jaxpose.data import ground_truth
+from jaxpose.training import evaluation, self_consistency
+from jaxpose.training.evaluator import Evaluator
 from jaxpose.data.dataset import MultiViewDataset
-from jaxpose.flip import flip_averaged
 from jaxpose.losses import TERMS
-from jaxpose.training.step import GRADIENT_SHARE_PREFIX, TrainState, make_eval_step
+from jaxpose.training.step import GRADIENT_SHARE_PREFIX, TrainState
 
 
 def evaluate_and_report(
@@ -35,38 +34,15 @@ def evaluate_and_report(
     ground-truth-free measures (`jaxpose.training.self_consistency`) always; where the test split has 3D ground truth,
     the metrics against it with the reference rows; report.{json,md}, plots."""
     test = splits.test
-    eval_step = make_eval_step(model, config.model)
-    if config.train.eval_flip:
-        eval_step = flip_averaged(eval_step, test.skeleton)
-    pred = evaluation.lift_every_view(eval_step, state.variables, test, config.train.eval_batch_size, config.model.temporal_window)
-    groups = test.labels.get(splits.group_label)
-    test_triangulated = pseudo_labelling.label(test, config.pseudo_labels)
-    triangulation = evaluation.poses_in_views(test, test_triangulated.pseudo3d)
-    consistency = self_consistency.self_consistency(pred, test_triangulated, test_triangulated.pseudo3d, test_triangulated.pseudo3d_weight > 0)
+    evaluator = Evaluator.of(config, test, model, flip=config.train.eval_flip)
+    pred = evaluator.lift(state.variables)
+    consistency = evaluator.ground_truth_free(pred)
+    rows = evaluator.results(pred, method_name, splits)
     excluded = splits.detector_specific_joints
-    rows, joint_names = {}, test.skeleton.joint_names
-    if test.target3d is not None:
-        joints = ground_truth.ground_truth_joints(test)
-        joint_names = tuple(joint_names[j] for j in joints)
-        target, valid = evaluation.ground_truth_in_views(test)
-        mean_pose = np.broadcast_to(evaluation.mean_pose_prediction(splits.train), pred.shape)
-        # Each row with the views it is evaluated on: the triangulation is a reference only where its
-        # root has a label (two agreeing views); elsewhere it is no estimate at all.
-        predictions = {
-            method_name: (pred, valid),
-            "Input triangulation (multi-view, reference)": (triangulation, valid & (test_triangulated.pseudo3d_weight[:, None, 0] > 0)),
-            "Mean pose (baseline)": (np.ascontiguousarray(mean_pose), valid),
-        }
-        agreeing = splits.agreeing_joints()
-        # Every loader labels each sample with its subject, sequence and frame number: the motion metrics
-        # follow them (a sequence name such as "Walking 1" recurs across subjects).
-        sequences = np.char.add(np.char.add(test.labels["subject"].astype(str), "/"), test.labels["sequence"].astype(str))
-        frames = test.labels["frame"]
-        motion_step = f"between test samples {evaluation.frame_step(sequences, frames)} frames apart"
-        rows = {
-            name: evaluation.evaluate_poses(poses[..., joints, :], target[..., joints, :], groups, views, agreeing, sequences, frames)
-            for name, (poses, views) in predictions.items()
-        }
+    joint_names = test.skeleton.joint_names
+    if rows:
+        joint_names = tuple(joint_names[j] for j in evaluator.truth.joints)
+        motion_step = f"between test samples {evaluation.frame_step(*evaluator.motion_axes())} frames apart"
     history = read_jsonl(RunDirectory(run_dir).metrics)
     last_train = next((r for r in reversed(history) if "loss" in r), {})
     shares = {k.removeprefix(GRADIENT_SHARE_PREFIX): v for k, v in last_train.items() if k.startswith(GRADIENT_SHARE_PREFIX)}
@@ -107,7 +83,7 @@ def evaluate_and_report(
         if shares:
             tables.append(gradient_share_table(shares, int(state.step)))
         RunDirectory(run_dir).report_md.write_text("\n\n".join(tables) + "\n")
-        reference = target if rows and len(joint_names) == test.skeleton.num_joints else triangulation
+        reference = evaluator.truth.target if rows and len(joint_names) == test.skeleton.num_joints else evaluator.triangulation()
         _plots(config, test, pred, reference, run_dir)
     return report
 

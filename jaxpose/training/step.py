@@ -20,12 +20,12 @@ from flax import struct
 from jax.sharding import Mesh
 
 from jaxpose.training import parallel
-from jaxpose.camera import masked_median, normalize_keypoints
+from jaxpose.camera import masked_median
 from jaxpose.training.config import InputAugmentation, LossConfig, ModelConfig
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.flip import mirror_input, mirror_pose3d
 from jaxpose.losses import TERMS, gradient_shares, input_triangulation_loss, total_loss
-from jaxpose.model import LifterNetwork
+from jaxpose.model import LifterNetwork, normalize_views
 from jaxpose.skeleton import Skeleton
 
 
@@ -63,13 +63,6 @@ def lifter_input_2d(batch: MultiViewBatch) -> tuple[jax.Array, jax.Array]:
     if batch.window2d is None:
         return batch.keypoints2d, batch.confidence
     return batch.window2d, batch.window_confidence
-
-
-def normalize_views(keypoints2d: jax.Array, K: jax.Array, confidence: jax.Array, mode: str) -> jax.Array:
-    """`normalize_keypoints` of poses [N..., J, 2] or windows [N..., T, J, 2] of views whose intrinsics
-    are K [N..., 3, 3]: every frame of a window is normalized on its own, as the frame lifter's input."""
-    K = K.reshape(K.shape[:-2] + (1,) * (confidence.ndim - 1 - (K.ndim - 2)) + K.shape[-2:])
-    return normalize_keypoints(keypoints2d, K, confidence, mode)
 
 
 def augment_inputs(
@@ -256,16 +249,3 @@ def jit_train_step(train_step: Callable, mesh: Mesh | None = None) -> Callable:
     mesh = parallel.data_mesh(1) if mesh is None else mesh
     copy, split = parallel.replicated(mesh), parallel.batch_sharding(mesh)
     return jax.jit(train_step, in_shardings=(copy, split, copy), out_shardings=(copy, copy), donate_argnums=0)
-
-
-def make_eval_step(model: LifterNetwork, model_config: ModelConfig) -> Callable[..., jax.Array]:
-    """Jitted single-view inference: eval_step(variables, keypoints2d [N, J, 2] undistorted px (a temporal
-    lifter: windows [N, T, J, 2]), K [N, 3, 3], confidence [N, J] ([N, T, J])) -> [N, J, 3] mm, root-relative
-    in the camera frame (of the window's centre frame)."""
-
-    @jax.jit
-    def eval_step(variables, keypoints2d, K, confidence):
-        inputs = normalize_views(keypoints2d, K, confidence, model_config.input_normalization)
-        return model.apply(variables, inputs, train=False)
-
-    return eval_step

@@ -127,7 +127,8 @@ def test_the_cap_shortens_the_schedule_and_a_resume_across_it_matches(tmp_path, 
         check_resumable(_tiny(tmp_path / "resumed", max_samples=640))
 
 
-def test_epochs_on_the_command_line_lift_a_presets_cap():
+def test_a_presets_cap_is_a_value_like_any_other():
+    """Issue 41: a config means what its fields say; --train.epochs on the command line no longer lifts the cap."""
     capped = dataclasses.replace(synthetic.TINY, train=dataclasses.replace(synthetic.TINY.train, max_samples=2048))
     presets = {"tiny": capped}
 
@@ -135,7 +136,8 @@ def test_epochs_on_the_command_line_lift_a_presets_cap():
         return cli.parse(synthetic.EXPERIMENT, list(argv), "test", presets=presets).train
 
     assert parsed().max_samples == 2048
-    assert (parsed("--train.epochs", "5").epochs, parsed("--train.epochs", "5").max_samples) == (5, 0)
+    assert (parsed("--train.epochs", "5").epochs, parsed("--train.epochs", "5").max_samples) == (5, 2048)
+    assert (parsed("--train.epochs", "5", "--train.max-samples", "0").epochs, parsed("--train.max-samples=0").max_samples) == (5, 0)
     assert parsed("--train.epochs=5", "--train.max-samples", "4096").max_samples == 4096
     assert parsed("--train.max_samples", "0").max_samples == 0
 

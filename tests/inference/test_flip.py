@@ -16,7 +16,7 @@ from jaxpose.training.config import ModelConfig
 from jaxpose.flip import flip_averaged, mirror_input, mirror_pose3d
 from jaxpose.serving.inference import Lifter3D
 from jaxpose.skeleton import H36M_17
-from jaxpose.training.step import make_eval_step
+from jaxpose.model import make_eval_step
 
 # A camera whose principal point is off the image centre, with skew: a mirror about the image's width
 # or about (cx, cy) without the skew would not pass these tests.

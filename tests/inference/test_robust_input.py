@@ -24,7 +24,8 @@ from jaxpose.serving import inference
 from jaxpose.camera import MEDIAN_RADIUS_LIMIT, masked_median, normalize_keypoints, project
 from jaxpose.training.config import InputAugmentation, LossConfig, ModelConfig, OptimizerConfig
 from jaxpose.skeleton import H36M_17
-from jaxpose.training.step import augment_inputs, init_train_state, make_eval_step, make_train_step
+from jaxpose.model import make_eval_step
+from jaxpose.training.step import augment_inputs, init_train_state, make_train_step
 
 IMAGE = (1000.0, 1000.0)
 
@@ -285,13 +286,13 @@ def test_residuals_need_the_root_and_three_other_joints_and_chunks_change_nothin
     confidence[2, 4:] = 0.0  # the root and 3 joints: each left out has 2 others, whose median says nothing
     got = np.asarray(inference.leave_one_out_residuals(lifter.eval_step, lifter.variables, keypoints, K, confidence))
     assert (got[1] == 0).all() and (got[2] == 0).all() and (got[[0, 3, 4], 1:] > 0).all()
-    rejected = lifter.inconsistent_joints(keypoints, K, confidence, threshold=0.5)
+    rejected = lifter.inconsistent_joints(lifter.prepare(keypoints, K, confidence), threshold=0.5)
     assert rejected.any() and not rejected[[1, 2]].any()
     one_per_call = dataclasses.replace(lifter, batch_size=lifter.num_joints)
-    np.testing.assert_array_equal(one_per_call.inconsistent_joints(keypoints, K, confidence, threshold=0.5), rejected)
-    np.testing.assert_array_equal(lifter.inconsistent_joints(keypoints[3], K[3], threshold=0.5), rejected[3])
+    np.testing.assert_array_equal(one_per_call.inconsistent_joints(one_per_call.prepare(keypoints, K, confidence), threshold=0.5), rejected)
+    np.testing.assert_array_equal(lifter.inconsistent_joints(lifter.prepare(keypoints[3], K[3]), threshold=0.5), rejected[3:4])
     with pytest.raises(ValueError, match=r"reject_inconsistent \(the residual threshold\) must be > 0"):
-        lifter.inconsistent_joints(keypoints, K, threshold=0.0)
+        lifter.inconsistent_joints(lifter.prepare(keypoints, K), threshold=0.0)
 
 
 def _lifter_that_knows(lifter, pose_in_camera: np.ndarray):
@@ -322,14 +323,14 @@ def test_with_a_lifter_that_knows_the_pose_exactly_the_moved_joint_is_rejected(l
     K = np.array([[1000.0, 0.0, 500.0], [0.0, 1000.0, 500.0], [0.0, 0.0, 1.0]], np.float32)
     keypoints = (body[:, :2] / body[:, 2:] * 1000.0 + 500.0).astype(np.float32)[None]
     knows = _lifter_that_knows(lifter, body.astype(np.float32))
-    assert not knows.inconsistent_joints(keypoints, K, threshold=1.0).any()
+    assert not knows.inconsistent_joints(knows.prepare(keypoints, K), threshold=1.0).any()
     median = np.median(np.linalg.norm(keypoints[0, 1:] - keypoints[0, :1], axis=-1))
     moved = keypoints.copy()
     moved[0, joint] += far * median * np.array([np.cos(angle), np.sin(angle)], np.float32)
-    rejected = knows.inconsistent_joints(moved, K, threshold=inference.DEFAULT_INCONSISTENT_RESIDUAL)
+    rejected = knows.inconsistent_joints(knows.prepare(moved, K), threshold=inference.DEFAULT_INCONSISTENT_RESIDUAL)
     assert np.argwhere(rejected).tolist() == [[0, joint]]
     # `predict` lifts the joints `inconsistent_joints` finds as missing (here with the shared tiny lifter).
-    rejected = lifter.inconsistent_joints(moved, K)
+    rejected = lifter.inconsistent_joints(lifter.prepare(moved, K))
     np.testing.assert_array_equal(
         lifter.predict(moved, K, reject_inconsistent=inference.DEFAULT_INCONSISTENT_RESIDUAL),
         lifter.predict(moved, K, np.where(rejected, 0.0, 1.0).astype(np.float32)),
@@ -343,7 +344,7 @@ def test_cli_rejects_inconsistent_joints_and_says_how_many(trained_run, lifter, 
     np.savez(path, keypoints=keypoints, K=K)
     common = ["--checkpoint", str(trained_run[0]), "--input", str(path), "--min-confidence", "0"]
     poses = predict.main([*common, "--output", str(tmp_path / "out.npz"), "--reject-inconsistent", "1.0"])
-    rejected = lifter.inconsistent_joints(keypoints, K, threshold=1.0)
+    rejected = lifter.inconsistent_joints(lifter.prepare(keypoints, K), threshold=1.0)
     assert rejected[3, 12]
     np.testing.assert_array_equal(poses, lifter.predict(keypoints, K, reject_inconsistent=1.0))
     noun = "joint" if rejected.sum() == 1 else "joints"

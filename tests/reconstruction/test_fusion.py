@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 
 from jaxpose.camera import Cameras
 from jaxpose.synthetic import SyntheticConfig, generate
+from jaxpose.reconstruction import fusion
 from jaxpose.reconstruction.fusion import UNOBSERVABLE_MM, FusionConfig, Provenance, fuse
 
 J = 17
@@ -339,3 +340,62 @@ def test_an_untrained_lifters_poses_leave_the_triangulated_joints(seed, num_view
     alone = fuse(scene.cameras, pixels, scene.confidence(), None, SIMULATED)
     moved = np.linalg.norm(fuse(scene.cameras, pixels, scene.confidence(), lifted, SIMULATED).points - alone.points, axis=-1)
     assert np.isfinite(moved).all() and np.median(moved) < 1.0
+
+
+@given(seed=st.integers(0, 2**31 - 1), num_views=st.sampled_from([1, 2, 3, 5, 12]))
+def test_the_solve_is_the_dense_least_squares(seed, num_views):
+    """`fusion._solve` (the placements eliminated view by view) against the whole weighted least squares
+    written out row by row and solved by numpy's lstsq: points, placements and the joints' posterior
+    covariances (the joints' block of the inverse normal matrix), with random ray and lift weights, some
+    views without any lift and joints that no view sees."""
+    scene = exact_scene(seed, num_views, instants=2)
+    rng = np.random.default_rng(seed)
+    pixels = scene.pixels + rng.normal(0.0, 3.0, scene.pixels.shape)
+    lifted = scene.lifted * rng.uniform(0.9, 1.1) + rng.normal(0.0, 30.0, scene.lifted.shape)
+    confidence = rng.uniform(0.2, 1.0, scene.pixels.shape[:-1]) * (rng.random(scene.pixels.shape[:-1]) < 0.7)
+    confidence[:, :, :2] = 1.0  # two joints every view sees: the lifts' placements are fixed
+    ev = fusion._evidence(*(np.asarray(f, np.float64)[None].repeat(2, 0) for f in (scene.cameras.K, scene.cameras.R, scene.cameras.t)),
+                          pixels, confidence, lifted, SIMULATED)  # fmt: skip
+    rays = ev.ray_scale * rng.uniform(0.0, 1.0, ev.seen.shape) / 4000.0**2
+    with_lift = rng.random(num_views) < 0.7
+    with_lift[0] = True  # one view alone is placed by its lift's size
+    lifts = ev.lifted * rng.uniform(0.0, 1.0, ev.lifted.shape) * with_lift[None, :, None]
+    points, placement, covariance = fusion._solve(ev, rays, lifts, SIMULATED, covariance=True)
+    centres = -np.einsum("cba,cb->ca", np.asarray(scene.cameras.R, np.float64), np.asarray(scene.cameras.t, np.float64))
+    axes = np.diag(1.0 / np.array([SIMULATED.lift_lateral_mm, SIMULATED.lift_lateral_mm, SIMULATED.lift_depth_mm]))
+    for n in range(2):
+        C, J_ = num_views, scene.pixels.shape[2]
+        rows, rhs = [], []  # unknowns: the joints (3 J), then each view's root and scale (4 C)
+        for c in range(C):
+            root_factor = axes @ np.asarray(scene.cameras.R[c], np.float64)  # P^(1/2) = diag(axes) R in world axes
+            for j in range(J_):
+                d = ev.rays[n, j, c]
+                if rays[n, c, j] > 0:
+                    row = np.zeros((3, 3 * J_ + 4 * C))
+                    row[:, 3 * j : 3 * j + 3] = np.sqrt(rays[n, c, j]) * (np.eye(3) - np.outer(d, d))
+                    rows.append(row)
+                    rhs.append(np.sqrt(rays[n, c, j]) * (np.eye(3) - np.outer(d, d)) @ centres[c])
+                if lifts[n, c, j] > 0:
+                    row = np.zeros((3, 3 * J_ + 4 * C))
+                    weight = np.sqrt(lifts[n, c, j]) * root_factor
+                    row[:, 3 * j : 3 * j + 3] = weight
+                    row[:, 3 * J_ + 4 * c : 3 * J_ + 4 * c + 3] = -weight
+                    row[:, 3 * J_ + 4 * c + 3] = -weight @ ev.lift[n, c, j]
+                    rows.append(row)
+                    rhs.append(np.zeros(3))
+        placement_prior = np.tile([fusion.PRIOR_PRECISION] * 3 + [SIMULATED.scale_sigma**-2], C)
+        prior = np.sqrt(np.concatenate([np.full(3 * J_, fusion.PRIOR_PRECISION), placement_prior]))
+        rows.append(np.diag(prior))
+        rhs.append(np.concatenate([np.zeros(3 * J_), np.tile([0.0, 0, 0, SIMULATED.scale_sigma**-1], C)]))
+        A, b = np.concatenate(rows), np.concatenate(rhs)
+        normal = A.T @ A
+        solution = np.linalg.solve(normal, A.T @ b)
+        inverse = np.linalg.inv(normal)
+        expected = np.stack([inverse[3 * j : 3 * j + 3, 3 * j : 3 * j + 3] for j in range(J_)])
+        # Where the evidence leaves a direction free, only the 30 km prior holds the value: compared where it does not.
+        observed = np.trace(expected, axis1=-2, axis2=-1) < fusion.UNOBSERVABLE_MM**2
+        assert observed[:2].all()
+        np.testing.assert_allclose(points[n][observed], solution[: 3 * J_].reshape(J_, 3)[observed], atol=1e-6, rtol=0)
+        placed = lifts[n].any(-1) & (np.diagonal(inverse[3 * J_ :, 3 * J_ :]).reshape(C, 4) < fusion.UNOBSERVABLE_MM**2).all(-1)
+        np.testing.assert_allclose(placement[n, placed], solution[3 * J_ :].reshape(C, 4)[placed], atol=1e-6, rtol=0)
+        np.testing.assert_allclose(covariance[n][observed], expected[observed], rtol=1e-6, atol=1e-9)

@@ -31,14 +31,23 @@ LEFT_HIP = H36M_17.joint_names.index("LHip")
 
 
 class OracleLifter(SimpleNamespace):
-    """Lifts a view's detections to the true root-relative pose in that camera's axes (found by the
-    detections it is given), and records the root pixel each call was given."""
+    """A frame lifter that lifts each pose it is given to the true root-relative pose in that camera's
+    axes (the view and frame found by the detections it is given, row by row: `lift_views` may give it
+    every view-frame in one call), and records, per view, the root pixels it was given."""
+
+    model_config = SimpleNamespace(temporal_window=1)
 
     def predict(self, keypoints, intrinsics, confidence):
-        errors = [np.nanmean(np.where(confidence[..., None] > 0, np.abs(keypoints - p), np.nan)) for p in self.pixels]
-        view = int(np.nanargmin(errors))
-        self.given_roots.append((view, keypoints[:, ROOT].copy(), confidence[:, ROOT].copy()))
-        return np.where(confidence[:, ROOT, None, None] > 0, self.lifted[view], np.nan).astype(np.float32)
+        views, frames = self.pixels.shape[:2]
+        candidates = self.pixels.reshape(views * frames, 1, J, 2)  # [view-frame, 1, J, 2]
+        seen = confidence[None, ..., None] > 0
+        errors = np.nanmean(np.where(seen, np.abs(keypoints[None] - candidates), np.nan), axis=(-1, -2))  # [view-frame, rows]
+        view, frame = np.divmod(np.nanargmin(errors, axis=0), frames)
+        for v in np.unique(view):
+            rows = np.flatnonzero(view == v)[np.argsort(frame[view == v])]
+            self.given_roots.append((int(v), keypoints[rows, ROOT].copy(), confidence[rows, ROOT].copy()))
+        lifted = self.lifted[view, frame]
+        return np.where(confidence[:, ROOT, None, None] > 0, lifted, np.nan).astype(np.float32)
 
 
 def moving_scene(seed: int):

@@ -85,6 +85,31 @@ def test_scores_of_a_rotated_scaled_copy_have_no_procrustes_error_and_count_buck
         np.testing.assert_allclose(summary["buckets"][label]["mpjpe_mm"], np.nanmean(error[cells]), rtol=1e-6)
 
 
+def test_the_error_splits_into_each_joints_offset_and_what_varies_about_it():
+    """A constant offset per joint plus noise of zero mean over the recording, one cell missing: the
+    offset (the error's mean over each joint's covered instants) and the noise about it come back, each
+    averaged over the cells of two recordings."""
+    rng = np.random.default_rng(0)
+    scores = peers_scores.Scores(np.ones(17, bool))
+    offsets, noises = [], []
+    for _ in range(2):
+        truth = walk(30, 17)
+        offset = rng.normal(0.0, 40.0, (17, 3))
+        noise = rng.normal(0.0, 5.0, truth.shape)
+        noise -= noise.mean(0)
+        points = truth + offset + noise
+        points[7, 4] = np.nan  # joint 4's offset is then its mean over the other 29 instants
+        have = np.isfinite(points).all(-1)
+        mean_noise = np.stack([noise[have[:, j], j].mean(0) for j in range(17)])
+        scores.add(points, truth, np.full((30, 17), 4), np.ones(30, bool), H36M_17.bones)
+        offsets.append(np.where(have, np.linalg.norm(offset + mean_noise, axis=-1), np.nan))
+        noises.append(np.where(have, np.linalg.norm(noise - mean_noise, axis=-1), np.nan))
+    summary = scores.summary()
+    np.testing.assert_allclose(summary["offset_mm"], np.nanmean(offsets), rtol=1e-9)
+    np.testing.assert_allclose(summary["about_offset_mm"], np.nanmean(noises), rtol=1e-9)
+    assert summary["about_offset_mm"] < 10.0 < 40.0 < summary["offset_mm"]
+
+
 def test_the_driver_reads_a_pose2sim_trc_back_into_the_world_it_turned_to_y_up(tmp_path):
     names = ["Hip", "RHip", "Neck_Nose"]
     world = np.arange(4 * 3 * 3, dtype=float).reshape(4, 3, 3) * 10.0  # mm

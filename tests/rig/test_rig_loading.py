@@ -218,24 +218,28 @@ def test_a_symbolic_link_that_loops_is_refused_in_one_line(small, tmp_path, wher
         load_rig_project(RigProjectConfig(root=root), progress=False)
 
 
-@pytest.mark.slow  # two whole runs, ~110 s on 2 cores
+@pytest.mark.slow  # two whole runs per case, ~110 s on 2 cores
 @pytest.mark.trains
-def test_a_one_step_run_compiles_as_much_for_eight_recordings_as_for_two(small, tmp_path):
+@pytest.mark.parametrize("held_out", ["fraction", "recordings"])
+def test_a_one_step_run_compiles_as_much_for_eight_recordings_as_for_two(small, tmp_path, held_out):
     """Issue 41: the programs a one-step `experiments.rig` run lowers (loading, pseudo-labels, the step, the
     periodic and final evaluation, the report) do not follow the number or lengths of the recordings: the
-    in-memory caches cleared before each run, 2 recordings and 8 of other lengths lower as many programs.
-    (Lowering precedes every compilation, also one JAX's persistent cache then serves.)"""
+    in-memory caches cleared before each run, 2 recordings and 8 of other lengths lower as many programs, with
+    the last 20% of each recording held out or whole recordings (1 of 2, 3 of 8).  (Lowering precedes every
+    compilation, also one JAX's persistent cache then serves.)"""
     from experiments import rig
 
     many = _project(tmp_path / "eight", 8, (30, 35, 41, 46, 52, 57, 63, 68))
     counts = {}
-    for name, root in (("two", small), ("eight", many)):
+    for name, root, held in (("two", small, 1), ("eight", many, 3)):
+        recordings = sorted(p.name for p in root.iterdir() if p.is_dir() and not p.name.startswith("."))
+        split = ["--data.validation-recordings", *recordings[:held]] if held_out == "recordings" else []
         jax.clear_caches()
         with _compilations() as found:
             rig.main([
                 "--data.root", str(root), "--run.run-dir", str(tmp_path / f"run_{name}"), "--train.max-steps", "1",
                 "--model.width", "64", "--train.batch-size", "16", "--run.no-progress", "--run.plot-samples", "0",
-                "--run.no-tensorboard",
+                "--run.no-tensorboard", *split,
             ])  # fmt: skip
         counts[name] = found["lowered"]
     assert counts["two"] == counts["eight"], counts

@@ -170,7 +170,20 @@ def test_a_still_person_gives_an_unreliable_sync():
     pixels = _pixels(cameras, np.repeat(still, 200, 0)) + rng.normal(0, 2, (200, 3, 17, 2))
     estimate = estimate_offsets([np.arange(200)] * 3, [pixels[:, c] for c in range(3)], [np.ones((200, 17))] * 3,
                                 np.asarray(projection_matrices(cameras), np.float64), max_offset=4)  # fmt: skip
+    assert not estimate.reliable and estimate.doubt == "the person hardly moves between frames"
+
+
+@pytest.mark.parametrize("calibrated", [True, False])
+def test_a_camera_at_half_the_frame_rate_is_named_not_taken_for_a_still_person(calibrated):
+    """Issue 42 case 10: a 25 fps camera beside 50 fps ones (its own frames numbered 0, 1, 2, ...) fits no integer
+    offset; the estimate says so and names it, rather than blaming the person's motion."""
+    cameras = _ring_cameras(4)
+    frames, keypoints, confidence = _moving_person(cameras, 400, np.zeros(4, int), np.random.default_rng(3))
+    frames[2], keypoints[2], confidence[2] = np.arange(200), keypoints[2][::2], confidence[2][::2]
+    P = np.asarray(projection_matrices(cameras), np.float64) if calibrated else None
+    estimate = estimate_offsets(frames, keypoints, confidence, P, max_offset=6, camera_names=["a", "b", "c", "d"])
     assert not estimate.reliable
+    assert estimate.doubt.startswith("camera c has 200 frames against the others' 400: another frame rate?")
 
 
 def test_ground_truth_free_measures_against_an_oracle(project):

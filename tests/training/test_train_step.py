@@ -7,10 +7,10 @@ import pytest
 from geometry_helpers import exact_batch
 
 from jaxpose.training.config import LossConfig, ModelConfig, OptimizerConfig
+from jaxpose.model import make_eval_step
 from jaxpose.training.step import (
     init_train_state,
     jit_train_step,
-    make_eval_step,
     make_train_step,
 )
 

@@ -2,7 +2,7 @@
 
 The Human3.6M and HumanEva-I loaders match each subject's 3D sequences with their 2D in a
 `SequencePlan` (which names the sequences skipped or kept with views missing), read the planned
-sequences into `Recording`s (one subject's sequence, every frame, with the frames to keep as samples)
+sequences into `CapturedSequence`s (one subject's sequence, every frame, with the frames to keep as samples)
 and hand them to `build_dataset`, which stacks them, attaches one rig per subject, where a recording
 carries no 2D projects its 3D ground truth through the real cameras, and keeps every frame's 2D as the
 samples' `FrameContext` (the windows of a temporal lifter).
@@ -30,7 +30,7 @@ logger = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass(frozen=True)
-class Recording:
+class CapturedSequence:
     """n frames of one sequence seen by C cameras, J joints, of which those at `kept` become samples.
 
     frames: i32[n] frame numbers in the original recording; points3d: f32[n, J, 3] world mm;
@@ -49,7 +49,7 @@ class Recording:
     kept: np.ndarray | None = None
 
 
-def build_dataset(skeleton: Skeleton, recordings: Sequence[Recording], rigs: Mapping[str, Cameras]) -> MultiViewDataset:
+def build_dataset(skeleton: Skeleton, recordings: Sequence[CapturedSequence], rigs: Mapping[str, Cameras]) -> MultiViewDataset:
     """Stack recordings into a data set; `rigs[subject]` is that subject's `Cameras` [C] (numpy).
 
     Either every recording has keypoints2d or none has (then all 2D are projections of the 3D,
