@@ -429,7 +429,7 @@ def _prepared(root):
     return {p.name: p.stat().st_ino for p in (root / ".jaxpose_cache").iterdir() if p.name.startswith("prepared-")}
 
 
-@pytest.mark.slow  # two one-step runs and a reconstruction, ~60 s on 2 cores
+@pytest.mark.slow  # two one-step runs and a reconstruction, 25-90 s on 2 cores (by their load)
 @pytest.mark.trains
 def test_training_reconstruction_and_training_again_share_one_prepared_project(project_copy, tmp_path, capsys):
     """Issue 41: `experiments.rig`, then `jaxpose.reconstruct` (every instant, as "validation"), then
@@ -467,7 +467,7 @@ rig.main(["--data.root", project, "--run.run-dir", run + "_in_memory", *sys.argv
 """
 
 
-@pytest.mark.slow  # two one-step runs and a reconstruction in a child process, ~70 s on 2 cores
+@pytest.mark.slow  # two one-step runs and a reconstruction in a child process, 30-100 s on 2 cores (by their load)
 @pytest.mark.trains
 def test_a_read_only_project_trains_and_reconstructs_with_a_cache_folder_given(project_copy, tmp_path):
     """A project on a read-only file system (a read-only bind mount where the suite runs as root, else the
