@@ -83,11 +83,15 @@ def project_notes(project: RigProject, data: RigProjectConfig) -> tuple[str, ...
     for r in project.recordings:
         offsets = ", ".join(f"{camera} {offset:+d}" for camera, offset in r.offsets.items() if offset) or "none"
         if r.offsets_estimated:
-            offsets += " (estimated" + ("" if r.sync_reliable else ", UNRELIABLE: too little motion") + ")"
+            offsets += " (estimated" + ("" if r.sync_reliable else ", UNRELIABLE") + ")"
         lines.append(
             f"| {r.name} | {r.instants} | {len(r.cameras)} | {offsets} | {r.instants_with_choice} | {r.views_without_match}"
             f" | {r.ground_truth_instants} | {r.calibration} |"
         )
+    warnings = [f"- {name}: {warning}" for name, warning in [(r.name, w) for r in project.recordings for w in r.warnings]]
+    warnings += [f"- {warning}" for warning in project.warnings]
+    if warnings:
+        lines += ["", "**Warnings of loading** (each also in the log):", "", *warnings]
     notes = ["\n".join(lines)]
     held_out = ", ".join(data.validation_recordings) or f"the last {data.validation_fraction:.0%} of every recording"
     truth = (

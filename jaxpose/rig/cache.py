@@ -52,7 +52,7 @@ from jaxpose.rig.recordings import printable
 
 log = logging.getLogger(__name__)
 
-VERSION = 3  # bump when the prepared arrays change meaning (3: every instant, the split applied after reading)
+VERSION = 4  # bump when the prepared arrays change meaning (3: every instant, the split applied after reading; 4: warnings)
 PREFIX = "prepared-"
 PART = "instants"  # the prepared arrays' file prefix
 SELECTION = "rows-"  # a split's rows, written once inside the prepared folder

@@ -90,7 +90,7 @@ def in_view_order(calibration: RigCalibration, camera_order: Sequence[str]) -> R
     )
 
 
-def check_unit_against_people(calibration: RigCalibration, points: np.ndarray, reliable: np.ndarray, skeleton: Skeleton) -> None:
+def check_unit_against_people(calibration: RigCalibration, points: np.ndarray, reliable: np.ndarray, skeleton: Skeleton) -> str | None:
     """Refuse a calibration whose unit makes the people in view 10, 100 or 1000 times too small or large.
 
     A file that states no unit is read in metres or millimetres by the rig's size (`--data.calibration-unit
@@ -98,26 +98,28 @@ def check_unit_against_people(calibration: RigCalibration, points: np.ndarray, r
     The people in view know better: their limbs (upper arm, forearm, thigh, shank: `jaxpose.calibration.scale`),
     triangulated through the rig as read (`points` f[N, J, 3] mm, `reliable` bool[N, J]), are an adult's
     within a factor `UNIT_TOLERANCE`.  Off by a power of ten (within that factor) is a wrong unit: stop,
-    naming the file and the flag; off by another factor is logged (a child, or a poor calibration).
+    naming the file and the flag; off by another factor is logged and returned, for the report (a child, or a
+    poor calibration).
     """
     try:
         from jaxpose.calibration.scale import metric_scale  # the calibrate extra
     except ImportError:
         log.warning("%s: its unit was not checked against the people in view (needs pip install 'jaxpose[calibrate]')", calibration.source)
-        return
+        return None
     try:
         scale = metric_scale(points, reliable, skeleton)
     except ValueError:
-        return  # no limb triangulated: nothing to compare with
+        return None  # no limb triangulated: nothing to compare with
     factor = scale.mm_per_unit  # the prior over the measured lengths
     if 1.0 / UNIT_TOLERANCE <= factor <= UNIT_TOLERANCE:
-        return
+        return None
     limbs = ", ".join(f"{limb} {length / factor:.0f}" for limb, length in scale.measured_mm.items())
     adult = ", ".join(f"{limb} {length:.0f}" for limb, length in scale.prior_mm.items())
     power = round(math.log10(factor))
     if power == 0 or abs(math.log10(factor) - power) > math.log10(UNIT_TOLERANCE):
-        log.warning("%s: the people in view have limbs of %s mm where an adult's are %s mm: is the calibration right?", calibration.source, limbs, adult)
-        return
+        warning = f"{calibration.source}: the people in view have limbs of {limbs} mm where an adult's are {adult} mm: is the calibration right?"
+        log.warning("%s", warning)
+        return warning
     mm_per_unit = MM_PER_UNIT[calibration.unit] * factor
     likely = min(MM_PER_UNIT, key=lambda unit: abs(math.log10(MM_PER_UNIT[unit] / mm_per_unit)))
     raise DataFormatError(

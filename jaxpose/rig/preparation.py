@@ -45,6 +45,8 @@ class Aligned:
     """f32[N, C, K, J, 2] pixels as detected, up to K people per view."""
     confidence: np.ndarray
     """f32[N, C, K, J]"""
+    warnings: tuple[str, ...] = ()
+    """What reading it found suspect (an unreliable sync, a camera sharing no instant), for the report."""
 
 
 class Phases:
@@ -102,6 +104,8 @@ class Preparation:
     summaries: list[dict] = dataclasses.field(default_factory=list)
     """Per recording (in order) what loading did, for `jaxpose.rig.split.RecordingSummary`."""
     ground_truth_seen: bool = False
+    warnings: list[str] = dataclasses.field(default_factory=list)
+    """What the checks of the calibrations found suspect (people of an unlikely size), for the report."""
 
     def run(self, parts: Iterable[Aligned]) -> None:
         units = _UnitCheck(self.rigs, self.skeleton) if self.check_unit else None
@@ -143,6 +147,7 @@ class Preparation:
         drain(final=True)
         if units is not None:
             units.finish()
+            self.warnings += units.warnings
 
     def _propose(self, rig_rows, keypoints, confidence):
         """One chunk: undistorted keypoints, their confidence, and the person's proposals
@@ -184,6 +189,7 @@ class Preparation:
                 "offsets": dict(recording.offsets),
                 "offsets_estimated": recording.sync is not None,
                 "sync_reliable": None if recording.sync is None else recording.sync.reliable,
+                "warnings": list(part.warnings),
                 "instants_with_choice": choice.instants_with_choice,
                 "views_without_match": choice.views_without_match,
                 "ground_truth_instants": truth_instants,
@@ -200,6 +206,7 @@ class _UnitCheck:
         self.rigs, self.skeleton = rigs, skeleton
         self.samples: dict[int, list[tuple[np.ndarray, np.ndarray]]] = collections.defaultdict(list)
         self.checked: set[int] = set()
+        self.warnings: list[str] = []
 
     def add(self, rig: int, keypoints: np.ndarray, confidence: np.ndarray) -> None:
         if rig in self.checked:
@@ -220,4 +227,5 @@ class _UnitCheck:
         self.checked.add(rig)
         if len(keypoints):
             points = geometry.triangulate_rows(self.rigs.P[rig], keypoints, confidence, method="normal")
-            check_unit_against_people(self.rigs.calibrations[rig], points, (confidence > 0).sum(1) >= 2, self.skeleton())
+            warning = check_unit_against_people(self.rigs.calibrations[rig], points, (confidence > 0).sum(1) >= 2, self.skeleton())
+            self.warnings += [warning] if warning else []

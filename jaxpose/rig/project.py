@@ -83,6 +83,7 @@ from jaxpose.rig.timeline import (
     align,
     estimate_recording_offsets,
     instants_of,
+    lone_cameras,
     parse_frame_offsets,
 )
 
@@ -285,6 +286,7 @@ def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bo
         "layout": next(iter(layouts.values())),
         "recordings": preparation.summaries,
         "ground_truth_seen": preparation.ground_truth_seen,
+        "warnings": preparation.warnings,
         "rigs": {field: np.stack([np.asarray(getattr(c.cameras, field), np.float32) for c in rigs.calibrations]).tolist() for field in ("K", "R", "t")},
         "inputs": inputs,
     }
@@ -317,22 +319,31 @@ def _aligned(
         if len(set(layouts.values())) > 1:
             raise DataFormatError(config.root, "one keypoint layout in every recording", f"layouts {layouts}")
         cameras = [camera for camera in camera_order if camera in views]
+        warnings: list[str] = []
         if config.sync == "auto":
             with phases("offsets"):
                 recording.sync = estimate_recording_offsets(recording, views, cameras, config.max_sync_offset)
             recording.offsets = dict(zip(cameras, recording.sync.offsets.tolist()))
             state = "" if recording.sync.reliable else f" (UNRELIABLE: {recording.sync.doubt})"
             log.info("recording %s: estimated frame offsets %s%s", recording.name, recording.offsets, state)
+            if not recording.sync.reliable:
+                warnings.append(f"frame offsets UNRELIABLE: {recording.sync.doubt}")
             phases.advance("offsets")
         else:
             recording.offsets = {camera: given.get((recording.name, camera), 0) for camera in cameras}
+        for camera in lone_cameras(views, recording.offsets):
+            warnings.append(
+                f"camera {camera} (frame offset {recording.offsets.get(camera, 0):+d}) shares no instant with the other cameras:"
+                " are --data.frame-offsets right?"
+            )
+            log.warning("recording %s: %s", recording.name, warnings[-1])
         with phases("recordings read"):
             instants = instants_of(views, recording.offsets)
             if not len(instants):
                 raise DataFormatError(recording.folder, "detections in at least one frame", "no frame")
             keypoints, confidence = align(views, camera_order, recording.offsets, instants)
         phases.advance("recordings read", len(instants))
-        yield Aligned(recording, instants, keypoints, confidence)
+        yield Aligned(recording, instants, keypoints, confidence, tuple(warnings))
 
 
 PARSED = "parsed"

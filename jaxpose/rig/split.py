@@ -54,6 +54,8 @@ class RecordingSummary:
     instants_with_choice: int
     views_without_match: int
     ground_truth_instants: int
+    warnings: tuple[str, ...] = ()
+    """What reading it found suspect: an unreliable sync and why, a camera sharing no instant with the others."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,6 +73,8 @@ class RigProject:
     """The `jaxpose.calibration.Calibration` recovered from the recordings, when there was no calibration."""
     prepared: str = ""
     """How the prepared arrays were had: read from the cache, prepared and cached, or prepared in memory."""
+    warnings: tuple[str, ...] = ()
+    """What the checks of the calibrations found suspect (people of an unlikely size), for the report."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,7 +119,10 @@ def split(prepared: PreparedProject, config: SplitConfig) -> RigProject:
         validation=validation,
         camera_names=tuple(meta["camera_names"]),
         layout=meta["layout"],
-        recordings=tuple(RecordingSummary(**summary | {"cameras": tuple(summary["cameras"])}) for summary in meta["recordings"]),
+        recordings=tuple(
+            RecordingSummary(**summary | {"cameras": tuple(summary["cameras"]), "warnings": tuple(summary["warnings"])}) for summary in meta["recordings"]
+        ),
+        warnings=tuple(meta["warnings"]),
         ground_truth_joints=ground_truth.ground_truth_joint_names(validation),
         recovered_calibration=prepared.recovered_calibration,
         prepared=prepared.how,

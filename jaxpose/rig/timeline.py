@@ -60,6 +60,18 @@ def instants_of(views: Views, offsets: Mapping[str, int]) -> np.ndarray:
     return np.unique(np.concatenate([frames + offsets.get(camera, 0) for camera, (frames, _, _) in views.items()]))
 
 
+def lone_cameras(views: Views, offsets: Mapping[str, int]) -> list[str]:
+    """The cameras none of whose frames shows an instant another camera shows (with their offsets): their
+    detections can be neither triangulated nor paired; usually a frame offset that is wrong."""
+    shown = {camera: np.unique(frames + offsets.get(camera, 0)) for camera, (frames, _, _) in views.items()}
+    lone = []
+    for camera, instants in shown.items():
+        others = [other for name, other in shown.items() if name != camera]
+        if others and len(instants) and not np.isin(instants, np.concatenate(others)).any():
+            lone.append(camera)
+    return lone
+
+
 def align(views: Views, camera_order: Sequence[str], offsets: Mapping[str, int], instants: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The cameras on one time axis at `instants` (sorted, some or all of `instants_of`): keypoints
     [n, C, P, J, 2], confidence [n, C, P, J]."""

@@ -498,3 +498,25 @@ def test_a_read_only_project_trains_and_reconstructs_with_a_cache_folder_given(p
     assert "cannot be written" in log and "prepared in memory" in log  # the run without --data.cache-dir
     assert (tmp_path / "motion" / "report.json").is_file() and (tmp_path / "cache" / "parsed").is_dir()
     assert sorted((str(p.relative_to(project_copy)), p.stat().st_mtime_ns) for p in project_copy.rglob("*")) == before
+
+
+def test_what_loading_finds_suspect_is_in_the_report(project_copy):
+    """Issue 42 case 10: a calibration whose people come out three times an adult's size (a warning, not a
+    wrong unit's refusal) and a frame offset that leaves a camera sharing no instant with the others are said
+    in the report, per recording, not only in the log."""
+    import re
+
+    from jaxpose.rig.timeline import lone_cameras
+
+    views = {"a": (np.arange(10), None, None), "b": (np.arange(5, 15), None, None), "c": (np.arange(10), None, None)}
+    assert lone_cameras(views, {}) == [] and lone_cameras(views, {"c": 100_000}) == ["c"]
+    calibration = project_copy / "calibration.toml"
+    text = calibration.read_text()
+    calibration.write_text(re.sub(r"translation = \[([^\]]*)\]", lambda m: "translation = [" + ", ".join(str(3 * float(v)) for v in m[1].split(",")) + "]", text))
+    config = RigProjectConfig(root=project_copy, frame_offsets=("cam03=100000",))
+    loaded = load_rig_project(config, progress=False)
+    assert len(loaded.warnings) == 1 and "is the calibration right?" in loaded.warnings[0]
+    assert all(r.warnings == ("camera cam03 (frame offset +100000) shares no instant with the other cameras: are --data.frame-offsets right?",) for r in loaded.recordings)
+    notes = rig_job.project_notes(loaded, config)[0]
+    assert "**Warnings of loading**" in notes and "is the calibration right?" in notes and "cam03 (frame offset +100000)" in notes
+    assert load_rig_project(config, progress=False).warnings == loaded.warnings  # kept with the prepared project
