@@ -54,7 +54,7 @@ from jaxpose.serving import inference
 from jaxpose.camera import Cameras
 from jaxpose.formats.anipose_toml import write_anipose_toml
 from jaxpose.formats.rig_cameras import RigCalibration
-from jaxpose.formats.outputs import atomic_output, check_output
+from jaxpose.formats.outputs import check_report, write_report
 from jaxpose.formats.calibration_files import find_calibration, read_rig_calibration
 from jaxpose.reconstruction.recording import RecordingInput, lift_and_reconstruct, recording_inputs
 from jaxpose.reconstruction.trajectory import TrajectoryConfig
@@ -447,8 +447,7 @@ def run(args: PeersArgs) -> dict:
     unknown = set(args.part) - {"accuracy", "timing"}
     if unknown:
         raise SystemExit(f"--part {sorted(unknown)}: expected accuracy and/or timing")
-    for name in ("report.md", "report.json"):
-        check_output(args.output / name, args.overwrite, flag="--output")
+    check_report(args.output, args.overwrite)
     families = peer_families(args)
     python, peers = peer_python(args) if families else (None, "no peer chosen (--peers)")
     if python is None:
@@ -464,12 +463,7 @@ def run(args: PeersArgs) -> dict:
         report["timing"] = timing(args, lifter, python, families)
     report["setup"] += f" Load average {os.getloadavg()[0]:.1f} at the end."
     markdown = report_markdown(report)
-    args.output.mkdir(parents=True, exist_ok=True)
-    with atomic_output(args.output / "report.json") as temporary:
-        temporary.write_text(json.dumps(report, indent=2, default=float))
-    with atomic_output(args.output / "report.md") as temporary:
-        temporary.write_text(markdown)
-    print(markdown, file=sys.stderr)
+    write_report(args.output, report, markdown)
     return report
 
 

@@ -33,9 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import json
 import pathlib
-import sys
 from collections.abc import Sequence
 from typing import Annotated
 
@@ -51,7 +49,7 @@ from jaxpose.serving import inference
 from jaxpose.camera import projection_matrices
 from jaxpose.chunks import map_in_chunks
 from jaxpose.compilation_cache import enable_compilation_cache
-from jaxpose.formats.outputs import atomic_output, check_output
+from jaxpose.formats.outputs import check_report, write_report
 from jaxpose.logs import show_logs
 from jaxpose.reconstruction.fusion import FusionConfig
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, fill_gaps
@@ -308,8 +306,7 @@ def report_markdown(report: dict) -> str:
 
 
 def run(args: StudyArgs) -> dict:
-    for name in ("report.md", "report.json"):
-        check_output(args.output / name, args.overwrite, flag="--output")
+    check_report(args.output, args.overwrite)
     lifter = inference.load(args.checkpoint)
     project = load_rig_project(args.data, progress=True)
     if project.recovered_calibration is not None or project.validation.target3d is None:
@@ -328,11 +325,7 @@ def run(args: StudyArgs) -> dict:
     conditions = {"As it is": evaluate(args, lifter, dataset, False), "Occluded": evaluate(args, lifter, dataset, True)}
     report = {"setup": setup, "conditions": conditions}
     markdown = report_markdown(report)
-    with atomic_output(args.output / "report.json") as temporary:
-        temporary.write_text(json.dumps(report, indent=2))
-    with atomic_output(args.output / "report.md") as temporary:
-        temporary.write_text(markdown)
-    print(markdown, file=sys.stderr)
+    write_report(args.output, report, markdown)
     return report
 
 

@@ -13,9 +13,7 @@ fusion as the reference.  Written to DIR/report.md and DIR/report.json.
 from __future__ import annotations
 
 import dataclasses
-import json
 import pathlib
-import sys
 from collections.abc import Sequence
 from typing import Annotated
 
@@ -26,7 +24,7 @@ from tqdm.auto import tqdm
 from experiments.reconstruction_study import BUCKETS, Occlusion, first_frames, occlude
 from jaxpose.serving import inference
 from jaxpose.compilation_cache import enable_compilation_cache
-from jaxpose.formats.outputs import atomic_output, check_output
+from jaxpose.formats.outputs import check_report, write_report
 from jaxpose.logs import show_logs
 from jaxpose.reconstruction.motion_quality import acceleration_error, limb_length_spread
 from jaxpose.reconstruction.recording import lift_and_reconstruct, recording_inputs, smooth_recording
@@ -103,8 +101,7 @@ class Scores:
 
 
 def run(args: TuningArgs) -> dict:
-    for name in ("report.md", "report.json"):
-        check_output(args.output / name, args.overwrite, flag="--output")
+    check_report(args.output, args.overwrite)
     lifter = inference.load(args.checkpoint)
     project = load_rig_project(args.data, progress=True)
     if project.validation.target3d is None:
@@ -136,11 +133,7 @@ def run(args: TuningArgs) -> dict:
             )
         lines.append("")
     markdown = "\n".join(lines)
-    with atomic_output(args.output / "report.json") as temporary:
-        temporary.write_text(json.dumps(report, indent=2))
-    with atomic_output(args.output / "report.md") as temporary:
-        temporary.write_text(markdown)
-    print(markdown, file=sys.stderr)
+    write_report(args.output, report, markdown)
     return report
 
 

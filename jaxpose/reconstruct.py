@@ -31,7 +31,6 @@ temporary name renamed into place (`jaxpose.formats.outputs`).
 from __future__ import annotations
 
 import dataclasses
-import json
 import pathlib
 import sys
 from collections.abc import Sequence
@@ -45,7 +44,7 @@ from jaxpose.serving import inference
 from jaxpose.training.checkpoint import CheckpointError
 from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.formats.errors import DataFormatError
-from jaxpose.formats.outputs import OutputError, atomic_output, check_output, check_output_folder
+from jaxpose.formats.outputs import OutputError, check_output_folder, check_report, write_report
 from jaxpose.logs import show_logs
 from jaxpose.reconstruction import motion_files, recording
 from jaxpose.reconstruction.fusion import FusionConfig, Provenance
@@ -55,9 +54,6 @@ from jaxpose.reconstruction.trajectory import TrajectoryConfig
 from jaxpose.rig.project import RigProjectConfig, with_recorded_settings
 from jaxpose.training.run_directory import RECORD_FILE, read_record
 from jaxpose.rig.recordings import recording_folders
-
-REPORT_FILES = ("report.md", "report.json")
-
 
 @dataclasses.dataclass(frozen=True)
 class ReconstructArgs:
@@ -164,11 +160,7 @@ def run(args: ReconstructArgs) -> dict:
         "earlier_files_left": left,
     }
     markdown = report_markdown(report)
-    with atomic_output(args.output / "report.json") as temporary:
-        temporary.write_text(json.dumps(report, indent=2))
-    with atomic_output(args.output / "report.md") as temporary:
-        temporary.write_text(markdown)
-    print(markdown, file=sys.stderr)
+    write_report(args.output, report, markdown)
     return report
 
 
@@ -199,8 +191,7 @@ def check_outputs(args: ReconstructArgs, names: Sequence[str]) -> list[pathlib.P
             f"recordings {first!r} and {second!r}: a later segment of {first!r} is written as {second}.trc, the file of"
             f" {second!r}; reconstruct them into separate --output folders (--data.recordings {first} / {second})"
         )
-    for name in REPORT_FILES:
-        check_output(args.output / name, args.overwrite, flag="--output")
+    check_report(args.output, args.overwrite)
     earlier = [path for name in names for path in motion_files.existing_outputs(args.output, name)]
     if earlier and not args.overwrite:
         listed = ", ".join(path.name for path in earlier[:4]) + (f" and {len(earlier) - 4} more" if len(earlier) > 4 else "")

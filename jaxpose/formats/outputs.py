@@ -8,13 +8,16 @@ them that the next reading of the folder takes for data).  `check_output_folder`
 folder of outputs.  `atomic_output` gives a temporary path beside the output,
 with the same suffix (writers such as `np.savez` and matplotlib choose the format by it), and
 renames it into place only when the writer finished: an interrupted or failed write leaves the
-previous file, if any, as it was.
+previous file, if any, as it was.  `check_report` and `write_report` do both for the report.md / report.json
+pair of the commands and studies that write one.
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
+import sys
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
@@ -78,3 +81,23 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
         raise OutputError(f"{path}: could not be written ({error.strerror or error}); {kept}") from None
     finally:
         temporary.unlink(missing_ok=True)
+
+
+REPORT_FILES = ("report.md", "report.json")
+
+
+def check_report(folder: Path, overwrite: bool, flag: str = "--output") -> None:
+    """`check_output` of the report pair in `folder`, before any work."""
+    for name in REPORT_FILES:
+        check_output(folder / name, overwrite, flag=flag)
+
+
+def write_report(folder: Path, report: dict, markdown: str) -> None:
+    """report.json and report.md in `folder` (made if absent), each written atomically; the markdown also to
+    stderr, where the command's log goes."""
+    folder.mkdir(parents=True, exist_ok=True)
+    with atomic_output(folder / "report.json") as temporary:
+        temporary.write_text(json.dumps(report, indent=2, default=float))
+    with atomic_output(folder / "report.md") as temporary:
+        temporary.write_text(markdown)
+    print(markdown, file=sys.stderr)
