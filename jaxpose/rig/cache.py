@@ -4,7 +4,8 @@ Loading a project (reading every detection, aligning the cameras, undistorting, 
 is done once; its result is written to ``PROJECT/.jaxpose_cache/prepared-<key>/``: one ``.npy`` per
 array of each part (``train.keypoints2d.npy``, ...), written row block by row block as the recordings
 are prepared (`Assembly`), and ``project.json`` with the rest (cameras, layout, the per-recording
-summaries; ``recovered.json`` for a recovered rig).  The next run with the same inputs and options
+summaries, the sessions of a project without calibration; ``recovered.json`` for the rigs recovered,
+one per session).  The next run with the same inputs and options
 memory-maps the arrays (`read`): it starts in seconds, and a project larger than memory trains with
 only the rows of each batch read from disk.
 
@@ -46,7 +47,7 @@ from jaxpose.rig.recordings import printable
 
 log = logging.getLogger(__name__)
 
-VERSION = 2  # bump when the prepared arrays change meaning
+VERSION = 3  # bump when the prepared arrays change meaning (3: one recovered rig per session)
 PREFIX = "prepared-"
 KEEP = 2
 RECOVERED_JSON = "recovered.json"
@@ -198,8 +199,8 @@ def _prune(cache: Path) -> None:
         shutil.rmtree(old, ignore_errors=True)
 
 
-def read_meta(directory: Path, recovered_type: type | None = None) -> tuple[dict[str, Any], object | None]:
-    """(project.json, the recovered calibration as a `recovered_type` or None) of a prepared folder;
+def read_meta(directory: Path, recovered_type: Any = None) -> tuple[dict[str, Any], object | None]:
+    """(project.json, the recovered calibrations as a `recovered_type` (session -> calibration) or None) of a prepared folder;
     marks it as just used.  A file that does not decode is a `DataFormatError` naming it."""
     meta = json.loads((directory / "project.json").read_text())
     recovered = None
@@ -243,6 +244,11 @@ def _from_json(kind: Any, value: Any) -> Any:
         return kind(**{field.name: _from_json(hints[field.name], value[field.name]) for field in dataclasses.fields(kind) if field.name in value})
     if typing.get_origin(kind) is tuple and isinstance(value, list):
         return tuple(value)
+    if typing.get_origin(kind) is dict:
+        if not isinstance(value, dict):
+            raise ValueError(f"{kind}: expected an object")
+        item = typing.get_args(kind)[1]
+        return {name: _from_json(item, entry) for name, entry in value.items()}
     return value
 
 

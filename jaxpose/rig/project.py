@@ -30,7 +30,8 @@ What loading does to each recording, in order (one recording at a time: `jaxpose
    estimated (`jaxpose.rig.timeline`, `jaxpose.rig.sync`); instants seen by no camera are absent, a
    camera without a frame at an instant has confidence 0 there; only the instants the strides keep
    (and the frames of their temporal windows) go further;
-4. without any calibration, recovers the rig from all recordings (`jaxpose.rig.recovered`);
+4. without any calibration, groups the recordings by rig (sessions: given by --data.sessions, else found
+   from the data) and recovers each session's rig from its recordings (`jaxpose.rig.sessions`);
 5. undistorts the keypoints with the calibration (the data sets' rigs are then pinhole);
 6. keeps one person per instant, the one the views agree on (`jaxpose.rig.people`), and checks a
    calibration read without a stated unit against that person's limbs;
@@ -75,7 +76,7 @@ from jaxpose.rig.recordings import (
     read_detections,
     recording_folders,
 )
-from jaxpose.rig.recovered import recover_rig
+from jaxpose.rig.sessions import RecoveredSession, recover_sessions
 from jaxpose.rig.timeline import (
     align,
     estimate_recording_offsets,
@@ -129,6 +130,12 @@ class RigProjectConfig:
     image_size: tuple[int, int] | None = None
     """Width and height of the images (px), needed only to recover the rig of JSON detections without
     any calibration (a detections.npz carries its own)."""
+    sessions: tuple[str, ...] = ()
+    """Without a calibration: the recordings grouped by rig, SESSION=REC1,REC2 per session (cameras moved
+    between sessions), every recording in one; empty = found from the data (--data.find-sessions)."""
+    find_sessions: bool = True
+    """Without a calibration or --data.sessions: find the sessions from the data (2+ recordings: recordings
+    one rig explains belong together); --data.no-find-sessions: one rig for every recording."""
     subject_height_mm: float | None = None
     """Without a calibration: the subject's height (mm), which sets the recovered world's scale (Pose2Sim's
     participant_height); None: the generic limb prior (5-9% off for bodies unlike it: docs/calibration.md)."""
@@ -178,10 +185,15 @@ class RigProject:
     recordings: tuple[RecordingSummary, ...]
     ground_truth_joints: tuple[str, ...]
     """The lifting skeleton's joints that the ground truth has (empty without ground truth)."""
-    recovered_calibration: object | None = None
-    """The `jaxpose.calibration.Calibration` recovered from the recordings, when there was no calibration."""
+    sessions: tuple[RecoveredSession, ...] = ()
+    """Without a calibration: the sessions and the rig recovered from each (`jaxpose.rig.sessions`)."""
     prepared: str = ""
     """How the prepared arrays were had: read from the cache, prepared and cached, or prepared in memory."""
+
+    @property
+    def recovered_calibration(self) -> object | None:
+        """The `jaxpose.calibration.Calibration` recovered from the recordings of a project of one session."""
+        return self.sessions[0].calibration if len(self.sessions) == 1 else None
 
 
 def load_rig_project(config: RigProjectConfig, progress: bool = True, window: int = 1) -> RigProject:
@@ -253,18 +265,20 @@ def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bo
     phases = Phases(len(recordings), progress)
     layouts: dict[str, str] = {}
     parts = _aligned(config, recordings, camera_order, parse_frame_offsets(config.frame_offsets, recordings), window, phases, layouts)
-    recovered_calibration = None
+    sessions: tuple[RecoveredSession, ...] = ()
     if project_calibration is None and all(recording.calibration is None for recording in recordings):
         parts = list(parts)
         with phases("rig recovered"):
-            rig, recovered_calibration = recover_rig(
+            sessions, session_rigs = recover_sessions(
                 recordings, [(part.keypoints, part.confidence) for part in parts], camera_order,
-                lifting_skeleton(next(iter(layouts.values()))),
+                lifting_skeleton(next(iter(layouts.values()))), sessions=config.sessions, find=config.find_sessions,
                 image_size=config.image_size, max_frames=config.recovery_frames, root=config.root,
                 height_mm=config.subject_height_mm,
             )  # fmt: skip
         for recording in recordings:
-            recording.calibration = rig
+            recording.calibration = session_rigs[recording.name]
+    elif config.sessions:
+        log.warning("--data.sessions is for projects without a calibration: ignored (the calibration files give each recording's rig)")
     rig_index: dict[int, int] = {}
     for recording in recordings:
         rig_index.setdefault(id(recording.calibration), len(rig_index))
@@ -273,8 +287,8 @@ def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bo
     temporary = cache.start(config.root, cache_key)
     preparation = Preparation(
         rigs, lambda recording: rig_index[id(recording.calibration)], lambda: lifting_skeleton(next(iter(layouts.values()))),
-        cache.Assembly(temporary), phases, threshold_px=config.person_threshold_px, recovered=recovered_calibration is not None,
-        check_unit=config.calibration_unit == "auto" and recovered_calibration is None, context=window > 1,
+        cache.Assembly(temporary), phases, threshold_px=config.person_threshold_px, recovered=bool(sessions),
+        check_unit=config.calibration_unit == "auto" and not sessions, context=window > 1,
         labels={"subject": np.dtype(f"<U{len(f'rig{len(rig_index) - 1}')}"),
                 "recording": np.dtype(f"<U{max(len(recording.name) for recording in recordings)}")},
     )  # fmt: skip
@@ -295,6 +309,7 @@ def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bo
         "recordings": preparation.summaries,
         "ground_truth_seen": preparation.ground_truth_seen,
         "train_target_complete": preparation.train_target_complete,
+        "sessions": [session.summary() for session in sessions],
         "rigs": {field: np.stack([np.asarray(getattr(c.cameras, field), np.float32) for c in rigs.calibrations]).tolist() for field in ("K", "R", "t")},
     }
     validation = _dataset(meta, arrays, "validation")
@@ -302,10 +317,10 @@ def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bo
     if temporary is None:
         how = "prepared in memory (the project folder cannot be written: not cached)"
     else:
-        final = cache.commit(temporary, cache_key, meta, recovered_calibration)
+        final = cache.commit(temporary, cache_key, meta, {session.name: session.calibration for session in sessions} or None)
         arrays, how = cache.read_arrays(final), f"prepared and written to the cache {final}"
     log.info("%d recordings %s in %.1f s", len(recordings), how, time.perf_counter() - started)
-    return _project(meta, arrays, recovered_calibration, how)
+    return _project(meta, arrays, {session.name: session.calibration for session in sessions}, how)
 
 
 def _aligned(
@@ -398,16 +413,17 @@ def with_recorded_settings(config: RigProjectConfig, recorded: dict, source: str
     return dataclasses.replace(config, **changes), notes
 
 
-def _recovered_type(cached: pathlib.Path) -> type | None:
-    """The type a cached recovered rig decodes to (the calibrate extra recovered it), or None without one."""
+def _recovered_type(cached: pathlib.Path) -> object | None:
+    """The type the cached recovered rigs decode to (session -> `Calibration`: the calibrate extra
+    recovered them), or None without them."""
     if not (cached / cache.RECOVERED_JSON).exists():
         return None
     from jaxpose.calibration import Calibration
 
-    return Calibration
+    return dict[str, Calibration]
 
 
-def _project(meta: dict, arrays: dict[str, dict[str, np.ndarray]], recovered: object | None, how: str) -> RigProject:
+def _project(meta: dict, arrays: dict[str, dict[str, np.ndarray]], recovered: dict | None, how: str) -> RigProject:
     """The loaded project from the prepared arrays (memory-mapped from the cache, or in memory) and their metadata."""
     if meta["ground_truth_seen"] and not meta["train_target_complete"]:
         # Ground truth for only some joints or recordings serves evaluation, not the supervised twin.
@@ -419,7 +435,10 @@ def _project(meta: dict, arrays: dict[str, dict[str, np.ndarray]], recovered: ob
         layout=meta["layout"],
         recordings=tuple(RecordingSummary(**summary | {"cameras": tuple(summary["cameras"])}) for summary in meta["recordings"]),
         ground_truth_joints=tuple(meta["ground_truth_joints"]),
-        recovered_calibration=recovered,
+        sessions=tuple(
+            RecoveredSession(**session | {"recordings": tuple(session["recordings"]), "calibration": recovered[session["name"]]})
+            for session in meta["sessions"]
+        ),
         prepared=how,
     )
 
