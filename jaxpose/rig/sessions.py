@@ -5,9 +5,10 @@ Labs record over days and cameras get bumped between them; one rig recovered fro
 is then wrong for each.  The recordings are grouped (`group_recordings`):
 
 - given by the user (--data.sessions SESSION=REC1,REC2 ...: every recording named once);
-- else found from the data (`jaxpose.calibration.sessions.find_sessions`: a rig recovered from each
-  recording alone, on `SESSION_FRAMES` of its instants; two recordings share a rig when either's rig
-  re-projects the other's detections within 3 px of its own), where there are two recordings or more;
+- else found from the data (`jaxpose.calibration.sessions.find_sessions`, where there are two recordings or
+  more: rigs recovered from single recordings, on `SESSION_FRAMES` of their instants, those where the
+  person moves most first, until every recording is explained by one: its detections re-project through
+  that rig within 3 px of what the rig leaves on its own recording; then grouped as that module says);
 - or all in one session (--data.no-find-sessions: one rig for every recording).
 
 A recording that no rig explains (its own calibration failed, and no session's rig re-projects it as
@@ -96,7 +97,8 @@ def group_recordings(detections: Mapping[str, object], labels: Mapping[str, str]
         return group_by_label(names, [labels[name] for name in names])
     if not find or len(names) < 2:
         return SessionGrouping((Session("session1", names, None),), (), "one", names)
-    grouping = find_sessions({name: _spread(rows, 2 * SESSION_FRAMES) for name, rows in detections.items()}, CalibrationConfig(max_frames=SESSION_FRAMES))
+    spread = {name: _spread(rows, 2 * SESSION_FRAMES) for name, rows in detections.items()}
+    grouping = find_sessions(spread, CalibrationConfig(max_frames=SESSION_FRAMES), until_explained=True)
     for name, why in grouping.failures.items():
         session = grouping.session_of(name)
         log.info("recording %s: no rig of its own (%s); %s", name, why, f"its detections fit {session}'s rig" if session else "no rig fits it")
