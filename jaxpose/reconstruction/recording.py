@@ -39,7 +39,7 @@ from jaxpose.reconstruction.fusion import MIN_DEPTH_MM, Fusion, FusionConfig, Pr
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, complete_segments, fill_gaps
 from jaxpose.reconstruction.trajectory import TrajectoryConfig, limb_lengths, solve_trajectory
 from jaxpose.rig.project import SPLIT_FIELDS, RigProject, RigProjectConfig, load_rig_project
-from jaxpose.training.run_directory import RunDirectory
+from jaxpose.training.run_directory import RECOVERED_SESSIONS_DIR, RunDirectory
 from jaxpose.rig.recordings import recording_folders
 from jaxpose.skeleton import ROOT, Skeleton
 
@@ -64,6 +64,12 @@ def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: 
         log.info("the run was trained on the rig recovered from the recordings: its world frame, %s", recovered)
         calibration = recovered
     elif calibration is None and find_calibration(data.root) is None:
+        sessions = recovered.parent / RECOVERED_SESSIONS_DIR
+        if sessions.is_dir():
+            raise ValueError(
+                f"{data.root}: no calibration file, and the run {run_dir} was trained on one recovered rig per session"
+                f" ({sessions}): pass the recordings' session's as --data.calibration {sessions}/SESSION.toml"
+            )
         if not all(find_calibration(data.root / name) for name in names):
             raise ValueError(
                 f"{data.root}: no calibration file, and the run {run_dir} has no {recovered.name} (it was trained on"

@@ -88,6 +88,21 @@ def test_sessions_are_found_and_each_gets_its_own_rig(tmp_path):
     for first, second in zip(project.sessions, again.sessions):
         np.testing.assert_array_equal(first.calibration.cameras.R, second.calibration.cameras.R)
     # Forced to one rig: today's behaviour, one session of every recording.
+    # The run writes one rig file per session, in the Pose2Sim/Anipose TOML and jaxpose's camera file.
+    from experiments.rig import load_splits
+    from jaxpose.formats.calibration_files import read_rig_calibration
+    from jaxpose.training.run_directory import RunDirectory
+
+    run = RunDirectory(tmp_path / "run")
+    run.path.mkdir()
+    for write in load_splits(config, progress=False).artifacts:
+        write(run)
+    assert not run.recovered_toml.exists() and not run.recovered_cameras.exists()
+    for session in project.sessions:
+        for path in (run.recovered_session_toml(session.name), run.recovered_session_cameras(session.name)):
+            written = read_rig_calibration(path)
+            assert written.camera_names == CAMERAS
+            np.testing.assert_allclose(written.cameras.R, session.calibration.cameras.R, atol=1e-6)
     one = load_rig_project(RigProjectConfig(root=tmp_path / "project", recovery_frames=120, validation_fraction=0.25, find_sessions=False), progress=False)
     assert [(s.recordings, s.found) for s in one.sessions] == [(("a1", "a2", "b1"), "one")] and len(one.train.rigs.R) == 1
 
@@ -120,3 +135,34 @@ def test_a_recording_no_rig_explains_is_refused_in_one_line(tmp_path, monkeypatc
     message = str(error.value)
     assert "\n" not in message and "recording 'b1' fits no rig (its own: too few frames)" in message
     assert "--data.sessions" in message and "--data.recordings" in message
+
+
+def _calibration(shift_mm: float):
+    """A recovered rig of four cameras on a circle (numbers a calibration could give)."""
+    from jaxpose.calibration import Calibration
+    from jaxpose.calibration.lens import LensEstimate
+    from jaxpose.calibration.scale import MetricScale
+    from jaxpose.camera import Cameras
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_euler("y", [[0], [90], [180], [270]], degrees=True).as_matrix()
+    t = np.array([[0.0, 0.0, 5000.0 + shift_mm]] * 4)
+    K = np.array([[[1100.0, 0, 500], [0, 1100.0, 500], [0, 0, 1]]] * 4)
+    states = np.array([["estimated", "prior", "prior", "prior", "prior", "prior", "prior"]] * 4)
+    return Calibration(
+        cameras=Cameras(K=K, R=R, t=t), camera_names=CAMERAS, image_size=np.full((4, 2), 1000), reprojection_median_px=np.full(4, 4.0),
+        reprojection_p90_px=np.full(4, 9.0), inlier_fraction=np.full(4, 0.9), scale=MetricScale(1.0, {"thigh": 450.0}, {"thigh": 450.0}),
+        focal_estimated=True, frames_used=120, seconds=3.0, residual_scale=1.0,
+        lens=LensEstimate(value=np.zeros((4, 7)), sigma=np.ones((4, 7)), prior_mean=np.zeros((4, 7)), prior_sigma=np.ones((4, 7)), state=states),
+    )  # fmt: skip
+
+
+def test_the_report_lists_the_sessions_and_each_rigs_reprojection():
+    from experiments.rig import session_notes
+    from jaxpose.rig.sessions import RecoveredSession
+
+    sessions = (RecoveredSession("session1", ("a1", "a2"), 4.25, "data", _calibration(0.0)), RecoveredSession("session2", ("b1",), 5.5, "data", _calibration(300.0)))
+    notes = session_notes(sessions)
+    assert "2 sessions (found from the data" in notes
+    assert "| session1 | a1, a2 | 4.25 |" in notes and "| session2 | b1 | 5.50 |" in notes
+    assert notes.count("Rig recovered from the person") == 2  # each session's own calibration report
