@@ -154,19 +154,26 @@ def find_sessions(
     rigs: dict[str, Calibration] = {}
     failures = {}
     fit = np.full((len(names), len(names)), np.nan)
-    order = sorted(names, key=lambda name: -motion(recordings[name], config.min_confidence)) if until_explained else names
-    for rig_name in order:
-        i = names.index(rig_name)
-        if until_explained and _explained(fit, i, margin_px):
-            continue
+
+    def recover(rig_name: str) -> None:
         try:
             rigs[rig_name] = calibrate(recordings[rig_name], config)
         except CalibrationError as error:
             failures[rig_name] = str(error)
-            continue
+            return
         for j, name in enumerate(names):
-            fit[i, j] = np.nanmax(rig_fit_px(rigs[rig_name].cameras, recordings[name], config.min_confidence))
+            fit[names.index(rig_name), j] = np.nanmax(rig_fit_px(rigs[rig_name].cameras, recordings[name], config.min_confidence))
+
+    order = sorted(names, key=lambda name: -motion(recordings[name], config.min_confidence)) if until_explained else names
+    for rig_name in order:
+        if not (until_explained and _explained(fit, names.index(rig_name), margin_px)):
+            recover(rig_name)
     grouping = group_by_fit(names, fit, margin_px)
+    # A recording some rig explained joins a session only where all of that session's rigs explain it:
+    # one that none does gets its own rig after all, before anything is called unfitted.
+    while untried := [name for name in order if name in grouping.unfitted and name not in rigs and name not in failures]:
+        recover(untried[0])
+        grouping = group_by_fit(names, fit, margin_px)
     return dataclasses.replace(grouping, failures=failures, calibrations=rigs)
 
 
@@ -223,7 +230,11 @@ def group_by_fit(names: Sequence[str], fit: np.ndarray, margin_px: float = FIT_M
         groups[a] += groups.pop(b)
     unfitted = []
     for j in (j for j in range(len(names)) if not has_rig[j]):  # no rig of its own: the best-fitting session
-        candidates = [(np.max(fit[group, j]), index) for index, group in enumerate(groups) if explains[group, j].all()]
+        candidates = []
+        for index, group in enumerate(groups):
+            rigged = [i for i in group if has_rig[i]]  # the session's rigs: an earlier rigless member has no fits
+            if explains[rigged, j].all():
+                candidates.append((np.max(fit[rigged, j]), index))
         if candidates:
             groups[min(candidates)[1]].append(j)
         else:
