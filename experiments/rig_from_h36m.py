@@ -69,6 +69,9 @@ class Args:
     shift: tuple[str, ...] = ()
     """CAMERA=N: that camera's frame f shows the other cameras' frame f + N (frames without a
     counterpart are dropped)."""
+    intrinsics: bool = False
+    """Write each camera's K and lens (Human3.6M's distortion as OpenCV's) into detections.npz: intrinsics
+    known (a per-camera checkerboard), the rig itself still recovered where there is no calibration.toml."""
     moved: tuple[str, ...] = ()
     """Shell patterns of the recordings filmed through a moved rig (a second session; see the module docstring)."""
     moved_seed: int = 0
@@ -125,6 +128,10 @@ def write_project(args: Args) -> list[str]:
         print(f"calibration.toml: Human3.6M's distortion as OpenCV's, largest difference {error_px:.3f} px")
     train = first_trials(dataset.labels["subject"], dataset.labels["action"], sequences)
     image_size = np.array([H36M_IMAGE_SIZES[name] for name in CAMERA_NAMES])
+    lenses = {}
+    if args.intrinsics:
+        lens = opencv_rig_from_h36m(true_rig)[0].cameras
+        lenses = {"K": np.asarray(lens.K, np.float64), "dist": np.asarray(lens.dist, np.float64), "distortion_model": np.array("opencv")}
     for sequence in sorted(set(sequences.tolist())):
         rows = np.flatnonzero(sequences == sequence)
         frames = dataset.labels["frame"][rows].astype(np.int64)
@@ -149,7 +156,7 @@ def write_project(args: Args) -> list[str]:
             np.savez(
                 temporary,
                 keypoints=keypoints, confidence=confidence, camera_names=np.array(CAMERA_NAMES), image_size=image_size,
-                skeleton=np.array(dataset.skeleton.name), frames=frames,
+                skeleton=np.array(dataset.skeleton.name), frames=frames, **lenses,
             )  # fmt: skip
         with atomic_output(folder / GROUND_TRUTH_NPZ) as temporary:
             np.savez(
