@@ -6,7 +6,8 @@ patterns name were filmed through S1's rig with every camera moved (`moved_rig.n
 the others through cameras.h5's.  Loaded with the development protocol (every 5th instant; the first
 trial of each action trains, the others are held out), the sessions found are compared with the truth:
 - each session's recovered rig against the true rig of its recordings, after one similarity alignment
-  (`jaxpose.calibration.compare_rigs`): rotation (deg) and centre (mm) error per camera;
+  (`jaxpose.calibration.compare_rigs`): rotation (deg) and centre (mm) error per camera, and the
+  focal length (mean of fx, fy) and principal point errors;
 - the held-out recordings' detections triangulated through the session's recovered rig, and after one
   similarity alignment (with scale) per session of all its triangulated joints onto the motion capture,
   their world MPJPE; beside it the triangulation through the true cameras (no alignment, and after one
@@ -69,15 +70,18 @@ def h36m_study(project: pathlib.Path, data_dir: pathlib.Path, recovery_frames: i
             recovered_mpjpe = _session_mpjpe(cameras, [evaluation[name] for name in members if name in evaluation], align=True)
             true_mpjpe = _session_mpjpe(true, [evaluation[name] for name in members if name in evaluation], align=False)
             true_aligned = _session_mpjpe(true, [evaluation[name] for name in members if name in evaluation], align=True)
-            rows.append((true_name, session.name, comparison, recovered_mpjpe, true_mpjpe, true_aligned))
+            rows.append((true_name, session.name, comparison, recovered_mpjpe, true_mpjpe, true_aligned, cameras.K, true.K))
         print(
-            "\n| true rig | recovered as | rotation error per camera (deg) | centre error per camera (mm) | scale error"
-            " | triangulation MPJPE, recovered, one similarity (mm) | true cameras (mm) | true cameras, one similarity (mm) |"
-            "\n|---|---|---|---|---|---|---|---|"
+            "\n| true rig | recovered as | focal error per camera | principal point error per camera (px) | rotation error per camera (deg)"
+            " | centre error per camera (mm) | scale error | triangulation MPJPE, recovered, one similarity (mm) | true cameras (mm)"
+            " | true cameras, one similarity (mm) |\n|---|---|---|---|---|---|---|---|---|---|"
         )
-        for true_name, session_name, comparison, recovered_mpjpe, true_mpjpe, true_aligned in rows:
+        for true_name, session_name, comparison, recovered_mpjpe, true_mpjpe, true_aligned, K, true_K in rows:
+            focal = np.asarray(K)[:, [0, 1], [0, 1]].mean(-1) / np.asarray(true_K)[:, [0, 1], [0, 1]].mean(-1) - 1.0
+            centre = np.linalg.norm(np.asarray(K)[:, :2, 2] - np.asarray(true_K)[:, :2, 2], axis=-1)
             print(
-                f"| {true_name} | {session_name} | {' '.join(f'{v:.2f}' for v in comparison.rotation_deg)}"
+                f"| {true_name} | {session_name} | {' '.join(f'{v:+.1%}' for v in focal)} | {' '.join(f'{v:.1f}' for v in centre)}"
+                f" | {' '.join(f'{v:.2f}' for v in comparison.rotation_deg)}"
                 f" | {' '.join(f'{v:.1f}' for v in comparison.centre_mm)} | {comparison.scale_error:+.2%}"
                 f" | {recovered_mpjpe:.1f} | {true_mpjpe:.1f} | {true_aligned:.1f} |"
             )
