@@ -64,7 +64,7 @@ def test_session_entries_are_parsed_and_checked():
             parse_sessions([entry], ["a1"])
 
 
-@pytest.mark.slow  # five calibrations (three to find the sessions, two of them): ~60 s on 2 cores
+@pytest.mark.slow  # three loads (the sessions found, the cache, one rig): 2.9-7.2 min on 2 shared cores
 def test_sessions_are_found_and_each_gets_its_own_rig(tmp_path):
     rigs = write_project(tmp_path / "project")
     config = RigProjectConfig(root=tmp_path / "project", recovery_frames=120, validation_fraction=0.25)
@@ -107,7 +107,7 @@ def test_sessions_are_found_and_each_gets_its_own_rig(tmp_path):
     assert [(s.recordings, s.found) for s in one.sessions] == [(("a1", "a2", "b1"), "one")] and len(one.train.rigs.R) == 1
 
 
-@pytest.mark.slow  # two calibrations: ~30 s on 2 cores
+@pytest.mark.slow  # two calibrations: 20-28 s on 2 shared cores
 def test_sessions_given_by_the_user_are_taken_as_given(tmp_path):
     write_project(tmp_path / "project")
     config = RigProjectConfig(root=tmp_path / "project", recovery_frames=120, sessions=("monday=a1,a2", "tuesday=b1"))
