@@ -99,6 +99,7 @@ def group_recordings(detections: Mapping[str, object], labels: Mapping[str, str]
         return SessionGrouping((Session("session1", names, None),), (), "one", names)
     spread = {name: _spread(rows, 2 * SESSION_FRAMES) for name, rows in detections.items()}
     grouping = find_sessions(spread, CalibrationConfig(max_frames=SESSION_FRAMES), until_explained=True)
+    log.info("sessions searched with %d of %d recordings calibrated alone", len(grouping.calibrations) + len(grouping.failures), len(names))
     for name, why in grouping.failures.items():
         session = grouping.session_of(name)
         log.info("recording %s: no rig of its own (%s); %s", name, why, f"its detections fit {session}'s rig" if session else "no rig fits it")
