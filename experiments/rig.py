@@ -25,7 +25,7 @@ import logging
 
 from experiments import cli
 from jaxpose.training.experiment import ExperimentConfig, cpu_recipe, paper_preset
-from jaxpose.training.run_directory import RECOVERED_CAMERAS_FILE, RunDirectory, RunRecord
+from jaxpose.training.run_directory import RECOVERED_CAMERAS_FILE, RECOVERED_SESSIONS_DIR, RunDirectory, RunRecord
 from jaxpose.training.splits import Splits
 from jaxpose.formats.camera_file import save_cameras
 from jaxpose.rig.project import RigProjectConfig, load_rig_project, recorded_settings
@@ -47,16 +47,21 @@ def load_splits(data: RigProjectConfig, progress: bool = True) -> Splits:
         write_rig_project(data.root)
     project = load_rig_project(data, progress=progress)
     artifacts = ()
-    if project.recovered_calibration is not None:
-        calibration = project.recovered_calibration
+    if project.sessions:
 
         def write_calibration(run: RunDirectory) -> None:
             from jaxpose.calibration.rig_file import write_recovered_rig  # the calibrate extra, which recovered it
 
-            sizes = {"rig": [tuple(int(v) for v in size) for size in calibration.image_size]}
-            comment = f"Recovered by jaxpose.calibrate from the recordings of {data.root}."
-            save_cameras(run.recovered_cameras, {"rig": (list(calibration.camera_names), calibration.cameras)}, sizes, comment)
-            write_recovered_rig(run.recovered_toml, calibration, overwrite=True)  # the run's own file, rewritten on a resume
+            several = len(project.sessions) > 1  # one file per session; one session keeps the one name
+            for session in project.sessions:
+                calibration = session.calibration
+                json_path = run.recovered_session_cameras(session.name) if several else run.recovered_cameras
+                toml_path = run.recovered_session_toml(session.name) if several else run.recovered_toml
+                json_path.parent.mkdir(exist_ok=True)
+                sizes = {"rig": [tuple(int(v) for v in size) for size in calibration.image_size]}
+                comment = f"Recovered by jaxpose.calibrate from the recordings {', '.join(session.recordings)} of {data.root}."
+                save_cameras(json_path, {"rig": (list(calibration.camera_names), calibration.cameras)}, sizes, comment)
+                write_recovered_rig(toml_path, calibration, overwrite=True)  # the run's own file, rewritten on a resume
 
         artifacts = (write_calibration,)
     record = RunRecord(min_confidence=data.min_confidence, layout=project.layout, project=recorded_settings(data, project.layout))
@@ -103,14 +108,37 @@ def project_notes(project: RigProject, data: RigProjectConfig) -> tuple[str, ...
         f"Training: {len(project.train)} instants; validation ({held_out}): {len(project.validation)} instants. {truth}"
         f" Loading: {project.prepared}."
     )
-    if project.recovered_calibration is not None:
+    if len(project.sessions) == 1:
         from jaxpose.calibrate import report as calibration_report
 
         notes.append(
             f"No calibration file: the rig was recovered from the recordings and written to {RECOVERED_CAMERAS_FILE}"
             f" in the run directory.\n\n{calibration_report(project.recovered_calibration, None, None)}"
         )
+    elif project.sessions:
+        notes.append(session_notes(project.sessions))
     return tuple(notes)
+
+
+FOUND = {"labels": "given by --data.sessions", "data": "found from the data (recordings one rig explains belong together)"}
+
+
+def session_notes(sessions) -> str:
+    """The report's account of a project of several sessions: each session's recordings and rig."""
+    from jaxpose.calibrate import report as calibration_report
+
+    lines = [
+        f"No calibration file: the recordings come from {len(sessions)} sessions ({FOUND.get(sessions[0].found, sessions[0].found)}),"
+        f" each with its own rig recovered from its recordings and written to {RECOVERED_SESSIONS_DIR}/SESSION.json and .toml"
+        " in the run directory.",
+        "",
+        "| Session | recordings | rig re-projection, worst camera's median (px) |",
+        "|---|---|---|",
+    ]
+    lines += [f"| {s.name} | {', '.join(s.recordings)} | {s.reprojection_px:.2f} |" for s in sessions]
+    for session in sessions:
+        lines += ["", f"Session {session.name}:", "", calibration_report(session.calibration, None, None)]
+    return "\n".join(lines)
 
 
 # Preset "cpu": the Human3.6M cpu recipe (`experiments.h36m`, each choice measured there): a width-512

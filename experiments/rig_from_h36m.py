@@ -17,11 +17,21 @@ the other tests, every 5th frame) is then `--data.validation-recordings <the oth
 --data.train-stride 5 --data.validation-stride 5`, printed at the end.  `--shift CAMERA=N` moves
 one camera's frames by N (its frame f then shows the others' frame f + N), to test
 `--data.sync auto`.
+
+`--moved PATTERN ...` writes the recordings whose names match (shell patterns, e.g. 'Walk*') as a
+second session, filmed through the subject's rig with every camera moved by 100-500 mm and turned by
+1-3 degrees (`jaxpose.synthetic.sessions.moved_rig`, seeded by `--moved-seed`): their detections are
+the ground truth projected through the moved cameras (Human3.6M's lens kept) plus the subject's own
+Stacked Hourglass residuals (its detection minus the ground truth projected through the true camera);
+their ground truth stays in the motion capture's world.  The moved rig is written to `moved_rig.npz`
+(camera_names, K, R, t, dist, distortion_model "h36m", the moved recordings), which no loader reads as a
+calibration, and, without --no-calibration, as each moved recording's own calibration.toml.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import fnmatch
 import pathlib
 import re
 from collections.abc import Sequence
@@ -34,8 +44,12 @@ from jaxpose.formats.anipose_toml import write_anipose_toml
 from jaxpose.formats.h36m_cameras import H36M_IMAGE_SIZES, opencv_rig_from_h36m
 from jaxpose.formats.calibration_files import read_rig_calibration
 from jaxpose.datasets.h36m import CAMERA_NAMES, load_h36m
+from jaxpose.camera import Cameras, project
 from jaxpose.formats.outputs import atomic_output
 from jaxpose.formats.rig_folder import CALIBRATION_TOML, DETECTIONS_NPZ, GROUND_TRUTH_NPZ
+from jaxpose.synthetic.sessions import moved_rig
+
+MOVED_RIG_NPZ = "moved_rig.npz"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,6 +69,13 @@ class Args:
     shift: tuple[str, ...] = ()
     """CAMERA=N: that camera's frame f shows the other cameras' frame f + N (frames without a
     counterpart are dropped)."""
+    intrinsics: bool = False
+    """Write each camera's K and lens (Human3.6M's distortion as OpenCV's) into detections.npz: intrinsics
+    known (a per-camera checkerboard), the rig itself still recovered where there is no calibration.toml."""
+    moved: tuple[str, ...] = ()
+    """Shell patterns of the recordings filmed through a moved rig (a second session; see the module docstring)."""
+    moved_seed: int = 0
+    """The seed of the moved rig's shifts and turns."""
     overwrite: bool = False
     """Write into an --output folder that already holds a project (its calibration.toml and the
     recordings' detections.npz / ground_truth.npz are replaced); without it such a folder stops the
@@ -85,22 +106,39 @@ def write_project(args: Args) -> list[str]:
         if match is None or match[1] not in CAMERA_NAMES:
             raise SystemExit(f"--shift {value!r}: expected CAMERA=N with CAMERA one of {CAMERA_NAMES}")
         shifts[match[1]] = int(match[2])
+    sequences = dataset.labels["sequence"]
+    moved = sorted(name for name in set(sequences.tolist()) if any(fnmatch.fnmatchcase(name, pattern) for pattern in args.moved))
+    if args.moved and not moved:
+        raise SystemExit(f"--moved {list(args.moved)}: matches no recording (have {sorted(set(sequences.tolist()))[:6]} ...)")
     args.output.mkdir(parents=True, exist_ok=True)
+    true_rig = read_rig_calibration(args.data_dir / "cameras.h5", subject=args.subject).select(CAMERA_NAMES, "Human3.6M cameras")
+    true_rig = dataclasses.replace(true_rig, image_size=np.array([H36M_IMAGE_SIZES[name] for name in CAMERA_NAMES]))
+    moved_cameras = None
+    if moved:
+        moved_cameras = _moved(true_rig.cameras, args.moved_seed)
+        with atomic_output(args.output / MOVED_RIG_NPZ) as temporary:
+            np.savez(
+                temporary, camera_names=np.array(CAMERA_NAMES), K=moved_cameras.K, R=moved_cameras.R, t=moved_cameras.t,
+                dist=moved_cameras.dist, distortion_model=np.array(moved_cameras.distortion_model), recordings=np.array(moved),
+            )  # fmt: skip
     if args.calibration:
-        rig = read_rig_calibration(args.data_dir / "cameras.h5", subject=args.subject).select(CAMERA_NAMES, "Human3.6M cameras")
-        rig = dataclasses.replace(rig, image_size=np.array([H36M_IMAGE_SIZES[name] for name in CAMERA_NAMES]))
-        rig, error_px = opencv_rig_from_h36m(rig)
+        rig, error_px = opencv_rig_from_h36m(true_rig)
         with atomic_output(args.output / CALIBRATION_TOML) as temporary:
             write_anipose_toml(temporary, rig, unit="m")
         print(f"calibration.toml: Human3.6M's distortion as OpenCV's, largest difference {error_px:.3f} px")
-    sequences = dataset.labels["sequence"]
     train = first_trials(dataset.labels["subject"], dataset.labels["action"], sequences)
     image_size = np.array([H36M_IMAGE_SIZES[name] for name in CAMERA_NAMES])
+    lenses = {}
+    if args.intrinsics:
+        lens = opencv_rig_from_h36m(true_rig)[0].cameras
+        lenses = {"K": np.asarray(lens.K, np.float64), "dist": np.asarray(lens.dist, np.float64), "distortion_model": np.array("opencv")}
     for sequence in sorted(set(sequences.tolist())):
         rows = np.flatnonzero(sequences == sequence)
         frames = dataset.labels["frame"][rows].astype(np.int64)
         keypoints = dataset.keypoints2d[rows].copy()
         confidence = dataset.confidence[rows].copy()
+        if sequence in moved:
+            keypoints = _through_moved_rig(keypoints, dataset.target3d[rows], true_rig.cameras, moved_cameras)
         for camera, shift in shifts.items():
             c = CAMERA_NAMES.index(camera)
             # Camera c's frame f shows the instant of the others' frame f + shift.
@@ -110,11 +148,15 @@ def write_project(args: Args) -> list[str]:
             confidence[outside, c] = 0.0
         folder = args.output / sequence
         folder.mkdir(exist_ok=True)
+        if sequence in moved and args.calibration:
+            moved_calibration, _ = opencv_rig_from_h36m(dataclasses.replace(true_rig, cameras=moved_cameras))
+            with atomic_output(folder / CALIBRATION_TOML) as temporary:
+                write_anipose_toml(temporary, moved_calibration, unit="m")
         with atomic_output(folder / DETECTIONS_NPZ) as temporary:
             np.savez(
                 temporary,
                 keypoints=keypoints, confidence=confidence, camera_names=np.array(CAMERA_NAMES), image_size=image_size,
-                skeleton=np.array(dataset.skeleton.name), frames=frames,
+                skeleton=np.array(dataset.skeleton.name), frames=frames, **lenses,
             )  # fmt: skip
         with atomic_output(folder / GROUND_TRUTH_NPZ) as temporary:
             np.savez(
@@ -122,6 +164,24 @@ def write_project(args: Args) -> list[str]:
                 points3d=dataset.target3d[rows], frames=frames, joint_names=np.array(dataset.skeleton.joint_names),
             )  # fmt: skip
     return sorted(set(sequences[~train].tolist()))
+
+
+def _moved(cameras: Cameras, seed: int) -> Cameras:
+    """`cameras` with each camera moved by 100-500 mm and turned by 1-3 degrees, their lenses kept."""
+    moved = moved_rig(np.random.default_rng([seed, 43]), cameras)
+    return moved.replace(
+        K=np.asarray(cameras.K, np.float64), R=np.asarray(moved.R, np.float64), t=np.asarray(moved.t, np.float64),
+        dist=None if cameras.dist is None else np.asarray(cameras.dist, np.float64), distortion_model=cameras.distortion_model,
+    )  # fmt: skip
+
+
+def _through_moved_rig(keypoints: np.ndarray, points3d: np.ndarray, true: Cameras, moved: Cameras) -> np.ndarray:
+    """The detections `keypoints` [N, C, J, 2] of the mocap `points3d` [N, J, 3] as the moved cameras would
+    have made them: the mocap projected through the moved cameras plus the detector's own residual (its
+    detection minus the mocap projected through the true camera)."""
+    through_true = np.asarray(project(true, points3d[:, None]), np.float64)
+    through_moved = np.asarray(project(moved, points3d[:, None]), np.float64)
+    return (through_moved + keypoints - through_true).astype(keypoints.dtype)
 
 
 def main(argv: Sequence[str] | None = None) -> list[str]:

@@ -2,6 +2,7 @@
 whose cameras moved between sessions.
 
     python -m experiments.sessions_study                 # seeds 0 and 1 (~6 min on 2 cores)
+    python -m experiments.sessions_study --h36m-project runs/h36m_s1_sessions   # Human3.6M S1 as two sessions
 
 Per seed: a rig (the synthetic room) and the same rig with every camera moved by 100-500 mm and
 turned by 1-3 degrees; the same subject filmed in four recordings of 300 frames (two per rig, four
@@ -11,11 +12,21 @@ error of each recording, column, through each recording's own recovered rig, row
 that recording's calibration failed, "behind" where most points triangulate behind a camera), why
 a calibration failed, and each recovered rig against the rig that filmed it after a similarity
 alignment.
+
+With --h36m-project (a project `experiments.rig_from_h36m --no-calibration --moved ...` wrote: S1 as two
+sessions, the second through a moved rig): the project is loaded through the rig loader (no calibration,
+the development protocol: every 5th instant, the first trial of each action training), and printed are
+the sessions found, per session and camera the rotation (deg) and centre (mm) error of the recovered rig
+after one similarity alignment to the truth (cameras.h5, and `moved_rig.npz` for the moved recordings),
+and the triangulation world MPJPE of the held-out recordings after one similarity alignment per session,
+beside the triangulation through the true cameras and through one rig recovered from every recording
+(--data.no-find-sessions, today's behaviour before sessions).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import pathlib
 
 import numpy as np
 import tyro
@@ -38,10 +49,22 @@ class Args:
     """Frames per recording."""
     max_frames: int = 150
     """Frames each recording's calibration uses."""
+    h36m_project: pathlib.Path | None = None
+    """A Human3.6M project of two sessions (`experiments.rig_from_h36m --moved`): measure the loader on it instead."""
+    data_dir: pathlib.Path = pathlib.Path("../shared/data/h36m_s1")
+    """With --h36m-project: the Human3.6M folder whose cameras.h5 holds the true rig."""
+    recovery_frames: int = 600
+    """With --h36m-project: --data.recovery-frames, the instants each session's rig is recovered from."""
+    one_rig: bool = True
+    """With --h36m-project: also load it with one rig for every recording (--data.no-find-sessions)."""
 
 
 def main(argv=None) -> list:
     args = tyro.cli(Args, args=argv, prog="python -m experiments.sessions_study", description=__doc__.split("\n\n")[0])
+    if args.h36m_project is not None:
+        from experiments.sessions_h36m import h36m_study
+
+        return h36m_study(args.h36m_project, args.data_dir, args.recovery_frames, args.one_rig)
     config = SyntheticConfig()
     names = ("c0", "c1", "c2", "c3")
     results = []

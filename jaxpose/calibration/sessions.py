@@ -15,7 +15,9 @@ A session is a set of recordings one rig explains.  Two ways to find them:
   grouped by complete linkage: two groups merge only when every two of their recordings share a
   rig, so that a chain of near misses cannot join two rigs.  A recording whose own calibration fails
   (too short, too still) joins the session whose rigs explain it best, if any does; otherwise it fits
-  no rig and is named in `SessionGrouping.unfitted`.
+  no rig and is named in `SessionGrouping.unfitted`.  With `until_explained` (what the rig loader
+  uses), rigs are recovered only until every recording is explained, the recordings where the
+  person moves most first: a few calibrations for a project of many recordings and few rigs.
 
 Why `FIT_MARGIN_PX` = 3 px: the detector's noise is in both fits, a moved camera only in the other
 rig's.  A camera turned by 1 degree moves its image points by f tan(1 deg), 17-21 px at the
@@ -31,6 +33,7 @@ rigs recovered from a subject on one spot, hence the either-way rule), a rig mov
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections.abc import Mapping, Sequence
 
 import jax
@@ -132,9 +135,16 @@ def find_sessions(
     recordings: Mapping[str, RigDetections],
     config: CalibrationConfig = CalibrationConfig(),
     margin_px: float = FIT_MARGIN_PX,
+    until_explained: bool = False,
 ) -> SessionGrouping:
     """Sessions found from the data (see the module docstring); `recordings` maps names to the detections
-    of one recording each, all of the same cameras in the same order."""
+    of one recording each, all of the same cameras in the same order.
+
+    `until_explained`: instead of a rig from every recording, rigs from the recordings in order of how
+    much the person moves in them (`motion`: the best rigs first), until every recording has a rig or
+    is explained by one (within `margin_px` of what that rig leaves on its own recording); the others
+    then join sessions as recordings without a rig of their own do.  A project of many recordings and
+    few rigs costs a few calibrations instead of one per recording."""
     names = tuple(recordings)
     if not names:
         raise ValueError("find_sessions: no recordings")
@@ -143,18 +153,47 @@ def find_sessions(
         raise ValueError(f"find_sessions: the recordings name different cameras: {sorted(cameras)}")
     rigs: dict[str, Calibration] = {}
     failures = {}
-    for name, detections in recordings.items():
-        try:
-            rigs[name] = calibrate(detections, config)
-        except CalibrationError as error:
-            failures[name] = str(error)
     fit = np.full((len(names), len(names)), np.nan)
-    for i, rig_name in enumerate(names):
-        if rig_name in rigs:
-            for j, name in enumerate(names):
-                fit[i, j] = np.nanmax(rig_fit_px(rigs[rig_name].cameras, recordings[name], config.min_confidence))
+
+    def recover(rig_name: str) -> None:
+        try:
+            rigs[rig_name] = calibrate(recordings[rig_name], config)
+        except CalibrationError as error:
+            failures[rig_name] = str(error)
+            return
+        for j, name in enumerate(names):
+            fit[names.index(rig_name), j] = np.nanmax(rig_fit_px(rigs[rig_name].cameras, recordings[name], config.min_confidence))
+
+    order = sorted(names, key=lambda name: -motion(recordings[name], config.min_confidence)) if until_explained else names
+    for rig_name in order:
+        if not (until_explained and _explained(fit, names.index(rig_name), margin_px)):
+            recover(rig_name)
     grouping = group_by_fit(names, fit, margin_px)
+    # A recording some rig explained joins a session only where all of that session's rigs explain it:
+    # one that none does gets its own rig after all, before anything is called unfitted.
+    while untried := [name for name in order if name in grouping.unfitted and name not in rigs and name not in failures]:
+        recover(untried[0])
+        grouping = group_by_fit(names, fit, margin_px)
     return dataclasses.replace(grouping, failures=failures, calibrations=rigs)
+
+
+def motion(detections: RigDetections, min_confidence: float = 0.3) -> float:
+    """How much the person moves in `detections`: the keypoints' spread over time (px), median over
+    joints and views (`calibrate` refuses a recording where it is under 1% of the image diagonal)."""
+    seen = detections.confidence >= min_confidence
+    positions = np.where(seen[..., None], detections.keypoints, np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a joint never seen by a view: all-NaN
+        spread = np.sqrt(np.sum(np.nanvar(positions, axis=0), axis=-1))
+        value = float(np.nanmedian(spread))
+    return value if np.isfinite(value) else 0.0
+
+
+def _explained(fit: np.ndarray, j: int, margin_px: float) -> bool:
+    """Whether some rig of `fit`'s rows explains recording j: its error there within `margin_px` of what
+    that rig leaves on its own recording."""
+    own = np.diag(fit)
+    return bool((fit[:, j] <= own + margin_px).any())
 
 
 def group_by_fit(names: Sequence[str], fit: np.ndarray, margin_px: float = FIT_MARGIN_PX) -> SessionGrouping:
@@ -191,7 +230,11 @@ def group_by_fit(names: Sequence[str], fit: np.ndarray, margin_px: float = FIT_M
         groups[a] += groups.pop(b)
     unfitted = []
     for j in (j for j in range(len(names)) if not has_rig[j]):  # no rig of its own: the best-fitting session
-        candidates = [(np.max(fit[group, j]), index) for index, group in enumerate(groups) if explains[group, j].all()]
+        candidates = []
+        for index, group in enumerate(groups):
+            rigged = [i for i in group if has_rig[i]]  # the session's rigs: an earlier rigless member has no fits
+            if explains[rigged, j].all():
+                candidates.append((np.max(fit[rigged, j]), index))
         if candidates:
             groups[min(candidates)[1]].append(j)
         else:

@@ -41,7 +41,7 @@ from jaxpose.reconstruction.trajectory import TrajectoryConfig, limb_lengths, so
 from jaxpose.rig.cameras import in_view_order
 from jaxpose.rig.project import RigProjectConfig, load_rig_project, prepared_project
 from jaxpose.rig.split import SPLIT_FIELDS, PreparedProject, RigProject, split
-from jaxpose.training.run_directory import RunDirectory
+from jaxpose.training.run_directory import RECOVERED_SESSIONS_DIR, RunDirectory
 from jaxpose.rig.recordings import recording_folders
 from jaxpose.skeleton import ROOT, Skeleton
 
@@ -72,6 +72,12 @@ def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: 
         log.info("the run was trained on the rig recovered from the recordings: its world frame, %s", recovered)
         config = dataclasses.replace(config, calibration=recovered)
     elif data.calibration is None and find_calibration(data.root) is None:
+        sessions = recovered.parent / RECOVERED_SESSIONS_DIR
+        if sessions.is_dir():
+            raise ValueError(
+                f"{data.root}: no calibration file, and the run {run_dir} was trained on one recovered rig per session"
+                f" ({sessions}): pass the recordings' session's as --data.calibration {sessions}/SESSION.toml"
+            )
         if not all(find_calibration(data.root / name) for name in names):
             raise ValueError(
                 f"{data.root}: no calibration file, and the run {run_dir} has no {recovered.name} (it was trained on"
@@ -84,7 +90,7 @@ def _holds_rig(prepared: PreparedProject, recovered: pathlib.Path) -> bool:
     """Whether the prepared project's one rig is the run's recovered rig (the file `recovered`): the same
     cameras to float precision (another recovery gives another world frame, far from it)."""
     rigs = prepared.meta["rigs"]
-    if prepared.recovered_calibration is None or len(rigs["K"]) != 1:
+    if len(prepared.sessions) != 1 or len(rigs["K"]) != 1:
         return False
     rig = read_rig_calibration(recovered)
     if set(rig.camera_names) != set(prepared.meta["camera_names"]):

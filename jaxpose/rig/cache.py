@@ -5,7 +5,8 @@ is done once; its result, every instant of every recording on one time axis per 
 ``CACHE/prepared-<key>/`` (CACHE: ``PROJECT/.jaxpose_cache``, or --data.cache-dir): one ``.npy`` per
 array (``instants.keypoints2d.npy``, ...), written row block by row block as the recordings are prepared
 (`Assembly`), and ``project.json`` with the rest (cameras, layout, the per-recording summaries, the
-inputs' digests; ``recovered.json`` for a recovered rig).  The next run with the same inputs and options
+inputs' digests, the sessions of a project without calibration; ``recovered.json`` for the rigs
+recovered, one per session).  The next run with the same inputs and options
 memory-maps the arrays (`read_arrays`): it starts in seconds, and a project larger than memory trains with
 only the rows of each batch read from disk.  A split (held-out recordings or fraction, strides) is a
 selection of these rows, made after reading (`selected_rows`): training, evaluation, reconstruction and
@@ -52,7 +53,7 @@ from jaxpose.rig.recordings import printable
 
 log = logging.getLogger(__name__)
 
-VERSION = 4  # bump when the prepared arrays change meaning (3: every instant, the split applied after reading; 4: warnings)
+VERSION = 5  # bump when the prepared arrays change meaning (3: every instant, the split applied after reading; 4: warnings; 5: one recovered rig per session)
 PREFIX = "prepared-"
 PART = "instants"  # the prepared arrays' file prefix
 SELECTION = "rows-"  # a split's rows, written once inside the prepared folder
@@ -324,6 +325,11 @@ def _from_json(kind: Any, value: Any) -> Any:
         return kind(**{field.name: _from_json(hints[field.name], value[field.name]) for field in dataclasses.fields(kind) if field.name in value})
     if typing.get_origin(kind) is tuple and isinstance(value, list):
         return tuple(value)
+    if typing.get_origin(kind) is dict:
+        if not isinstance(value, dict):
+            raise ValueError(f"{kind}: expected an object")
+        item = typing.get_args(kind)[1]
+        return {name: _from_json(item, entry) for name, entry in value.items()}
     return value
 
 

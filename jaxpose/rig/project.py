@@ -30,7 +30,8 @@ What loading does to each recording, in order (one recording at a time: `jaxpose
    estimated (`jaxpose.rig.timeline`, `jaxpose.rig.sync`); instants seen by no camera are absent, a
    camera without a frame at an instant has confidence 0 there; every instant goes further (the split
    and the strides are applied to the prepared instants: `jaxpose.rig.split`);
-4. without any calibration, recovers the rig from all recordings (`jaxpose.rig.recovered`);
+4. without any calibration, groups the recordings by rig (sessions: given by --data.sessions, else found
+   from the data) and recovers each session's rig from its recordings (`jaxpose.rig.sessions`);
 5. undistorts the keypoints with the calibration (the data sets' rigs are then pinhole);
 6. keeps one person per instant, the one the views agree on (`jaxpose.rig.people`), and checks a
    calibration read without a stated unit against that person's limbs;
@@ -55,7 +56,7 @@ import logging
 import pathlib
 import shutil
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Literal
 
 import numpy as np
@@ -78,7 +79,7 @@ from jaxpose.rig.recordings import (
     read_detections,
     recording_folders,
 )
-from jaxpose.rig.recovered import recover_rig
+from jaxpose.rig.sessions import RecoveredSession, recover_sessions
 from jaxpose.rig.timeline import (
     align,
     estimate_recording_offsets,
@@ -132,6 +133,12 @@ class RigProjectConfig:
     image_size: tuple[int, int] | None = None
     """Width and height of the images (px), needed only to recover the rig of JSON detections without
     any calibration (a detections.npz carries its own)."""
+    sessions: tuple[str, ...] = ()
+    """Without a calibration: the recordings grouped by rig, SESSION=REC1,REC2 per session (cameras moved
+    between sessions), every recording in one; empty = found from the data (--data.find-sessions)."""
+    find_sessions: bool = True
+    """Without a calibration or --data.sessions: find the sessions from the data (2+ recordings: recordings
+    one rig explains belong together); --data.no-find-sessions: one rig for every recording."""
     subject_height_mm: float | None = None
     """Without a calibration: the subject's height (mm), which sets the recovered world's scale (Pose2Sim's
     participant_height); None: the generic limb prior (5-9% off for bodies unlike it: docs/calibration.md)."""
@@ -171,7 +178,6 @@ def cache_folder(config: RigProjectConfig) -> pathlib.Path:
     """The project's cache: --data.cache-dir, else PROJECT/.jaxpose_cache."""
     return config.cache_dir if config.cache_dir is not None else config.root / CACHE_DIR
 
-
 def prepared_project(config: RigProjectConfig, progress: bool = True, prepare: bool = True) -> PreparedProject | None:
     """Every instant of the project from the cache, else prepared (and cached where the cache can be
     written); with `prepare` False, None where the cache does not hold it."""
@@ -187,7 +193,7 @@ def prepared_project(config: RigProjectConfig, progress: bool = True, prepare: b
             continue
         try:
             meta, recovered = cache.read_meta(cached, _recovered_type(cached))
-            prepared = PreparedProject(meta, cache.read_arrays(cached)[cache.PART], recovered, cached, f"read from the cache {cached}")
+            prepared = PreparedProject(meta, cache.read_arrays(cached)[cache.PART], _sessions(meta, recovered), cached, f"read from the cache {cached}")
         except Exception as error:  # noqa: BLE001 - an unreadable cache is only a missed shortcut
             log.warning("ignoring the unreadable prepared project %s (%s: %s); preparing it again", cached, type(error).__name__, error)
             shutil.rmtree(cached, ignore_errors=True)  # jaxpose's own folder: replaced by the one prepared now
@@ -244,18 +250,20 @@ def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bo
     phases = Phases(len(recordings), progress)
     layouts: dict[str, str] = {}
     parts = _aligned(config, recordings, camera_order, parse_frame_offsets(config.frame_offsets, recordings), phases, layouts)
-    recovered_calibration = None
+    sessions: tuple[RecoveredSession, ...] = ()
     if project_calibration is None and all(recording.calibration is None for recording in recordings):
         parts = list(parts)
         with phases("rig recovered"):
-            rig, recovered_calibration = recover_rig(
+            sessions, session_rigs = recover_sessions(
                 recordings, [(part.keypoints, part.confidence) for part in parts], camera_order,
-                lifting_skeleton(next(iter(layouts.values()))),
+                lifting_skeleton(next(iter(layouts.values()))), sessions=config.sessions, find=config.find_sessions,
                 image_size=config.image_size, max_frames=config.recovery_frames, root=config.root,
                 height_mm=config.subject_height_mm,
             )  # fmt: skip
         for recording in recordings:
-            recording.calibration = rig
+            recording.calibration = session_rigs[recording.name]
+    elif config.sessions:
+        log.warning("--data.sessions is for projects without a calibration: ignored (the calibration files give each recording's rig)")
     rig_index: dict[int, int] = {}
     for recording in recordings:
         rig_index.setdefault(id(recording.calibration), len(rig_index))
@@ -265,8 +273,8 @@ def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bo
     temporary = cache.start(cache_dir, cache_key)
     preparation = Preparation(
         rigs, lambda recording: rig_index[id(recording.calibration)], lambda: lifting_skeleton(next(iter(layouts.values()))),
-        cache.Assembly(temporary), phases, threshold_px=config.person_threshold_px, recovered=recovered_calibration is not None,
-        check_unit=config.calibration_unit == "auto" and recovered_calibration is None,
+        cache.Assembly(temporary), phases, threshold_px=config.person_threshold_px, recovered=bool(sessions),
+        check_unit=config.calibration_unit == "auto" and not sessions,
         labels={"subject": np.dtype(f"<U{len(f'rig{len(rig_index) - 1}')}"),
                 "recording": np.dtype(f"<U{max(len(recording.name) for recording in recordings)}")},
     )  # fmt: skip
@@ -287,17 +295,18 @@ def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bo
         "recordings": preparation.summaries,
         "ground_truth_seen": preparation.ground_truth_seen,
         "warnings": preparation.warnings,
+        "sessions": [session.summary() for session in sessions],
         "rigs": {field: np.stack([np.asarray(getattr(c.cameras, field), np.float32) for c in rigs.calibrations]).tolist() for field in ("K", "R", "t")},
         "inputs": inputs,
     }
     if temporary is None:
         arrays, final, how = in_memory[cache.PART], None, f"prepared in memory ({cache_dir} cannot be written: not cached)"
     else:
-        final = cache.commit(temporary, cache_key, meta, recovered_calibration)
+        final = cache.commit(temporary, cache_key, meta, {session.name: session.calibration for session in sessions} or None)
         arrays, how = cache.read_arrays(final)[cache.PART], f"prepared and written to the cache {final}"
     note = "" if final is None else f"; {cache.size_note(cache_dir)}"
     log.info("%d recordings (%d instants) %s in %.1f s%s", len(recordings), len(arrays["frame"]), how, time.perf_counter() - started, note)
-    return PreparedProject(meta, arrays, recovered_calibration, final, how)
+    return PreparedProject(meta, arrays, sessions, final, how)
 
 
 def _aligned(
@@ -379,10 +388,19 @@ def with_recorded_settings(config: RigProjectConfig, recorded: dict, source: str
     return dataclasses.replace(config, **changes), notes
 
 
-def _recovered_type(cached: pathlib.Path) -> type | None:
-    """The type a cached recovered rig decodes to (the calibrate extra recovered it), or None without one."""
+def _recovered_type(cached: pathlib.Path) -> object | None:
+    """The type the cached recovered rigs decode to (session -> `Calibration`: the calibrate extra
+    recovered them), or None without them."""
     if not (cached / cache.RECOVERED_JSON).exists():
         return None
     from jaxpose.calibration import Calibration
 
-    return Calibration
+    return dict[str, Calibration]
+
+
+def _sessions(meta: Mapping, recovered: dict | None) -> tuple[RecoveredSession, ...]:
+    """The sessions of a cached prepared project, each with its recovered rig."""
+    return tuple(
+        RecoveredSession(**session | {"recordings": tuple(session["recordings"]), "calibration": recovered[session["name"]]})
+        for session in meta["sessions"]
+    )

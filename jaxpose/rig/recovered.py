@@ -3,7 +3,7 @@ brought into its world.
 
 `jaxpose.calibrate` recovers the rig from the person seen by every camera (the instants where each
 view sees exactly one person), with the image sizes and any intrinsics the recordings'
-detections.npz give.  A recovered rig has its own world frame, so a ground truth in the motion
+detections.npz give; a project of several sessions has one rig per session (`jaxpose.rig.sessions`).  A recovered rig has its own world frame, so a ground truth in the motion
 capture's world is moved into it for evaluation (`ground_truth_into_recovered_world`).
 """
 
@@ -30,22 +30,20 @@ log = logging.getLogger(__name__)
 MIN_ALIGNMENT_POINTS = 50  # ground-truth joints needed to align it with a recovered rig
 
 
-def recover_rig(
+def rig_detections(
     recordings: Sequence[Recording],
     aligned: Sequence[tuple[np.ndarray, np.ndarray]],
     camera_order: Sequence[str],
     skeleton: Skeleton,
     *,
     image_size: tuple[int, int] | None,
-    max_frames: int,
     root: pathlib.Path,
-    height_mm: float | None = None,
 ):
-    """`jaxpose.calibrate` on the instants of all recordings (`aligned`: each recording's keypoints and
-    confidence on one time axis, `jaxpose.rig.timeline.align`), each view's detection where it saw one
-    person, on at most `max_frames` instants; `image_size` (--data.image-size) serves the cameras no
-    detections.npz gives one.  Returns (the rig as a `RigCalibration`, the `jaxpose.calibration.Calibration`)."""
-    from jaxpose.calibration import CalibrationConfig, RigDetections, calibrate  # the calibrate extra
+    """The detections `jaxpose.calibrate` recovers a rig from: the instants of `recordings` (`aligned`:
+    each recording's keypoints and confidence on one time axis, `jaxpose.rig.timeline.align`), each
+    view's detection where it saw one person, one recording after the other; `image_size`
+    (--data.image-size) serves the cameras no detections.npz gives one.  A `RigDetections`."""
+    from jaxpose.calibration import RigDetections  # the calibrate extra
 
     keypoints, confidence = [], []
     for candidates, candidate_confidence in aligned:
@@ -73,7 +71,7 @@ def recover_rig(
     intrinsics = [known.get(camera, {}) for camera in camera_order]
     given_K = all("K" in fields for fields in intrinsics)
     given_dist = given_K and all("dist" in fields for fields in intrinsics)
-    detections = RigDetections(
+    return RigDetections(
         keypoints=np.concatenate(keypoints),
         confidence=np.concatenate(confidence),
         camera_names=tuple(camera_order),
@@ -82,12 +80,20 @@ def recover_rig(
         K=np.stack([fields["K"] for fields in intrinsics]).astype(np.float64) if given_K else None,
         dist=np.stack([fields["dist"] for fields in intrinsics]).astype(np.float64) if given_dist else None,
         distortion_model=intrinsics[0].get("model", "opencv"),
-        source=f"{root} (all recordings)",
+        source=f"{root} (recording {recordings[0].name}" + (f" and {len(recordings) - 1} more)" if len(recordings) > 1 else ")"),
     )
+
+
+def recover_rig(detections, *, max_frames: int, height_mm: float | None = None):
+    """`jaxpose.calibrate` on `detections` (`rig_detections`), on at most `max_frames` instants, the rig
+    then moved into the person's upright metric world.  Returns (the rig as a `RigCalibration`, the
+    `jaxpose.calibration.Calibration`)."""
+    from jaxpose.calibration import CalibrationConfig, calibrate  # the calibrate extra
+
     calibration = calibrate(detections, CalibrationConfig(max_frames=max_frames))
-    calibration = _upright(calibration, detections, skeleton, height_mm)
+    calibration = _upright(calibration, detections, detections.skeleton, height_mm)
     rig = RigCalibration(
-        camera_names=tuple(camera_order),
+        camera_names=tuple(detections.camera_names),
         cameras=calibration.cameras.replace(**{name: np.asarray(getattr(calibration.cameras, name), np.float64) for name in ("K", "R", "t")}),
         image_size=detections.image_size,
         source="recovered from the recordings by jaxpose.calibrate",

@@ -23,6 +23,7 @@ from jaxpose.data import ground_truth
 from jaxpose.data.dataset import FrameContext, MultiViewDataset, consecutive_spans
 from jaxpose.layouts import lifting_skeleton
 from jaxpose.rig import cache
+from jaxpose.rig.sessions import RecoveredSession
 
 log = logging.getLogger(__name__)
 
@@ -69,12 +70,17 @@ class RigProject:
     recordings: tuple[RecordingSummary, ...]
     ground_truth_joints: tuple[str, ...]
     """The lifting skeleton's joints that the ground truth has (empty without ground truth)."""
-    recovered_calibration: object | None = None
-    """The `jaxpose.calibration.Calibration` recovered from the recordings, when there was no calibration."""
+    sessions: tuple[RecoveredSession, ...] = ()
+    """Without a calibration: the sessions and the rig recovered from each (`jaxpose.rig.sessions`)."""
     prepared: str = ""
     """How the prepared arrays were had: read from the cache, prepared and cached, or prepared in memory."""
     warnings: tuple[str, ...] = ()
     """What the checks of the calibrations found suspect (people of an unlikely size), for the report."""
+
+    @property
+    def recovered_calibration(self) -> object | None:
+        """The `jaxpose.calibration.Calibration` recovered from the recordings of a project of one session."""
+        return self.sessions[0].calibration if len(self.sessions) == 1 else None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,7 +93,8 @@ class PreparedProject:
     arrays: Mapping[str, np.ndarray]
     """Per instant: keypoints2d, confidence, rig_index, subject, recording, frame, and target3d where some
     recording has ground truth; memory-mapped from the cache, or in memory."""
-    recovered_calibration: object | None
+    sessions: tuple[RecoveredSession, ...]
+    """Without a calibration: the sessions and the rig recovered from each."""
     folder: pathlib.Path | None
     """The prepared folder in the cache (None: prepared in memory)."""
     how: str
@@ -124,7 +131,7 @@ def split(prepared: PreparedProject, config: SplitConfig) -> RigProject:
         ),
         warnings=tuple(meta["warnings"]),
         ground_truth_joints=ground_truth.ground_truth_joint_names(validation),
-        recovered_calibration=prepared.recovered_calibration,
+        sessions=prepared.sessions,
         prepared=prepared.how,
     )
 

@@ -35,6 +35,7 @@ LOCK_FILE = "run.lock"
 RECORD_FILE = "run.json"
 RECOVERED_CAMERAS_FILE = "recovered_cameras.json"
 RECOVERED_TOML_FILE = "recovered_cameras.toml"
+RECOVERED_SESSIONS_DIR = "recovered_sessions"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,6 +82,15 @@ class RunDirectory:
     def recovered_toml(self) -> pathlib.Path:
         """The same rig as a Pose2Sim/Anipose calibration TOML (metres), for the other tools."""
         return self.path / RECOVERED_TOML_FILE
+
+    def recovered_session_cameras(self, session: str) -> pathlib.Path:
+        """The rig recovered for one session of a project of several (cameras moved between sessions):
+        recovered_sessions/SESSION.json, a jaxpose camera file."""
+        return self.path / RECOVERED_SESSIONS_DIR / f"{session}.json"
+
+    def recovered_session_toml(self, session: str) -> pathlib.Path:
+        """The same session's rig as a Pose2Sim/Anipose calibration TOML (metres): recovered_sessions/SESSION.toml."""
+        return self.path / RECOVERED_SESSIONS_DIR / f"{session}.toml"
 
     @property
     def plots(self) -> pathlib.Path:
@@ -129,7 +139,7 @@ def read_record(run_dir: pathlib.Path) -> RunRecord | None:
 
 
 # What a run writes into its folder, and what --run.overwrite may remove.
-RUN_ENTRIES = frozenset({RECORD_FILE, LOCK_FILE, "config.json", "metrics.jsonl", "checkpoints", "tensorboard", "report.json", "report.md", "plots", RECOVERED_CAMERAS_FILE, RECOVERED_TOML_FILE})
+RUN_ENTRIES = frozenset({RECORD_FILE, LOCK_FILE, "config.json", "metrics.jsonl", "checkpoints", "tensorboard", "report.json", "report.md", "plots", RECOVERED_CAMERAS_FILE, RECOVERED_TOML_FILE, RECOVERED_SESSIONS_DIR})
 # What the studies of experiments/ write beside the runs they train inside a run folder (kept by --run.overwrite).
 STUDY_ENTRIES = frozenset({"comparison.md", "comparison.json", "search.md", "search.json", "label_bias.md", "table_paper_layout.md", "mpi_inf_3dhp"})
 

@@ -117,3 +117,40 @@ def test_sessions_found_from_the_detections_alone():
     assert grouping.unfitted == ("c1",) and set(grouping.failures) == {"a3", "c1"}
     assert all(session.reprojection_px < 6.0 for session in grouping.sessions)
     assert set(grouping.calibrations) == {"a1", "a2", "b1", "b2"}
+
+
+def test_until_explained_recovers_rigs_only_until_every_recording_is_explained(monkeypatch):
+    """The search of the rig loader: rigs from the recordings where the person moves most first, none from a
+    recording a rig already explains, one after all from a recording whose session's rigs do not all explain
+    it; the fits come from a table (rig of recording i, recording j), the calibrations are counted."""
+    from jaxpose.calibration import sessions
+
+    table = {  # rig -> its worst camera's median error on each recording (px)
+        "a1": {"a1": 4.0, "a2": 4.5, "a3": 6.5, "b1": 90.0, "b2": 90.0},
+        "b1": {"a1": 90.0, "a2": 90.0, "a3": 9.0, "b1": 4.0, "b2": 4.2},
+        "a3": {"a1": 4.3, "a2": 4.4, "a3": 4.1, "b1": 90.0, "b2": 90.0},
+    }
+    spread = {"a1": 50.0, "b1": 40.0, "a3": 30.0, "a2": 20.0, "b2": 10.0}  # the person's motion per recording
+    class Recording(str):  # a recording's detections, by name
+        camera_names = NAMES
+
+    data = {name: Recording(name) for name in ("a2", "a1", "a3", "b2", "b1")}
+    calibrated = []
+
+    def calibrate(detections, config):
+        calibrated.append(detections)
+        return type("Rig", (), {"cameras": detections})
+
+    monkeypatch.setattr(sessions, "calibrate", calibrate)
+    monkeypatch.setattr(sessions, "motion", lambda detections, min_confidence: spread[detections])
+    monkeypatch.setattr(sessions, "rig_fit_px", lambda rig, detections, min_confidence: np.array([table[rig][detections]]))
+    grouping = sessions.find_sessions(data, until_explained=True)
+    assert calibrated == ["a1", "b1"]  # a3, a2 and b2 explained by a1's or b1's rig: not calibrated
+    assert [session.recordings for session in grouping.sessions] == [("a2", "a1", "a3"), ("b2", "b1")]
+    # a3 within 3 px of a1's own 4.0 no longer: neither a1's rig nor b1's explains it, so a3 gets its own rig,
+    # which explains a1 and a2: one session of a1, a2, a3 still.
+    table["a1"]["a3"] = 7.5
+    calibrated.clear()
+    grouping = sessions.find_sessions(data, until_explained=True)
+    assert calibrated == ["a1", "b1", "a3"]
+    assert [session.recordings for session in grouping.sessions] == [("a2", "a1", "a3"), ("b2", "b1")]

@@ -288,3 +288,38 @@ def test_rig_from_h36m_never_writes_over_a_project_or_its_input(h36m_tree, tmp_p
     rig_from_h36m.main(["--data-dir", str(data_dir), "--output", str(output), "--overwrite"])
     assert {path: path.read_bytes() for path in output.rglob("*") if path.is_file()} == before  # same input, same bytes
     assert not list(output.rglob("*.partial*"))
+
+
+def test_rig_from_h36m_writes_the_moved_session_through_the_moved_rig(h36m_tree, tmp_path):
+    """--moved: those recordings' detections are the mocap through the moved cameras plus the detector's own
+    residual (so the residual to the mocap's projection is the same through either rig); the others are
+    written as without it, and moved_rig.npz holds a rig moved by 100-500 mm and turned by 1-3 degrees."""
+    from jaxpose.calibration import compare_rigs
+    from jaxpose.camera import Cameras, camera_centres, project
+    from jaxpose.formats.calibration_files import read_rig_calibration
+
+    data_dir = h36m_tree / "martinez"
+    rig_from_h36m.main(["--data-dir", str(data_dir), "--output", str(tmp_path / "plain"), "--no-calibration"])
+    rig_from_h36m.main(["--data-dir", str(data_dir), "--output", str(tmp_path / "moved"), "--no-calibration", "--moved", "Walk*"])
+    with pytest.raises(SystemExit, match="matches no recording"):
+        rig_from_h36m.main(["--data-dir", str(data_dir), "--output", str(tmp_path / "none"), "--moved", "Jumping*"])
+    moved_file = np.load(tmp_path / "moved" / rig_from_h36m.MOVED_RIG_NPZ)
+    true = read_rig_calibration(data_dir / "cameras.h5", subject="S1").select(CAMERA_NAMES, "test").cameras
+    moved = Cameras(K=moved_file["K"], R=moved_file["R"], t=moved_file["t"], dist=moved_file["dist"], distortion_model=str(moved_file["distortion_model"]))
+    shift = np.linalg.norm(camera_centres(moved.R, moved.t) - camera_centres(np.asarray(true.R, np.float64), np.asarray(true.t, np.float64)), axis=-1)
+    turn = np.degrees(np.arccos(np.clip((np.einsum("cij,cij->c", moved.R, np.asarray(true.R, np.float64)) - 1) / 2, -1, 1)))
+    assert ((100 <= shift) & (shift <= 500)).all() and ((1 <= turn) & (turn <= 3 + 1e-6)).all()
+    np.testing.assert_array_equal(moved.K, np.asarray(true.K, np.float64))
+    assert compare_rigs(moved.R, moved.t, np.asarray(true.R, np.float64), np.asarray(true.t, np.float64)).rotation_deg.max() > 0.5
+    names = sorted(path.name for path in (tmp_path / "plain").iterdir() if path.is_dir())
+    assert sorted(moved_file["recordings"].tolist()) == [name for name in names if name.startswith("Walk")] != []
+    for name in names:
+        plain, through = (np.load(tmp_path / kind / name / "detections.npz") for kind in ("plain", "moved"))
+        truth = np.load(tmp_path / "plain" / name / "ground_truth.npz")["points3d"]
+        if not name.startswith("Walk"):
+            np.testing.assert_array_equal(plain["keypoints"], through["keypoints"])
+            continue
+        residual_true = plain["keypoints"] - np.asarray(project(true, truth[:, None]))
+        residual_moved = through["keypoints"] - np.asarray(project(moved, truth[:, None]))
+        np.testing.assert_allclose(residual_moved, residual_true, atol=0.05)
+        assert np.abs(through["keypoints"] - plain["keypoints"]).max() > 10  # the cameras did move

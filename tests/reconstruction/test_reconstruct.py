@@ -24,7 +24,7 @@ from jaxpose.reconstruction.motion_files import (
 )
 from jaxpose.reconstruction import recording
 from jaxpose.rig.project import RigProjectConfig
-from jaxpose.training.run_directory import RECOVERED_CAMERAS_FILE
+from jaxpose.training.run_directory import RECOVERED_CAMERAS_FILE, RECOVERED_SESSIONS_DIR
 from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
 
 PROJECT = ExampleProjectConfig(recordings=2, frames_per_recording=160, desync_camera=-1)
@@ -142,6 +142,11 @@ def test_an_uncalibrated_project_is_taken_in_the_runs_recovered_rig(project, run
     (root / "calibration.toml").unlink()
     with pytest.raises(SystemExit, match=RECOVERED_CAMERAS_FILE):
         _reconstruct(run_dir, root, tmp_path / "refused", "--up-axis", "+z")
+    sessions_run = tmp_path / "sessions_run"  # a run of several sessions: which file to pass is said
+    shutil.copytree(run_dir, sessions_run)
+    (sessions_run / RECOVERED_SESSIONS_DIR).mkdir()
+    with pytest.raises(SystemExit, match=f"one recovered rig per session .*--data.calibration .*{RECOVERED_SESSIONS_DIR}/SESSION.toml"):
+        _reconstruct(sessions_run, root, tmp_path / "refused_sessions", "--up-axis", "+z")
     recovered_run = tmp_path / "recovered_run"
     shutil.copytree(run_dir, recovered_run)
     # The "recovered" rig: the calibration's cameras turned and moved into another world frame.
