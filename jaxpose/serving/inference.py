@@ -197,9 +197,6 @@ class LifterInput:
     """f32[N, J] the detector's scores, 0 where missing (not detected, below the score threshold, outside
     the image, or beyond what the lens model undistorts)."""
 
-    def __len__(self) -> int:
-        return len(self.keypoints)
-
     def without(self, joints: np.ndarray) -> LifterInput:
         """The same poses with `joints` (bool[N, J]) missing."""
         return LifterInput(
