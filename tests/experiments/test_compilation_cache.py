@@ -74,3 +74,24 @@ def test_every_experiment_run_turns_it_on_in_the_folder_given_before_loading(tmp
     with pytest.raises(SystemExit, match="loaded"):
         runner.run(config, load)
     assert seen == {"folder": str(tmp_path / "xla"), "min_time": MIN_COMPILE_TIME_S} and (tmp_path / "xla").is_dir()
+
+
+def test_cache_write_errors_are_one_line_not_one_per_compilation(caplog, monkeypatch):
+    """Issue 42 case 10: several processes writing one cache folder made JAX warn at every compilation; the
+    first such warning becomes one log line, the rest are not shown, other warnings are untouched."""
+    import warnings
+
+    from jaxpose.compilation_cache import WRITE_ERROR, quiet_write_errors
+
+    shown = []
+    monkeypatch.setattr(warnings, "showwarning", lambda message, *rest, **keywords: shown.append(str(message)))
+    quiet_write_errors("/tmp/xla")
+    quiet_write_errors("/tmp/xla")  # a second call wraps nothing twice
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        for module in ("jit_step", "jit_eval", "jit_label"):
+            warnings.warn(f"{WRITE_ERROR} for '{module}': FileNotFoundError: [Errno 2] No such file", UserWarning)
+        warnings.warn("another warning", UserWarning)
+    assert shown == ["another warning"]
+    lines = [record.getMessage() for record in caplog.records if "compilation cache" in record.getMessage()]
+    assert len(lines) == 1 and "/tmp/xla could not take a program (FileNotFoundError: [Errno 2] No such file)" in lines[0]
