@@ -9,7 +9,7 @@ import dataclasses
 import logging
 import math
 import pathlib
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -43,23 +43,22 @@ def _named_as_detections(calibration: RigCalibration, detection_names: set[str])
     return dataclasses.replace(calibration, camera_names=renamed)
 
 
-def attach_calibrations(
+def find_calibrations(
     recordings: Sequence[Recording], root: pathlib.Path, calibration: pathlib.Path | None, unit: CalibrationUnit
-) -> RigCalibration | None:
-    """Attach each recording's calibration: its own file, else `calibration` (--data.calibration), else
-    the file found in the project folder `root`.  Returns the project-wide one (None: none anywhere)."""
+) -> tuple[RigCalibration | None, dict[str, RigCalibration | None]]:
+    """Each recording's calibration: its own file, else `calibration` (--data.calibration), else the file
+    found in the project folder `root`.  Returns the project-wide one (None: none anywhere) and each
+    recording's by name (None for all: the rig is to be recovered)."""
     project_file = calibration or find_calibration(root)
     project = None if project_file is None else read_rig_calibration(project_file, unit)
     if project is not None:
         project = _named_as_detections(project, set().union(*(recording.cameras for recording in recordings)))
+    found: dict[str, RigCalibration | None] = {}
     for recording in recordings:
         own = find_calibration(recording.folder)
-        if own is None:
-            recording.calibration = project
-        else:
-            recording.calibration = _named_as_detections(read_rig_calibration(own, unit), set(recording.cameras))
+        found[recording.name] = project if own is None else _named_as_detections(read_rig_calibration(own, unit), set(recording.cameras))
     if project is not None:
-        used = set().union(*(recording.cameras for recording in recordings if recording.calibration is project))
+        used = set().union(*(recording.cameras for recording in recordings if found[recording.name] is project))
         unused = [name for name in project.camera_names if name not in used]
         if unused and used:
             raise DataFormatError(
@@ -67,10 +66,25 @@ def attach_calibrations(
                 f"a detection folder for each of its cameras {list(project.camera_names)}",
                 f"cameras {unused} have no detections in any recording (detection folders: {sorted(used)})",
             )
-    missing = [recording.name for recording in recordings if recording.calibration is None]
+    missing = [name for name, rig in found.items() if rig is None]
     if missing and len(missing) < len(recordings):
         raise DataFormatError(root, "a calibration for every recording, or for none", f"none for recordings {missing}")
-    return project
+    return project, found
+
+
+def distinct_rigs(calibrations: Mapping[str, RigCalibration]) -> tuple[list[RigCalibration], dict[str, int]]:
+    """The distinct rigs of the recordings (`calibrations`: recording -> its rig), in order of first use, and
+    each recording's index among them; rigs are told apart by their content (source, cameras, K, R, t)."""
+    rigs: list[RigCalibration] = []
+    index_of: dict[tuple, int] = {}
+    indices = {}
+    for name, rig in calibrations.items():
+        key = (rig.source, rig.camera_names, *(np.asarray(getattr(rig.cameras, field)).tobytes() for field in ("K", "R", "t")))
+        if key not in index_of:
+            index_of[key] = len(rigs)
+            rigs.append(rig)
+        indices[name] = index_of[key]
+    return rigs, indices
 
 
 def in_view_order(calibration: RigCalibration, camera_order: Sequence[str]) -> RigCalibration:

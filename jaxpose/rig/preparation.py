@@ -15,17 +15,19 @@ import contextlib
 import dataclasses
 import logging
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 
 import numpy as np
 from tqdm.auto import tqdm
 
 from jaxpose.chunks import ChunkedMap
+from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.rig import geometry, people
 from jaxpose.rig.cameras import check_unit_against_people
 from jaxpose.rig.cache import PART, Assembly
 from jaxpose.rig.recordings import Recording, ground_truth_on_instants
 from jaxpose.rig.recovered import ground_truth_into_recovered_world
+from jaxpose.rig.sync import SyncEstimate
 from jaxpose.skeleton import Skeleton
 
 log = logging.getLogger(__name__)
@@ -36,9 +38,19 @@ BACKLOG = 8  # recordings done but waiting for an earlier one before that one's 
 
 @dataclasses.dataclass
 class Aligned:
-    """One recording on one time axis, at every instant."""
+    """One recording on one time axis, at every instant, and what reading it found."""
 
     recording: Recording
+    layout: str
+    """The keypoint layout of its detections."""
+    known_cameras: dict[str, dict]
+    """What its detections.npz gives of each camera (`jaxpose.rig.recordings.RecordingDetections`)."""
+    calibration: RigCalibration | None
+    """Its rig (None until a recovered one is given: `dataclasses.replace`)."""
+    offsets: dict[str, int]
+    """Camera -> frame offset: its frame f shows instant f + offset."""
+    sync: SyncEstimate | None
+    """The estimate the offsets come from (--data.sync auto), else None."""
     instants: np.ndarray
     """int[N] every instant of the recording."""
     keypoints: np.ndarray
@@ -93,7 +105,8 @@ class Preparation:
     they come; the attributes then say what loading did besides the arrays."""
 
     rigs: geometry.Rigs
-    rig_of: Callable[[Recording], int]
+    rig_of: Mapping[str, int]
+    """Recording name -> its rig's index in `rigs`."""
     skeleton: Callable[[], Skeleton]
     assembly: Assembly
     phases: Phases
@@ -137,7 +150,7 @@ class Preparation:
             mapper = mappers.setdefault(group, ChunkedMap(self._propose, geometry.CHUNK))
             group_of[index] = group
             waiting[index] = (part, None)
-            rig_rows = np.full(len(part.instants), self.rig_of(part.recording), np.int32)
+            rig_rows = np.full(len(part.instants), self.rig_of[part.recording.name], np.int32)
             with self.phases("people chosen"):
                 through(mapper.add((rig_rows, part.keypoints, part.confidence), tag=index))
             drain()
@@ -163,10 +176,10 @@ class Preparation:
 
     def _finish(self, part: Aligned, undistorted: np.ndarray, found: people.Proposals, units: "_UnitCheck | None") -> None:
         """One recording's person chosen, its ground truth attached, its rows appended."""
-        recording, rig_index = part.recording, self.rig_of(part.recording)
+        recording, rig_index = part.recording, self.rig_of[part.recording.name]
         choice = people.choose(found, undistorted, part.confidence)
         instants = part.instants
-        target, truth_instants = ground_truth_on_instants(recording.folder, self.skeleton(), recording.layout, instants)
+        target, truth_instants = ground_truth_on_instants(recording.folder, self.skeleton(), part.layout, instants)
         if target is not None and self.recovered:
             target = ground_truth_into_recovered_world(target, choice.keypoints, choice.confidence, self.rigs.calibrations[rig_index])
         self.ground_truth_seen |= target is not None
@@ -185,10 +198,10 @@ class Preparation:
             {
                 "name": recording.name,
                 "instants": len(part.instants),
-                "calibration": recording.calibration.source,
-                "offsets": dict(recording.offsets),
-                "offsets_estimated": recording.sync is not None,
-                "sync_reliable": None if recording.sync is None else recording.sync.reliable,
+                "calibration": part.calibration.source,
+                "offsets": dict(part.offsets),
+                "offsets_estimated": part.sync is not None,
+                "sync_reliable": None if part.sync is None else part.sync.reliable,
                 "warnings": list(part.warnings),
                 "instants_with_choice": choice.instants_with_choice,
                 "views_without_match": choice.views_without_match,

@@ -61,13 +61,13 @@ from typing import Literal
 
 import numpy as np
 
-from jaxpose.formats.rig_cameras import CalibrationUnit
+from jaxpose.formats.rig_cameras import CalibrationUnit, RigCalibration
 from jaxpose.formats import keypoint_files
 from jaxpose.formats.file_cache import CACHE_DIR
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.layouts import lifting_skeleton
 from jaxpose.rig import cache
-from jaxpose.rig.cameras import attach_calibrations, in_view_order
+from jaxpose.rig.cameras import distinct_rigs, find_calibrations, in_view_order
 from jaxpose.rig.geometry import Rigs
 from jaxpose.rig.people import DEFAULT_THRESHOLD_PX
 from jaxpose.rig.preparation import Aligned, Phases, Preparation
@@ -238,41 +238,39 @@ def _input_files(config: RigProjectConfig, recordings: Sequence[Recording]) -> d
 def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bool, cache_key: str, inputs: dict[str, str]) -> PreparedProject:
     """Every instant of the project prepared from its recordings (`jaxpose.rig.preparation`), and cached."""
     started = time.perf_counter()
-    project_calibration = attach_calibrations(recordings, config.root, config.calibration, config.calibration_unit)
+    project_calibration, calibrations = find_calibrations(recordings, config.root, config.calibration, config.calibration_unit)
     present = set().union(*(recording.cameras for recording in recordings))
     if project_calibration is not None:
         camera_order = [name for name in project_calibration.camera_names if name in present]
     else:
         camera_order = sorted(present)
     for recording in recordings:
-        if recording.calibration is not None:  # every detection folder needs its camera
-            recording.calibration.select(sorted(recording.cameras), f"detection folders of recording {recording.name}")
+        if calibrations[recording.name] is not None:  # every detection folder needs its camera
+            calibrations[recording.name].select(sorted(recording.cameras), f"detection folders of recording {recording.name}")
     phases = Phases(len(recordings), progress)
     layouts: dict[str, str] = {}
-    parts = _aligned(config, recordings, camera_order, parse_frame_offsets(config.frame_offsets, recordings), phases, layouts)
+    given_offsets = parse_frame_offsets(config.frame_offsets, recordings)
+    parts = _aligned(config, recordings, calibrations, camera_order, given_offsets, phases, layouts)
     sessions: tuple[RecoveredSession, ...] = ()
-    if project_calibration is None and all(recording.calibration is None for recording in recordings):
+    if all(rig is None for rig in calibrations.values()):
         parts = list(parts)
         with phases("rig recovered"):
-            sessions, session_rigs = recover_sessions(
-                recordings, [(part.keypoints, part.confidence) for part in parts], camera_order,
+            sessions, calibrations = recover_sessions(
+                [part.recording.name for part in parts], [part.known_cameras for part in parts],
+                [(part.keypoints, part.confidence) for part in parts], camera_order,
                 lifting_skeleton(next(iter(layouts.values()))), sessions=config.sessions, find=config.find_sessions,
                 image_size=config.image_size, max_frames=config.recovery_frames, root=config.root,
                 height_mm=config.subject_height_mm,
             )  # fmt: skip
-        for recording in recordings:
-            recording.calibration = session_rigs[recording.name]
+        parts = [dataclasses.replace(part, calibration=calibrations[part.recording.name]) for part in parts]
     elif config.sessions:
         log.warning("--data.sessions is for projects without a calibration: ignored (the calibration files give each recording's rig)")
-    rig_index: dict[int, int] = {}
-    for recording in recordings:
-        rig_index.setdefault(id(recording.calibration), len(rig_index))
-    distinct = {id(recording.calibration): recording.calibration for recording in recordings}
-    rigs = Rigs.of([in_view_order(distinct[key], camera_order) for key in rig_index])
+    distinct, rig_index = distinct_rigs(calibrations)
+    rigs = Rigs.of([in_view_order(rig, camera_order) for rig in distinct])
     cache_dir = cache_folder(config)
     temporary = cache.start(cache_dir, cache_key)
     preparation = Preparation(
-        rigs, lambda recording: rig_index[id(recording.calibration)], lambda: lifting_skeleton(next(iter(layouts.values()))),
+        rigs, rig_index, lambda: lifting_skeleton(next(iter(layouts.values()))),
         cache.Assembly(temporary), phases, threshold_px=config.person_threshold_px, recovered=bool(sessions),
         check_unit=config.calibration_unit == "auto" and not sessions,
         labels={"subject": np.dtype(f"<U{len(f'rig{len(rig_index) - 1}')}"),
@@ -312,47 +310,53 @@ def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bo
 def _aligned(
     config: RigProjectConfig,
     recordings: Sequence[Recording],
+    calibrations: Mapping[str, RigCalibration | None],
     camera_order: Sequence[str],
     given: dict[tuple[str, str], int],
     phases: Phases,
     layouts: dict[str, str],
 ) -> Iterator[Aligned]:
-    """Each recording read, on one time axis at every instant, one at a time (its offsets set: `given` by
-    --data.frame-offsets, or estimated with --data.sync auto); `layouts` collects each recording's layout."""
+    """Each recording read, on one time axis at every instant, one at a time, with its rig (`calibrations`) and
+    its offsets (`given` by --data.frame-offsets, or estimated with --data.sync auto); `layouts` collects each
+    recording's layout."""
     parsed = cache_folder(config) / PARSED
     for recording in recordings:
         with phases("recordings read"):
-            detections = read_detections(recording, config.skeleton, phases.progress, parsed / recording.name)
-            views = lifting_views(recording, detections, config.min_confidence)
-        layouts[recording.name] = recording.layout
+            read = read_detections(recording, config.skeleton, phases.progress, parsed / recording.name)
+            views = lifting_views(read, config.min_confidence)
+        layouts[recording.name] = read.layout
         if len(set(layouts.values())) > 1:
             raise DataFormatError(config.root, "one keypoint layout in every recording", f"layouts {layouts}")
         cameras = [camera for camera in camera_order if camera in views]
         warnings: list[str] = []
+        sync = None
         if config.sync == "auto":
             with phases("offsets"):
-                recording.sync = estimate_recording_offsets(recording, views, cameras, config.max_sync_offset)
-            recording.offsets = dict(zip(cameras, recording.sync.offsets.tolist()))
-            state = "" if recording.sync.reliable else f" (UNRELIABLE: {recording.sync.doubt})"
-            log.info("recording %s: estimated frame offsets %s%s", recording.name, recording.offsets, state)
-            if not recording.sync.reliable:
-                warnings.append(f"frame offsets UNRELIABLE: {recording.sync.doubt}")
+                sync = estimate_recording_offsets(recording, calibrations[recording.name], views, cameras, config.max_sync_offset)
+            offsets = dict(zip(cameras, sync.offsets.tolist()))
+            state = "" if sync.reliable else f" (UNRELIABLE: {sync.doubt})"
+            log.info("recording %s: estimated frame offsets %s%s", recording.name, offsets, state)
+            if not sync.reliable:
+                warnings.append(f"frame offsets UNRELIABLE: {sync.doubt}")
             phases.advance("offsets")
         else:
-            recording.offsets = {camera: given.get((recording.name, camera), 0) for camera in cameras}
-        for camera in lone_cameras(views, recording.offsets):
+            offsets = {camera: given.get((recording.name, camera), 0) for camera in cameras}
+        for camera in lone_cameras(views, offsets):
             warnings.append(
-                f"camera {camera} (frame offset {recording.offsets.get(camera, 0):+d}) shares no instant with the other cameras:"
+                f"camera {camera} (frame offset {offsets.get(camera, 0):+d}) shares no instant with the other cameras:"
                 " are --data.frame-offsets right?"
             )
             log.warning("recording %s: %s", recording.name, warnings[-1])
         with phases("recordings read"):
-            instants = instants_of(views, recording.offsets)
+            instants = instants_of(views, offsets)
             if not len(instants):
                 raise DataFormatError(recording.folder, "detections in at least one frame", "no frame")
-            keypoints, confidence = align(views, camera_order, recording.offsets, instants)
+            keypoints, confidence = align(views, camera_order, offsets, instants)
         phases.advance("recordings read", len(instants))
-        yield Aligned(recording, instants, keypoints, confidence, tuple(warnings))
+        yield Aligned(
+            recording, read.layout, read.known_cameras, calibrations[recording.name], offsets, sync, instants, keypoints, confidence,
+            tuple(warnings),
+        )
 
 
 PARSED = "parsed"

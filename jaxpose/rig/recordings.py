@@ -15,7 +15,6 @@ import numpy as np
 
 from jaxpose.data import ground_truth
 from jaxpose.formats import detections_npz
-from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.keypoint_files import CameraDetections, read_camera_detections
 from jaxpose.formats.calibration_files import find_calibration
@@ -32,7 +31,6 @@ from jaxpose.layouts import (
     layout_joint_names,
     to_lifting_skeleton,
 )
-from jaxpose.rig.sync import SyncEstimate
 from jaxpose.skeleton import DETECTOR_LAYOUTS, Skeleton
 
 MAX_PEOPLE = 4  # detections per camera and frame kept for the choice of person
@@ -41,10 +39,9 @@ Views = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
 """Camera -> (frames int[F], keypoints f32[F, P, J, 2], confidence f32[F, P, J]): up to P people per frame."""
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class Recording:
-    """One recording while it is being loaded: found (`find_recording`), its detections read once
-    (`read_detections`) and let go after alignment."""
+    """One recording as found (`find_recording`): its folder and where each camera's detections are."""
 
     name: str
     folder: pathlib.Path
@@ -52,12 +49,18 @@ class Recording:
     """Its cameras' names (detection folders, COCO files or the detections.npz's camera_names)."""
     sources: dict[str, pathlib.Path]
     """Camera -> its JSON folder or COCO file; {DETECTIONS_NPZ: path} for a detections.npz."""
-    layout: str | None = None
-    known_cameras: dict[str, dict] = dataclasses.field(default_factory=dict)
-    """Camera -> what its detections.npz gives of it: image_size, K, dist (those present) and model."""
-    calibration: RigCalibration | None = None
-    offsets: dict[str, int] = dataclasses.field(default_factory=dict)
-    sync: SyncEstimate | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class RecordingDetections:
+    """One recording's detections as read (`read_detections`), let go after alignment."""
+
+    recording: Recording
+    cameras: dict[str, CameraDetections]
+    layout: str
+    """The keypoint layout they are in (`jaxpose.layouts`)."""
+    known_cameras: dict[str, dict]
+    """Camera -> what a detections.npz gives of it: image_size, K, dist (those present) and model; {} for JSON."""
 
 
 def printable(path: pathlib.Path | str) -> str:
@@ -193,31 +196,30 @@ def _layout(
     return layout
 
 
-def read_detections(recording: Recording, skeleton: str, progress: bool, parsed: pathlib.Path) -> dict[str, CameraDetections]:
-    """The recording's detections, per camera; sets its layout (`skeleton`: see `RigProjectConfig.skeleton`)
+def read_detections(recording: Recording, skeleton: str, progress: bool, parsed: pathlib.Path) -> RecordingDetections:
+    """The recording's detections, per camera, their layout (`skeleton`: see `RigProjectConfig.skeleton`)
     and, from a detections.npz, what it gives of each camera.  JSON detections are parsed once and cached
     in the folder `parsed` (the project's cache), one file per camera."""
-    npz = None
+    npz, known = None, {}
     if DETECTIONS_NPZ in recording.sources:
         npz = detections_npz.read(recording.sources[DETECTIONS_NPZ])
         cameras = _npz_cameras(npz)
         given = {key: getattr(npz, key) for key in ("image_size", "K", "dist") if getattr(npz, key) is not None}
-        recording.known_cameras = {
+        known = {
             camera: {key: array[index] for key, array in given.items()} | {"model": npz.distortion_model}
             for index, camera in enumerate(npz.camera_names)
         }
     else:
         cameras = {name: read_camera_detections(path, progress, parsed / f"{path.name}.npz") for name, path in recording.sources.items()}
-    recording.layout = _layout(skeleton, recording.name, cameras, npz)
-    return cameras
+    return RecordingDetections(recording, cameras, _layout(skeleton, recording.name, cameras, npz), known)
 
 
-def lifting_views(recording: Recording, cameras: Mapping[str, CameraDetections], min_confidence: float) -> Views:
+def lifting_views(read: RecordingDetections, min_confidence: float) -> Views:
     """The recording's `Views` in the lifting skeleton, scores below `min_confidence` made 0, at most `MAX_PEOPLE` detections per frame (the most confident: a crowd only costs memory), and at
     least one (a camera that never saw anybody keeps an empty slot)."""
     views = {}
-    joints = len(layout_joint_names(recording.layout))
-    for name, detections in cameras.items():
+    joints = len(layout_joint_names(read.layout))
+    for name, detections in read.cameras.items():
         keypoints, scores = detections.keypoints, detections.scores
         if keypoints.shape[1] == 0:
             keypoints, scores = np.zeros((len(keypoints), 1, joints, 2), np.float32), np.zeros((len(keypoints), 1, joints), np.float32)
@@ -225,8 +227,8 @@ def lifting_views(recording: Recording, cameras: Mapping[str, CameraDetections],
             order = np.argsort(-np.nan_to_num(scores).sum(-1), axis=1, kind="stable")[:, :MAX_PEOPLE]
             keypoints = np.take_along_axis(keypoints, order[..., None, None], axis=1)
             scores = np.take_along_axis(scores, order[..., None], axis=1)
-        check_body25_layout(recording.layout, keypoints, scores, printable(recording.folder / name), "--data.skeleton")
-        keypoints, confidence = to_lifting_skeleton(recording.layout, keypoints, scores)
+        check_body25_layout(read.layout, keypoints, scores, printable(read.recording.folder / name), "--data.skeleton")
+        keypoints, confidence = to_lifting_skeleton(read.layout, keypoints, scores)
         confidence = np.where(confidence >= min_confidence, confidence, 0.0).astype(np.float32)
         views[name] = (detections.frames, keypoints, confidence)
     return views

@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import pathlib
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -22,7 +22,7 @@ from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_folder import GROUND_TRUTH_NPZ
 from jaxpose.rig.geometry import triangulate_rows, undistort_views
 from jaxpose.rotations import similarity
-from jaxpose.rig.recordings import Recording, one_person
+from jaxpose.rig.recordings import one_person
 from jaxpose.skeleton import Skeleton
 
 log = logging.getLogger(__name__)
@@ -31,7 +31,8 @@ MIN_ALIGNMENT_POINTS = 50  # ground-truth joints needed to align it with a recov
 
 
 def rig_detections(
-    recordings: Sequence[Recording],
+    names: Sequence[str],
+    known: Sequence[Mapping[str, dict]],
     aligned: Sequence[tuple[np.ndarray, np.ndarray]],
     camera_order: Sequence[str],
     skeleton: Skeleton,
@@ -39,10 +40,11 @@ def rig_detections(
     image_size: tuple[int, int] | None,
     root: pathlib.Path,
 ):
-    """The detections `jaxpose.calibrate` recovers a rig from: the instants of `recordings` (`aligned`:
+    """The detections `jaxpose.calibrate` recovers a rig from: the instants of some recordings (`aligned`:
     each recording's keypoints and confidence on one time axis, `jaxpose.rig.timeline.align`), each
-    view's detection where it saw one person, one recording after the other; `image_size`
-    (--data.image-size) serves the cameras no detections.npz gives one.  A `RigDetections`."""
+    view's detection where it saw one person, one recording after the other; `known`: what each
+    recording's detections.npz gives of its cameras (image size, intrinsics); `image_size`
+    (--data.image-size) serves the cameras none gives one.  A `RigDetections`."""
     from jaxpose.calibration import RigDetections  # the calibrate extra
 
     keypoints, confidence = [], []
@@ -51,14 +53,14 @@ def rig_detections(
         keypoints.append(single_keypoints)
         confidence.append(single_confidence)
     # Per camera, by name from every recording's detections.npz: image size and, where given, intrinsics.
-    known: dict[str, dict[str, np.ndarray]] = {}
-    for recording in recordings:
-        for camera, fields in recording.known_cameras.items():
-            known.setdefault(camera, fields)
+    given: dict[str, dict[str, np.ndarray]] = {}
+    for cameras in known:
+        for camera, fields in cameras.items():
+            given.setdefault(camera, fields)
     sizes = []
     for camera in camera_order:
-        if "image_size" in known.get(camera, {}):
-            sizes.append(np.asarray(known[camera]["image_size"], np.int64))
+        if "image_size" in given.get(camera, {}):
+            sizes.append(np.asarray(given[camera]["image_size"], np.int64))
         elif image_size is not None:
             sizes.append(np.asarray(image_size, np.int64))
         else:
@@ -68,7 +70,7 @@ def rig_detections(
                 " the rig (--data.image-size W H, or 'image_size' in detections.npz)",
                 f"no calibration and no image size of camera {camera!r}",
             )
-    intrinsics = [known.get(camera, {}) for camera in camera_order]
+    intrinsics = [given.get(camera, {}) for camera in camera_order]
     given_K = all("K" in fields for fields in intrinsics)
     given_dist = given_K and all("dist" in fields for fields in intrinsics)
     return RigDetections(
@@ -80,7 +82,7 @@ def rig_detections(
         K=np.stack([fields["K"] for fields in intrinsics]).astype(np.float64) if given_K else None,
         dist=np.stack([fields["dist"] for fields in intrinsics]).astype(np.float64) if given_dist else None,
         distortion_model=intrinsics[0].get("model", "opencv"),
-        source=f"{root} (recording {recordings[0].name}" + (f" and {len(recordings) - 1} more)" if len(recordings) > 1 else ")"),
+        source=f"{root} (recording {names[0]}" + (f" and {len(names) - 1} more)" if len(names) > 1 else ")"),
     )
 
 

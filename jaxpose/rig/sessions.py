@@ -30,7 +30,6 @@ import numpy as np
 
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_cameras import RigCalibration
-from jaxpose.rig.recordings import Recording
 from jaxpose.rig.recovered import recover_rig, rig_detections
 from jaxpose.skeleton import Skeleton
 
@@ -115,7 +114,8 @@ def group_recordings(detections: Mapping[str, object], labels: Mapping[str, str]
 
 
 def recover_sessions(
-    recordings: Sequence[Recording],
+    names: Sequence[str],
+    known: Sequence[Mapping[str, dict]],
     aligned: Sequence[tuple[np.ndarray, np.ndarray]],
     camera_order: Sequence[str],
     skeleton: Skeleton,
@@ -129,11 +129,11 @@ def recover_sessions(
 ) -> tuple[tuple[RecoveredSession, ...], dict[str, RigCalibration]]:
     """Each session's rig, recovered from its recordings pooled on at most `max_frames` instants
     (`sessions`: --data.sessions entries, else grouped as `group_recordings` says); and every recording's rig
-    by name.  `aligned`: each recording's keypoints and confidence (`recover_rig`'s)."""
-    names = [recording.name for recording in recordings]
+    by name.  `known` and `aligned`: each recording's known cameras and keypoints (`rig_detections`')."""
+    names = list(names)
     detections = {
-        recording.name: rig_detections([recording], [part], camera_order, skeleton, image_size=image_size, root=root)
-        for recording, part in zip(recordings, aligned)
+        name: rig_detections([name], [cameras], [part], camera_order, skeleton, image_size=image_size, root=root)
+        for name, cameras, part in zip(names, known, aligned)
     }
     labels = parse_sessions(sessions, names) if sessions else None
     grouping = group_recordings(detections, labels, find, root)
@@ -143,7 +143,7 @@ def recover_sessions(
     for session in grouping.sessions:
         members = [names.index(name) for name in session.recordings]
         pooled = rig_detections(
-            [recordings[i] for i in members], [aligned[i] for i in members], camera_order, skeleton, image_size=image_size, root=root
+            [names[i] for i in members], [known[i] for i in members], [aligned[i] for i in members], camera_order, skeleton, image_size=image_size, root=root
         )
         rig, calibration = recover_rig(pooled, max_frames=max_frames, height_mm=height_mm)
         reprojection = float(np.max(calibration.reprojection_median_px))

@@ -13,6 +13,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from jaxpose.camera import projection_matrices
+from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.rig.geometry import undistort_views
 from jaxpose.rig.recordings import Recording, Views, one_person
 from jaxpose.rig.sync import SyncEstimate, estimate_offsets
@@ -37,20 +38,22 @@ def parse_frame_offsets(values: Sequence[str], recordings: Sequence[Recording]) 
     return offsets
 
 
-def estimate_recording_offsets(recording: Recording, views: Views, camera_order: Sequence[str], max_offset: int) -> SyncEstimate:
+def estimate_recording_offsets(
+    recording: Recording, calibration: RigCalibration | None, views: Views, camera_order: Sequence[str], max_offset: int
+) -> SyncEstimate:
     """`jaxpose.rig.sync.estimate_offsets` on the frames where each camera sees one person (offsets up
-    to `max_offset` frames), with the recording's calibration where it has one."""
+    to `max_offset` frames), with the recording's `calibration` where it has one."""
     frames, keypoints, confidence = [], [], []
     for camera in camera_order:
         camera_frames, camera_keypoints, camera_confidence = views[camera]
         single_keypoints, single_confidence = one_person(camera_keypoints, camera_confidence)
         rows = np.flatnonzero((single_confidence > 0).any(-1))
         frames.append(camera_frames[rows])
-        keypoints.append(undistort_views(recording.calibration, camera, single_keypoints[rows]))
+        keypoints.append(undistort_views(calibration, camera, single_keypoints[rows]))
         confidence.append(single_confidence[rows])
     projections = None
-    if recording.calibration is not None:
-        rig = recording.calibration.select(camera_order, f"cameras of recording {recording.name}")
+    if calibration is not None:
+        rig = calibration.select(camera_order, f"cameras of recording {recording.name}")
         projections = np.asarray(projection_matrices(rig.cameras.without_distortion()), np.float64)
     return estimate_offsets(frames, keypoints, confidence, projections, max_offset, camera_names=list(camera_order))
 
