@@ -173,7 +173,7 @@ def test_ablation_help_is_the_chosen_experiments_with_its_presets(capsys):
     assert_every_flag_documented(text, ["--data." + f.name.replace("_", "-") for f in dataclasses.fields(h36m.H36MData)])
     with pytest.raises(SystemExit) as stop:
         ablation.main(["--dataset", "mpi"])
-    assert stop.value.code == 2 and "invalid choice: 'mpi'" in capsys.readouterr().err
+    assert stop.value.code == 2 and "invalid choice 'mpi' for argument '--dataset'" in capsys.readouterr().err
 
 
 def test_mpi_inf_3dhp_help(capsys):

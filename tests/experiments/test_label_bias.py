@@ -164,9 +164,11 @@ def test_label_bias_help_and_refusals(capsys):
     assert stop.value.code == 0
     text = capsys.readouterr().out
     assert "those of --preset dev" in text
-    presets = text[text.index("Presets (--preset NAME") :].splitlines()[1:4]
+    lines = text[text.index("Presets (--preset NAME") :].splitlines()[1:7]
+    presets, recipes = lines[0::2], lines[1::2]  # each preset's note, then its recipe made from its config
     assert [line.split()[0] for line in presets] == ["dev", "cpu", "paper"]
     assert all(line.endswith(f"(runs/label_bias_h36m_{line.split()[0]})") for line in presets)  # this study's run directories
+    assert all(line.split()[0].startswith("width-") for line in recipes)
     assert_every_flag_documented(text, ["--data.data-dir", "--data.detections", "--run.run-dir", "--train.epochs"])
     with pytest.raises(SystemExit, match="leave --supervision self"):
         label_bias.main(["--supervision", "full"])
