@@ -10,6 +10,7 @@ report on all of them, with the reference rows beside the lifter (`results`); th
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 
 import numpy as np
@@ -81,8 +82,10 @@ class Evaluator:
             record = {"eval_p_mpjpe": overall["p_mpjpe"], "eval_mpjpe": overall["mpjpe"]}
         return record | {f"eval_{name}": values["overall"] for name, values in self.ground_truth_free(pred).items()}
 
+    @functools.cached_property
     def triangulation(self) -> np.ndarray:
-        """f32[N, C, J, 3]: the samples' pseudo-labels (their views' triangulation) in each view."""
+        """f32[N, C, J, 3]: the samples' pseudo-labels (their views' triangulation) in each view, made once
+        (the reference row and the report's figure both read it)."""
         return evaluation.poses_in_views(self.samples, self.samples.pseudo3d)
 
     def results(self, pred: np.ndarray, method: str, splits: Splits) -> dict:
@@ -97,7 +100,7 @@ class Evaluator:
         # root has a label (two agreeing views); elsewhere it is no estimate at all.
         predictions = {
             method: (pred, truth.valid),
-            TRIANGULATION_ROW: (self.triangulation(), truth.valid & (samples.pseudo3d_weight[:, None, 0] > 0)),
+            TRIANGULATION_ROW: (self.triangulation, truth.valid & (samples.pseudo3d_weight[:, None, 0] > 0)),
             MEAN_POSE_ROW: (np.ascontiguousarray(mean_pose), truth.valid),
         }
         groups = samples.labels.get(splits.group_label)

@@ -83,7 +83,7 @@ def evaluate_and_report(
         if shares:
             tables.append(gradient_share_table(shares, int(state.step)))
         RunDirectory(run_dir).report_md.write_text("\n\n".join(tables) + "\n")
-        reference = evaluator.truth.target if rows and len(joint_names) == test.skeleton.num_joints else evaluator.triangulation()
+        reference = evaluator.truth.target if rows and len(joint_names) == test.skeleton.num_joints else evaluator.triangulation
         _plots(config, test, pred, reference, run_dir)
     return report
 
