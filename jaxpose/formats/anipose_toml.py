@@ -25,13 +25,13 @@ import numpy as np
 
 from jaxpose.camera import Cameras
 from jaxpose.formats.rig_cameras import (
-    MM_PER_UNIT, CalibrationUnit, RigCalibration, check_intrinsics, check_rig_size, check_rotation, rig_size,
+    MM_PER_UNIT, CalibrationFormat, CalibrationUnit, RigCalibration, check_intrinsics, check_rig_size, check_rotation, rig_size,
 )  # fmt: skip
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.outputs import OutputError, atomic_output
 from jaxpose.rotations import nearest_rotation, rodrigues_from_rotation, rotation_from_rodrigues
 
-__all__ = ["is_anipose_calibration", "read_anipose_toml", "write_anipose_toml"]
+__all__ = ["FORMAT", "is_anipose_calibration", "read_anipose_toml", "write_anipose_toml"]
 
 # "auto": a rig this many file units across or more is in millimetres, a smaller one in metres.
 AUTO_METRES_BELOW = 100.0
@@ -94,6 +94,12 @@ def read_anipose_toml(path: Path, unit: CalibrationUnit) -> RigCalibration:
         source=str(path),
         unit=resolved,
     )
+
+
+FORMAT = CalibrationFormat(
+    "an Anipose/Pose2Sim/FreeMoCap calibration .toml", (".toml",), is_anipose_calibration,
+    lambda path, unit, _subject: read_anipose_toml(path, unit),
+)
 
 
 def write_anipose_toml(

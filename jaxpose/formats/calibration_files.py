@@ -1,7 +1,8 @@
 """The calibration files users already have, read as they are.
 
 `read_rig_calibration` returns one `RigCalibration` (`jaxpose.formats.rig_cameras`: camera names,
-float64 numpy `Cameras` [C] in the library's conventions, image sizes) from any of:
+float64 numpy `Cameras` [C] in the library's conventions, image sizes) from any of the `FORMATS`, each
+a module that recognises and reads its kind (a `CalibrationFormat`):
 
 1. **Anipose-family TOML** (`*.toml`, `jaxpose.formats.anipose_toml`), as aniposelib, Anipose,
    Pose2Sim and FreeMoCap write it, in metres, millimetres or the calibration board's unit (see
@@ -18,29 +19,23 @@ float64 numpy `Cameras` [C] in the library's conventions, image sizes) from any 
 
 from __future__ import annotations
 
-import warnings
-from collections.abc import Sequence
 from pathlib import Path
 from typing import get_args
 
-import numpy as np
-
 from jaxpose.formats import anipose_toml, camera_file, easymocap_yaml, h36m_cameras
-from jaxpose.formats.rig_cameras import CalibrationUnit, RigCalibration, check_distinct_centres
+from jaxpose.formats.rig_cameras import CalibrationFormat, CalibrationUnit, RigCalibration
 from jaxpose.formats.errors import DataFormatError
 
-__all__ = ["CalibrationUnit", "RigCalibration", "find_calibration", "read_rig_calibration"]
+__all__ = ["FORMATS", "CalibrationUnit", "RigCalibration", "find_calibration", "read_rig_calibration"]
 
-ACCEPTED = (
-    "an Anipose/Pose2Sim/FreeMoCap calibration .toml, EasyMocap intri.yml + extri.yml (or their folder), "
-    "a jaxpose camera file .json, or Human3.6M's cameras.h5"
-)
+FORMATS: tuple[CalibrationFormat, ...] = (anipose_toml.FORMAT, easymocap_yaml.FORMAT, camera_file.FORMAT, h36m_cameras.FORMAT)
+ACCEPTED = ", ".join(kind.description for kind in FORMATS[:-1]) + f", or {FORMATS[-1].description}"
 
 
 def read_rig_calibration(
     path: str | Path, unit: CalibrationUnit = "auto", subject: str | None = None
 ) -> RigCalibration:
-    """Read a calibrated rig from any of the formats of the module docstring.
+    """Read a calibrated rig from any of the `FORMATS`, told by the file's suffix.
 
     path: the file; for EasyMocap either `intri.yml`, `extri.yml` or the folder holding them; any
     other folder is searched with `find_calibration`.
@@ -73,15 +68,10 @@ def read_rig_calibration(
             raise DataFormatError(path, f"a folder holding {ACCEPTED}", f"none among {names[:30]}")
         path = found
     suffix = path.suffix.lower()
-    if suffix == ".toml":
-        return anipose_toml.read_anipose_toml(path, unit)
-    if suffix in (".yml", ".yaml"):
-        return easymocap_yaml.read_easymocap(path, unit)
-    if suffix in (".json", ".h5", ".hdf5"):
-        if unit not in ("auto", "mm"):
-            warnings.warn(f"{path}: unit {unit!r} ignored: this file's lengths are millimetres by definition", stacklevel=2)
-        return _read_camera_file(path, subject) if suffix == ".json" else _read_h36m_file(path, subject)
-    raise DataFormatError(path, ACCEPTED, f"a file with suffix {suffix!r}")
+    kind = next((kind for kind in FORMATS if suffix in kind.suffixes), None)
+    if kind is None:
+        raise DataFormatError(path, ACCEPTED, f"a file with suffix {suffix!r}")
+    return kind.read(path, unit, subject)
 
 
 def find_calibration(folder: str | Path) -> Path | None:
@@ -97,53 +87,12 @@ def find_calibration(folder: str | Path) -> Path | None:
     folder = Path(folder)
     if not folder.is_dir():
         raise DataFormatError(folder, "a folder that may hold a calibration file", "no such folder")
-    found = [entry for entry in sorted(folder.iterdir()) if entry.is_file() and _is_calibration(entry)]
+    found = [
+        entry for entry in sorted(folder.iterdir())
+        if entry.is_file() and any(kind.recognise is not None and kind.recognise(entry) for kind in FORMATS)
+    ]  # fmt: skip
     if len(found) > 1:
         raise DataFormatError(
             folder, "one calibration file in the folder", f"{len(found)}: {[entry.name for entry in found]}"
         )
     return found[0] if found else None
-
-
-def _is_calibration(path: Path) -> bool:
-    return (
-        anipose_toml.is_anipose_calibration(path)
-        or easymocap_yaml.is_easymocap_intrinsics(path)
-        or camera_file.is_camera_file(path)
-    )
-
-
-# ----------------------------------------------------------------------------------------------
-# Files holding one rig per subject
-
-
-def _pick_subject(path: Path, subjects: Sequence[str], subject: str | None) -> str:
-    if subject is None:
-        if len(subjects) == 1:
-            return subjects[0]
-        raise DataFormatError(path, "a subject to pick (the file holds several rigs)", f"subjects {list(subjects)}")
-    if subject not in subjects:
-        raise DataFormatError(path, f"the rig of subject {subject!r}", f"subjects {list(subjects)}")
-    return subject
-
-
-def _image_sizes(sizes: Sequence[tuple[int, int] | None]) -> np.ndarray | None:
-    return None if any(size is None for size in sizes) else np.array(sizes, dtype=np.int64)
-
-
-def _read_camera_file(path: Path, subject: str | None) -> RigCalibration:
-    rigs = camera_file.load_cameras(path, np.float64)
-    subject = _pick_subject(path, list(rigs), subject)
-    names, cameras = rigs[subject]
-    check_distinct_centres(str(path), names, cameras.R, cameras.t)
-    sizes = camera_file.load_image_sizes(path)[subject]
-    return RigCalibration(tuple(names), cameras, _image_sizes(sizes), str(path), "mm")
-
-
-def _read_h36m_file(path: Path, subject: str | None) -> RigCalibration:
-    rigs = h36m_cameras.read_h36m_cameras(path, np.float64)
-    subject = _pick_subject(path, list(rigs), subject)
-    names, cameras = rigs[subject]
-    check_distinct_centres(f"{path} (subject {subject})", names, cameras.R, cameras.t)
-    sizes = [h36m_cameras.H36M_IMAGE_SIZES.get(name) for name in names]
-    return RigCalibration(tuple(names), cameras, _image_sizes(sizes), f"{path} (subject {subject})", "mm")

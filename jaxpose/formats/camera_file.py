@@ -49,7 +49,10 @@ import tyro
 from jaxpose.camera import Cameras
 from jaxpose.formats import h36m_cameras
 from jaxpose.formats.h36m_cameras import H36M_IMAGE_SIZES
-from jaxpose.formats.rig_cameras import check_intrinsics, check_rotation
+from jaxpose.formats.rig_cameras import (
+    CalibrationFormat, CalibrationUnit, RigCalibration, check_distinct_centres, check_intrinsics, check_rotation,
+    known_image_sizes, millimetres_by_definition, pick_subject,
+)  # fmt: skip
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.files import read_json
 from jaxpose.formats.outputs import OutputError, atomic_output, check_output
@@ -133,6 +136,16 @@ def convert_h36m_cameras(cameras_h5: str | Path, out_json: str | Path) -> None:
     save_cameras(out_json, rigs, sizes)
 
 
+def read_rig(path: Path, unit: CalibrationUnit, subject: str | None) -> RigCalibration:
+    """One subject's rig of a camera file, float64, in millimetres whatever `unit` says."""
+    millimetres_by_definition(path, unit)
+    rigs = load_cameras(path, np.float64)
+    subject = pick_subject(path, list(rigs), subject)
+    names, cameras = rigs[subject]
+    check_distinct_centres(str(path), names, cameras.R, cameras.t)
+    return RigCalibration(tuple(names), cameras, known_image_sizes(load_image_sizes(path)[subject]), str(path), "mm")
+
+
 def is_camera_file(path: Path) -> bool:
     """Whether `path` is a jaxpose camera file, from its first bytes: other JSON files, such as a
     detector's output, are not parsed."""
@@ -144,6 +157,9 @@ def is_camera_file(path: Path) -> bool:
     except OSError:
         return False
     return head.startswith("{") and re.search(rf'"format"\s*:\s*"{re.escape(FORMAT_NAME)}"', head) is not None
+
+
+FORMAT = CalibrationFormat("a jaxpose camera file .json", (".json",), is_camera_file, read_rig)
 
 
 def _parse(

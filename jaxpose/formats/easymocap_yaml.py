@@ -19,12 +19,12 @@ import yaml
 
 from jaxpose.camera import Cameras
 from jaxpose.formats.rig_cameras import (
-    MM_PER_UNIT, CalibrationUnit, RigCalibration, check_intrinsics, check_rig_size, check_rotation,
+    MM_PER_UNIT, CalibrationFormat, CalibrationUnit, RigCalibration, check_intrinsics, check_rig_size, check_rotation,
 )  # fmt: skip
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.rotations import nearest_rotation, rodrigues_from_rotation, rotation_from_rodrigues
 
-__all__ = ["is_easymocap_intrinsics", "read_easymocap", "read_easymocap_intrinsics"]
+__all__ = ["FORMAT", "is_easymocap_intrinsics", "read_easymocap", "read_easymocap_intrinsics"]
 
 
 def is_easymocap_intrinsics(path: Path) -> bool:
@@ -78,6 +78,12 @@ def read_easymocap(path: Path, unit: CalibrationUnit) -> RigCalibration:
         source=source,
         unit=resolved,
     )
+
+
+FORMAT = CalibrationFormat(
+    "EasyMocap intri.yml + extri.yml (or their folder)", (".yml", ".yaml"), is_easymocap_intrinsics,
+    lambda path, unit, _subject: read_easymocap(path, unit),
+)
 
 
 def read_easymocap_intrinsics(intri: Path) -> tuple[list[str], dict[str, tuple[np.ndarray, np.ndarray]]]:

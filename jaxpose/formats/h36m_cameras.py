@@ -17,11 +17,14 @@ from pathlib import Path
 import numpy as np
 
 from jaxpose.camera import Cameras
-from jaxpose.formats.rig_cameras import RigCalibration
+from jaxpose.formats.rig_cameras import (
+    CalibrationFormat, CalibrationUnit, RigCalibration, check_distinct_centres, known_image_sizes, millimetres_by_definition,
+    pick_subject,
+)  # fmt: skip
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.files import h5_dataset, open_h5
 
-__all__ = ["H36M_IMAGE_SIZES", "opencv_from_h36m_distortion", "opencv_rig_from_h36m", "read_h36m_cameras"]
+__all__ = ["FORMAT", "H36M_IMAGE_SIZES", "opencv_from_h36m_distortion", "opencv_rig_from_h36m", "read_h36m_cameras", "read_rig"]
 
 # Video resolution (width, height) of the four Human3.6M cameras; cameras.h5 does not store it.
 H36M_IMAGE_SIZES = {
@@ -82,6 +85,21 @@ def read_h36m_cameras(path: str | Path, dtype: type = np.float32) -> dict[str, t
                 ),
             )
     return rigs
+
+
+def read_rig(path: Path, unit: CalibrationUnit, subject: str | None) -> RigCalibration:
+    """One subject's rig of `cameras.h5`, float64, in millimetres whatever `unit` says."""
+    millimetres_by_definition(path, unit)
+    rigs = read_h36m_cameras(path, np.float64)
+    subject = pick_subject(path, list(rigs), subject)
+    names, cameras = rigs[subject]
+    source = f"{path} (subject {subject})"
+    check_distinct_centres(source, names, cameras.R, cameras.t)
+    return RigCalibration(tuple(names), cameras, known_image_sizes([H36M_IMAGE_SIZES.get(name) for name in names]), source, "mm")
+
+
+# Never found in a folder: a file of several subjects' rigs is named (--data.calibration).
+FORMAT = CalibrationFormat("Human3.6M's cameras.h5", (".h5", ".hdf5"), None, read_rig)
 
 
 def opencv_from_h36m_distortion(

@@ -1,9 +1,11 @@
-"""A calibrated rig as any calibration file gives it, and the checks every calibration reader applies.
+"""A calibrated rig as any calibration file gives it, what a kind of calibration file is, and the checks
+every calibration reader applies.
 
 `RigCalibration` is what `jaxpose.formats.calibration_files.read_rig_calibration` returns whatever the
-file (`anipose_toml`, `easymocap_yaml`, `camera_file`, `h36m_cameras`); the length units a file may
-be in, the rig-size check that catches a wrong unit, and the intrinsic-matrix and rotation-matrix
-checks live here so that each reader words its errors the same way.
+file; `CalibrationFormat` is one kind of file (`anipose_toml`, `easymocap_yaml`, `camera_file` and
+`h36m_cameras` each define one, and `calibration_files.FORMATS` lists them).  The length units a file may
+be in, the rig-size check that catches a wrong unit, and the intrinsic-matrix and rotation-matrix checks
+live here so that each reader words its errors the same way.
 
 Conventions (docs/conventions.md): `x_cam = R @ x_world + t`, t in millimetres, distortion
 `dist = (k1, k2, p1, p2, k3)` of OpenCV's model, or (k1, k2, k3, k4, 0) of its fisheye model
@@ -13,7 +15,9 @@ Conventions (docs/conventions.md): `x_cam = R @ x_world + t`, t in millimetres, 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+import warnings
+from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -25,12 +29,16 @@ from jaxpose.formats.errors import DataFormatError
 __all__ = [
     "MIN_BASELINE_MM",
     "MM_PER_UNIT",
+    "CalibrationFormat",
     "CalibrationUnit",
     "RigCalibration",
     "check_distinct_centres",
     "check_intrinsics",
     "check_rig_size",
     "check_rotation",
+    "known_image_sizes",
+    "millimetres_by_definition",
+    "pick_subject",
     "rig_size",
 ]
 
@@ -101,6 +109,43 @@ class RigCalibration:
     def rig_size_mm(self) -> float:
         """The largest distance between two camera centres, mm (0 for a single camera)."""
         return rig_size(self.cameras.R, self.cameras.t)
+
+
+@dataclasses.dataclass(frozen=True)
+class CalibrationFormat:
+    """One kind of calibration file: what it is (for messages), the suffixes that name it, how a file in a
+    folder is recognised as one, and its reader."""
+
+    description: str
+    suffixes: tuple[str, ...]
+    recognise: Callable[[Path], bool] | None
+    """Whether a file found in a folder is one, by its name or first bytes; None: never found in a folder,
+    only read where it is named (a file of several subjects' rigs)."""
+    read: Callable[[Path, "CalibrationUnit", str | None], RigCalibration]
+    """(path, unit, subject) -> the rig: `unit` as `read_rig_calibration` takes it, `subject` for a file
+    holding several rigs (`pick_subject`); a format that has no use for one ignores it."""
+
+
+def pick_subject(path: Path, subjects: Sequence[str], subject: str | None) -> str:
+    """The subject whose rig is read from a file holding several (`subject`; None: the file's only one)."""
+    if subject is None:
+        if len(subjects) == 1:
+            return subjects[0]
+        raise DataFormatError(path, "a subject to pick (the file holds several rigs)", f"subjects {list(subjects)}")
+    if subject not in subjects:
+        raise DataFormatError(path, f"the rig of subject {subject!r}", f"subjects {list(subjects)}")
+    return subject
+
+
+def millimetres_by_definition(path: Path, unit: CalibrationUnit) -> None:
+    """Warn that `unit` is ignored for a file whose lengths are millimetres by definition (a camera file, cameras.h5)."""
+    if unit not in ("auto", "mm"):
+        warnings.warn(f"{path}: unit {unit!r} ignored: this file's lengths are millimetres by definition", stacklevel=4)
+
+
+def known_image_sizes(sizes: Sequence[tuple[int, int] | None]) -> np.ndarray | None:
+    """int64 [C, 2] of every camera's (width, height); None where some camera's is unknown."""
+    return None if any(size is None for size in sizes) else np.array(sizes, dtype=np.int64)
 
 
 def rig_size(R: np.ndarray, t: np.ndarray) -> float:
