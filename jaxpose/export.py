@@ -183,7 +183,7 @@ def main(argv: list[str] | None = None) -> None:
             raise ValueError(f"--min-confidence must lie in [0, 1], got {args.min_confidence}")
     except (FileNotFoundError, checkpoint.CheckpointError, OutputError, ValueError) as error:
         raise SystemExit(f"error: {error}") from None
-    threshold = score_threshold(args.run_dir, args.min_confidence)
+    threshold = score_threshold(lifter, args.min_confidence)
     output = args.output.with_suffix(".onnx")
     with atomic_output(output.with_suffix(".json")) as temporary:
         temporary.write_text(json.dumps(metadata(lifter, args.flip, threshold), indent=2) + "\n")

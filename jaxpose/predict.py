@@ -156,7 +156,7 @@ def run(args: PredictArgs) -> np.ndarray:
     if detections.clipped_scores:
         print(f"{detections.clipped_scores} scores above 1 clipped to 1 (docs/files.md)", file=sys.stderr)
     lifter = inference.load(args.checkpoint, batch_size=args.batch_size)
-    args = dataclasses.replace(args, min_confidence=inference.score_threshold(args.checkpoint, args.min_confidence))
+    args = dataclasses.replace(args, min_confidence=inference.score_threshold(lifter, args.min_confidence))
     camera = input_camera(args, detections)
     layout = args.format or input_layout(lifter.skeleton, detections)
     scores = detections.scores if detections.scores is not None else np.ones(detections.keypoints.shape[:2], np.float32)

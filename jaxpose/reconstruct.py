@@ -52,7 +52,7 @@ from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP
 from jaxpose.reconstruction.motion_quality import motion_summary
 from jaxpose.reconstruction.trajectory import TrajectoryConfig
 from jaxpose.rig.project import RigProjectConfig, with_recorded_settings
-from jaxpose.training.run_directory import RECORD_FILE, read_record
+from jaxpose.training.run_directory import RECORD_FILE, RunRecord, read_record
 from jaxpose.rig.recordings import recording_folders
 
 @dataclasses.dataclass(frozen=True)
@@ -107,7 +107,7 @@ def run(args: ReconstructArgs) -> dict:
             import ezc3d  # noqa: F401 - missing, refused before any work
         except ImportError:
             raise ImportError("--c3d needs ezc3d: pip install 'jaxpose[reconstruct]' (or pip install ezc3d)") from None
-    args = with_the_runs_settings(args)
+    args = with_the_runs_settings(args, read_record(args.checkpoint))  # before the outputs are checked: the record may name the project
     names = [folder.name for folder in recording_folders(args.data.root, args.data.recordings)]
     earlier = check_outputs(args, names)
     lifter = inference.load(args.checkpoint)
@@ -164,11 +164,10 @@ def run(args: ReconstructArgs) -> dict:
     return report
 
 
-def with_the_runs_settings(args: ReconstructArgs) -> ReconstructArgs:
-    """The project read as the run was trained on it: the settings its record holds (sync, frame offsets,
+def with_the_runs_settings(args: ReconstructArgs, record: RunRecord | None) -> ReconstructArgs:
+    """The project read as the run was trained on it: the settings its `record` holds (sync, frame offsets,
     calibration and unit, score threshold, layout, ...) wherever a --data flag is left at its default; a
     flag given that differs from the record is said in one line and used."""
-    record = read_record(args.checkpoint)
     if record is None or record.project is None:
         print(f"{args.checkpoint} records no project settings (a run from before run.json): the --data flags as given", file=sys.stderr)
         return args

@@ -16,6 +16,7 @@ import pathlib
 import pickle
 import re
 import shutil
+import types
 
 import numpy as np
 import paths
@@ -287,8 +288,10 @@ def test_the_run_record_carries_the_project_settings_to_the_commands_that_use_th
     overridden, notes = with_recorded_settings(RigProjectConfig(sync="given", min_confidence=0.3), record.project, "run.json")
     assert overridden.min_confidence == 0.3 and overridden.sync == "auto"  # sync "given" is the default: the run's wins
     assert notes == ["--data.min-confidence 0.3 differs from the run's 0.2 (run.json): using 0.3"]
-    assert score_threshold(run_dir, None) == 0.2 and score_threshold(tmp_path / "elsewhere", None) == 0.05
-    assert score_threshold(run_dir, 0.05) == 0.05
+    trained_lifter = types.SimpleNamespace(record=record, source=run_dir / "checkpoints")  # what score_threshold reads of a Lifter3D
+    assert score_threshold(trained_lifter, None) == 0.2
+    assert score_threshold(types.SimpleNamespace(record=None, source=tmp_path / "checkpoints"), None) == 0.05  # a run from before the record
+    assert score_threshold(trained_lifter, 0.05) == 0.05
     assert "--min-confidence 0.05 differs from the run's 0.2" in capsys.readouterr().err
 
 

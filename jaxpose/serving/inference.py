@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpose.training import checkpoint
-from jaxpose.training.run_directory import RECORD_FILE, RunDirectory, read_record
+from jaxpose.training.run_directory import RECORD_FILE, RunDirectory, RunRecord, read_record
 from jaxpose.camera import Cameras, masked_median, normalize_keypoints, undistort_points
 from jaxpose.training.config import ModelConfig
 from jaxpose.chunks import map_in_chunks
@@ -55,16 +55,16 @@ the image is missing.  Detectors do place truncated joints a little past the bor
 pixels away is a detector failure (docs/robust_input.md)."""
 
 
-def score_threshold(run: pathlib.Path, given: float | None) -> float:
-    """--min-confidence of `jaxpose.predict` and `jaxpose.export`: the value given, else the threshold the run
-    recorded it was trained with (its run.json), else `DEFAULT_MIN_CONFIDENCE`; a value given that differs
-    from the run's is said in one line."""
-    record = read_record(run)
-    trained = None if record is None else record.min_confidence
+def score_threshold(lifter: "Lifter3D", given: float | None) -> float:
+    """--min-confidence of `jaxpose.predict` and `jaxpose.export`: the value given, else the threshold the
+    lifter's run recorded it was trained with (`Lifter3D.record`), else `DEFAULT_MIN_CONFIDENCE`; a value
+    given that differs from the run's is said in one line."""
+    trained = None if lifter.record is None else lifter.record.min_confidence
     if given is None:
         return DEFAULT_MIN_CONFIDENCE if trained is None else trained
     if trained is not None and given != trained:
-        print(f"--min-confidence {given:g} differs from the run's {trained:g} ({run}/{RECORD_FILE}): using {given:g}", file=sys.stderr)
+        print(f"--min-confidence {given:g} differs from the run's {trained:g} ({lifter.source.parent}/{RECORD_FILE}): using {given:g}",
+              file=sys.stderr)  # fmt: skip
     return given
 
 
@@ -220,6 +220,9 @@ class Lifter3D:
     eval_step: Callable[..., jax.Array] = dataclasses.field(repr=False)
     batch_size: int = DEFAULT_BATCH_SIZE
     """The most poses per jitted call."""
+    record: RunRecord | None = None
+    """What its run was trained on (run.json: the score threshold, the layout, a rig project's settings),
+    for the commands that apply it; None for a run from before the record."""
 
     @functools.cached_property
     def flipped_eval_step(self) -> Callable[..., jax.Array]:
@@ -429,7 +432,7 @@ def _checkpoints_directory(path: pathlib.Path) -> pathlib.Path:
 def load(path: str | pathlib.Path, batch_size: int = DEFAULT_BATCH_SIZE) -> Lifter3D:
     """The lifter of a run: `path` is the run directory or its checkpoints/ directory.
 
-    Restores the newest readable checkpoint (on the default device).  Raises FileNotFoundError for a
+    Restores the newest readable checkpoint (on the default device), with the run's record (`Lifter3D.record`).  Raises FileNotFoundError for a
     missing run directory or checkpoints/, and `jaxpose.training.checkpoint.CheckpointError` when no step
     can be read.
     """
@@ -437,14 +440,15 @@ def load(path: str | pathlib.Path, batch_size: int = DEFAULT_BATCH_SIZE) -> Lift
     restored = checkpoint.restore_lifter(checkpoints, jax.sharding.SingleDeviceSharding(jax.devices()[0]))
     if restored is None:
         raise checkpoint.CheckpointError(f"{checkpoints} holds no checkpoint (the run saves its first one later)")
-    step, record, variables = restored
-    model = record.model.build(record.skeleton.num_joints)
+    step, network, variables = restored
+    model = network.model.build(network.skeleton.num_joints)
     return Lifter3D(
-        skeleton=record.skeleton,
-        model_config=record.model,
+        skeleton=network.skeleton,
+        model_config=network.model,
         variables=variables,
         step=step,
         source=checkpoints,
-        eval_step=make_eval_step(model, record.model),
+        eval_step=make_eval_step(model, network.model),
         batch_size=batch_size,
+        record=read_record(checkpoints.parent),
     )

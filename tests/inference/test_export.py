@@ -34,7 +34,7 @@ def _poses(test, count: int):
 def _threshold(exported, run_dir) -> float:
     """The score threshold the export put in the graph: the run's (`inference.score_threshold`), in the metadata."""
     threshold = json.loads(exported.with_suffix(".json").read_text())["min_confidence"]
-    assert threshold == inference.score_threshold(run_dir, None) == 0.05
+    assert threshold == inference.score_threshold(inference.load(run_dir), None) == 0.05
     return threshold
 
 
