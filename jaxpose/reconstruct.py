@@ -53,7 +53,7 @@ from jaxpose.reconstruction.motion_quality import motion_summary
 from jaxpose.reconstruction.trajectory import TrajectoryConfig
 from jaxpose.rig.project import RigProjectConfig, with_recorded_settings
 from jaxpose.training.run_directory import RECORD_FILE, RunRecord, read_record
-from jaxpose.rig.recordings import recording_folders
+from jaxpose.rig.recordings import find_project
 
 @dataclasses.dataclass(frozen=True)
 class ReconstructArgs:
@@ -108,10 +108,10 @@ def run(args: ReconstructArgs) -> dict:
         except ImportError:
             raise ImportError("--c3d needs ezc3d: pip install 'jaxpose[reconstruct]' (or pip install ezc3d)") from None
     args = with_the_runs_settings(args, read_record(args.checkpoint))  # before the outputs are checked: the record may name the project
-    names = [folder.name for folder in recording_folders(args.data.root, args.data.recordings)]
-    earlier = check_outputs(args, names)
+    found = find_project(args.data.root, args.data.recordings, args.data.calibration)
+    earlier = check_outputs(args, found.names)
     lifter = inference.load(args.checkpoint)
-    project = recording.load_every_instant(args.data, args.checkpoint, progress=args.progress)
+    project = recording.load_every_instant(args.data, args.checkpoint, args.progress, found)
     dataset = project.validation
     if tuple(dataset.skeleton.joint_names) != tuple(lifter.joint_names):
         raise ValueError(

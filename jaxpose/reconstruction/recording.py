@@ -33,23 +33,25 @@ import numpy as np
 
 from jaxpose.camera import Cameras
 from jaxpose.data.dataset import MultiViewDataset
-from jaxpose.formats.calibration_files import find_calibration, read_rig_calibration
+from jaxpose.formats.calibration_files import read_rig_calibration
 from jaxpose.serving.inference import Lifter3D
 from jaxpose.reconstruction.fusion import MIN_DEPTH_MM, Fusion, FusionConfig, Provenance, fuse
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, complete_segments, fill_gaps
 from jaxpose.reconstruction.trajectory import TrajectoryConfig, limb_lengths, solve_trajectory
 from jaxpose.rig.cameras import in_view_order
 from jaxpose.rig.project import RigProjectConfig, load_rig_project, prepared_project
-from jaxpose.rig.split import SPLIT_FIELDS, PreparedProject, RigProject, split
+from jaxpose.rig.cache import PreparedProject
+from jaxpose.rig.split import SPLIT_FIELDS, RigProject, split
 from jaxpose.training.run_directory import RECOVERED_SESSIONS_DIR, RunDirectory
-from jaxpose.rig.recordings import recording_folders
+from jaxpose.rig.recordings import FoundProject, find_project
 from jaxpose.skeleton import ROOT, Skeleton
 
 log = logging.getLogger(__name__)
 
 
-def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: bool = True) -> RigProject:
-    """The project with every instant of every recording (of --data.recordings) in its `validation` part.
+def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: bool = True, found: FoundProject | None = None) -> RigProject:
+    """The project with every instant of every recording (of --data.recordings) in its `validation` part;
+    `found`: its files as found already (`jaxpose.rig.recordings.find_project`), else found now.
 
     The calibration: --data.calibration where given; else RUN/recovered_cameras.json where the run was
     trained on a recovered rig (read from the prepared project the run was trained on where the cache still
@@ -61,29 +63,29 @@ def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: 
     if changed:
         flags = ", ".join("--data." + field.replace("_", "-") for field in changed)
         raise ValueError(f"{flags}: a reconstruction takes every instant of every recording; leave the split flags out")
-    names = tuple(folder.name for folder in recording_folders(data.root, data.recordings))
-    config = dataclasses.replace(data, validation_recordings=names)  # every instant: the cache's arrays themselves
+    found = found or find_project(data.root, data.recordings, data.calibration)
+    config = dataclasses.replace(data, validation_recordings=found.names)  # every instant: the cache's arrays themselves
     recovered = RunDirectory(pathlib.Path(run_dir)).recovered_cameras
     if data.calibration is None and recovered.is_file():
-        prepared = prepared_project(config, progress, prepare=False)  # the run's own, where the cache holds it
+        prepared = prepared_project(config, found, progress, prepare=False)  # the run's own, where the cache holds it
         if prepared is not None and _holds_rig(prepared, recovered):
             log.info("the run was trained on the rig recovered from the recordings, %s: the prepared project it was trained on", recovered)
             return split(prepared, config)
         log.info("the run was trained on the rig recovered from the recordings: its world frame, %s", recovered)
         config = dataclasses.replace(config, calibration=recovered)
-    elif data.calibration is None and find_calibration(data.root) is None:
+        found = dataclasses.replace(found, calibration=recovered)
+    elif not found.calibrated:
         sessions = recovered.parent / RECOVERED_SESSIONS_DIR
         if sessions.is_dir():
             raise ValueError(
                 f"{data.root}: no calibration file, and the run {run_dir} was trained on one recovered rig per session"
                 f" ({sessions}): pass the recordings' session's as --data.calibration {sessions}/SESSION.toml"
             )
-        if not all(find_calibration(data.root / name) for name in names):
-            raise ValueError(
-                f"{data.root}: no calibration file, and the run {run_dir} has no {recovered.name} (it was trained on"
-                " a calibrated project): pass --data.calibration; a rig recovered again would have another world frame"
-            )
-    return load_rig_project(config, progress=progress)
+        raise ValueError(
+            f"{data.root}: no calibration file, and the run {run_dir} has no {recovered.name} (it was trained on"
+            " a calibrated project): pass --data.calibration; a rig recovered again would have another world frame"
+        )
+    return load_rig_project(config, progress, found)
 
 
 def _holds_rig(prepared: PreparedProject, recovered: pathlib.Path) -> bool:

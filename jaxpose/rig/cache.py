@@ -41,6 +41,7 @@ import logging
 import os
 import shutil
 import struct
+import time
 import typing
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -50,6 +51,7 @@ import numpy as np
 
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.rig.recordings import printable
+from jaxpose.rig.sessions import RecoveredSession
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +61,60 @@ PART = "instants"  # the prepared arrays' file prefix
 SELECTION = "rows-"  # a split's rows, written once inside the prepared folder
 RECOVERED_JSON = "recovered.json"
 _HEADER_BYTES = 128  # a fixed-length .npy header: the row count is set at the end without moving the data
+
+
+@dataclasses.dataclass(frozen=True)
+class PreparedProject:
+    """Every instant of every recording prepared (`jaxpose.rig.project`'s steps 1-7), as the cache holds it:
+    the recordings one after the other, each on its time axis in order."""
+
+    meta: Mapping
+    """project.json: camera_names, layout, recordings (their summaries), ground_truth_seen, rigs, inputs."""
+    arrays: Mapping[str, np.ndarray]
+    """Per instant: keypoints2d, confidence, rig_index, subject, recording, frame, and target3d where some
+    recording has ground truth; memory-mapped from the cache, or in memory."""
+    sessions: tuple[RecoveredSession, ...]
+    """Without a calibration: the sessions and the rig recovered from each."""
+    folder: Path | None
+    """The prepared folder in the cache (None: prepared in memory)."""
+    how: str
+    """How the arrays were had: read from the cache, prepared and cached, or prepared in memory."""
+
+
+def lookup(cache: Path, cache_key: str, layout: str | None = None) -> PreparedProject | None:
+    """The prepared project of `cache_key` in the cache folder `cache` (of the keypoint layout `layout`, where
+    given), memory-mapped; None where there is none.  An unreadable one is removed with a warning (it is
+    jaxpose's own folder, and only a missed shortcut)."""
+    started = time.perf_counter()
+    prepared = folder(cache, cache_key)
+    if not prepared.is_dir():
+        return None
+    try:
+        meta, recovered = read_meta(prepared, _recovered_type(prepared))
+        arrays = read_arrays(prepared)[PART]
+        sessions = tuple(
+            RecoveredSession(**session | {"recordings": tuple(session["recordings"]), "calibration": recovered[session["name"]]})
+            for session in meta["sessions"]
+        )
+    except Exception as error:  # noqa: BLE001 - an unreadable cache is only a missed shortcut
+        log.warning("ignoring the unreadable prepared project %s (%s: %s); preparing it again", prepared, type(error).__name__, error)
+        shutil.rmtree(prepared, ignore_errors=True)
+        return None
+    if layout is not None and meta["layout"] != layout:
+        return None
+    log.info("prepared project read from the cache %s in %.1f s (%d recordings, %d instants); %s", prepared,
+             time.perf_counter() - started, len(meta["recordings"]), len(arrays["frame"]), size_note(cache))  # fmt: skip
+    return PreparedProject(meta, arrays, sessions, prepared, f"read from the cache {prepared}")
+
+
+def _recovered_type(prepared: Path) -> object | None:
+    """The type the cached recovered rigs decode to (session -> `Calibration`: the calibrate extra recovered
+    them), or None without them."""
+    if not (prepared / RECOVERED_JSON).exists():
+        return None
+    from jaxpose.calibration import Calibration
+
+    return dict[str, Calibration]
 
 
 def input_digests(groups: Mapping[str, Iterable[Path]]) -> dict[str, str]:
@@ -197,6 +253,17 @@ def _alive(pid: int) -> bool:
     except PermissionError:
         pass
     return True
+
+
+def finish(cache: Path, temporary: Path | None, cache_key: str, assembly: Assembly, meta: Mapping[str, Any],
+           sessions: tuple[RecoveredSession, ...]) -> PreparedProject:  # fmt: skip
+    """The prepared project whose arrays `assembly` holds: committed to the cache and memory-mapped from it,
+    or in memory where the cache cannot be written (`temporary` None)."""
+    in_memory = assembly.close()
+    if temporary is None:
+        return PreparedProject(meta, in_memory[PART], sessions, None, f"prepared in memory ({cache} cannot be written: not cached)")
+    final = commit(temporary, cache_key, meta, {session.name: session.calibration for session in sessions} or None)
+    return PreparedProject(meta, read_arrays(final)[PART], sessions, final, f"prepared and written to the cache {final}")
 
 
 def commit(temporary: Path, cache_key: str, meta: Mapping[str, Any], recovered: object | None) -> Path:

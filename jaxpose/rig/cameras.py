@@ -21,8 +21,8 @@ from jaxpose.formats.rig_cameras import (
 )
 from jaxpose.formats.camera_names import CameraMismatch, match_cameras
 from jaxpose.formats.errors import DataFormatError
-from jaxpose.formats.calibration_files import find_calibration, read_rig_calibration
-from jaxpose.rig.recordings import Recording
+from jaxpose.formats.calibration_files import read_rig_calibration
+from jaxpose.rig.recordings import FoundProject
 from jaxpose.skeleton import Skeleton
 
 log = logging.getLogger(__name__)
@@ -43,19 +43,17 @@ def _named_as_detections(calibration: RigCalibration, detection_names: set[str])
     return dataclasses.replace(calibration, camera_names=renamed)
 
 
-def find_calibrations(
-    recordings: Sequence[Recording], root: pathlib.Path, calibration: pathlib.Path | None, unit: CalibrationUnit
-) -> tuple[RigCalibration | None, dict[str, RigCalibration | None]]:
-    """Each recording's calibration: its own file, else `calibration` (--data.calibration), else the file
-    found in the project folder `root`.  Returns the project-wide one (None: none anywhere) and each
-    recording's by name (None for all: the rig is to be recovered)."""
-    project_file = calibration or find_calibration(root)
-    project = None if project_file is None else read_rig_calibration(project_file, unit)
+def read_calibrations(project_files: FoundProject, unit: CalibrationUnit) -> tuple[RigCalibration | None, dict[str, RigCalibration | None]]:
+    """Each recording's calibration: its own file, else the project's (`FoundProject.calibration`).  Returns
+    the project-wide one (None: none anywhere) and each recording's by name (None for all: the rig is to be
+    recovered)."""
+    recordings = project_files.recordings
+    project = None if project_files.calibration is None else read_rig_calibration(project_files.calibration, unit)
     if project is not None:
         project = _named_as_detections(project, set().union(*(recording.cameras for recording in recordings)))
     found: dict[str, RigCalibration | None] = {}
     for recording in recordings:
-        own = find_calibration(recording.folder)
+        own = recording.calibration
         found[recording.name] = project if own is None else _named_as_detections(read_rig_calibration(own, unit), set(recording.cameras))
     if project is not None:
         used = set().union(*(recording.cameras for recording in recordings if found[recording.name] is project))
@@ -68,7 +66,7 @@ def find_calibrations(
             )
     missing = [name for name, rig in found.items() if rig is None]
     if missing and len(missing) < len(recordings):
-        raise DataFormatError(root, "a calibration for every recording, or for none", f"none for recordings {missing}")
+        raise DataFormatError(project_files.root, "a calibration for every recording, or for none", f"none for recordings {missing}")
     return project, found
 
 

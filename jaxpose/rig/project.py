@@ -67,18 +67,13 @@ from jaxpose.formats.file_cache import CACHE_DIR
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.layouts import lifting_skeleton
 from jaxpose.rig import cache
-from jaxpose.rig.cameras import distinct_rigs, find_calibrations, in_view_order
+from jaxpose.rig.cameras import distinct_rigs, in_view_order, read_calibrations
 from jaxpose.rig.geometry import Rigs
 from jaxpose.rig.people import DEFAULT_THRESHOLD_PX
 from jaxpose.rig.preparation import Aligned, Phases, Preparation
-from jaxpose.rig.split import SPLIT_FIELDS, PreparedProject, RigProject, split
-from jaxpose.rig.recordings import (
-    Recording,
-    find_recording,
-    lifting_views,
-    read_detections,
-    recording_folders,
-)
+from jaxpose.rig.cache import PreparedProject
+from jaxpose.rig.split import SPLIT_FIELDS, RigProject, split
+from jaxpose.rig.recordings import FoundProject, Recording, find_project, lifting_views, read_detections
 from jaxpose.rig.sessions import RecoveredSession, recover_sessions
 from jaxpose.rig.timeline import (
     align,
@@ -164,48 +159,34 @@ class RigProjectConfig:
             raise ValueError("--data.train-stride and --data.validation-stride must be >= 1, --data.max-sync-offset >= 0")
 
 
-def load_rig_project(config: RigProjectConfig, progress: bool = True) -> RigProject:
+def load_rig_project(config: RigProjectConfig, progress: bool = True, found: FoundProject | None = None) -> RigProject:
     """Every recording of the project, read, aligned, calibrated and reduced to one person (see the module
-    docstring), or all that from the cache, split into training and validation parts (`split`)."""
-    names = [folder.name for folder in recording_folders(config.root, config.recordings)]
-    unknown = sorted(set(config.validation_recordings) - set(names))
+    docstring), or all that from the cache, split into training and validation parts (`split`).  `found`:
+    the project's files as found already (`jaxpose.rig.recordings.find_project`), else found now."""
+    found = found or find_project(config.root, config.recordings, config.calibration)
+    unknown = sorted(set(config.validation_recordings) - set(found.names))
     if unknown:  # before any work
-        raise ValueError(f"--data.validation-recordings {unknown}: no such recording (have {names})")
-    return split(prepared_project(config, progress), config)
+        raise ValueError(f"--data.validation-recordings {unknown}: no such recording (have {list(found.names)})")
+    return split(prepared_project(config, found, progress), config)
 
 
 def cache_folder(config: RigProjectConfig) -> pathlib.Path:
     """The project's cache: --data.cache-dir, else PROJECT/.jaxpose_cache."""
     return config.cache_dir if config.cache_dir is not None else config.root / CACHE_DIR
 
-def prepared_project(config: RigProjectConfig, progress: bool = True, prepare: bool = True) -> PreparedProject | None:
+
+def prepared_project(config: RigProjectConfig, found: FoundProject, progress: bool = True, prepare: bool = True) -> PreparedProject | None:
     """Every instant of the project from the cache, else prepared (and cached where the cache can be
     written); with `prepare` False, None where the cache does not hold it."""
-    started = time.perf_counter()
-    recordings = [find_recording(folder) for folder in recording_folders(config.root, config.recordings)]
-    inputs = cache.input_digests(_input_files(config, recordings))
+    inputs = cache.input_digests(_input_files(config, found))
     cache_key = cache.key(_options(config), inputs)
-    # A layout named (as a run records the one it resolved) reads what --data.skeleton auto prepared as it.
-    auto = [] if config.skeleton == "auto" else [cache.key(_options(dataclasses.replace(config, skeleton="auto")), inputs)]
-    for key in [cache_key, *auto]:
-        cached = cache.folder(cache_folder(config), key)
-        if not cached.is_dir():
-            continue
-        try:
-            meta, recovered = cache.read_meta(cached, _recovered_type(cached))
-            prepared = PreparedProject(meta, cache.read_arrays(cached)[cache.PART], _sessions(meta, recovered), cached, f"read from the cache {cached}")
-        except Exception as error:  # noqa: BLE001 - an unreadable cache is only a missed shortcut
-            log.warning("ignoring the unreadable prepared project %s (%s: %s); preparing it again", cached, type(error).__name__, error)
-            shutil.rmtree(cached, ignore_errors=True)  # jaxpose's own folder: replaced by the one prepared now
-            continue
-        if key != cache_key and meta["layout"] != config.skeleton:
-            continue
-        log.info("prepared project read from the cache %s in %.1f s (%d recordings, %d instants); %s", cached,
-                 time.perf_counter() - started, len(recordings), len(prepared.arrays["frame"]), cache.size_note(cached.parent))  # fmt: skip
+    prepared = cache.lookup(cache_folder(config), cache_key)
+    if prepared is None and config.skeleton != "auto":  # a layout named (as a run records the one it resolved) reads what auto prepared as it
+        auto = cache.key(_options(dataclasses.replace(config, skeleton="auto")), inputs)
+        prepared = cache.lookup(cache_folder(config), auto, layout=config.skeleton)
+    if prepared is not None or not prepare:
         return prepared
-    if not prepare:
-        return None
-    return _prepare(config, recordings, progress, cache_key, inputs)
+    return _prepare(config, found, progress, cache_key, inputs)
 
 
 def _options(config: RigProjectConfig) -> dict:
@@ -216,7 +197,7 @@ def _options(config: RigProjectConfig) -> dict:
     return options | {"parsed_frames": keypoint_files.CACHE_VERSION}
 
 
-def _input_files(config: RigProjectConfig, recordings: Sequence[Recording]) -> dict[str, list[pathlib.Path]]:
+def _input_files(config: RigProjectConfig, found: FoundProject) -> dict[str, list[pathlib.Path]]:
     """Every file loading may read, by group (`jaxpose.rig.cache.input_digests`): the project folder's
     files, --data.calibration with its siblings of the same kind (EasyMocap's extri.yml), and each
     recording's (its folder's files and every camera's detections), named by their absolute folders."""
@@ -227,7 +208,7 @@ def _input_files(config: RigProjectConfig, recordings: Sequence[Recording]) -> d
     groups = {f"project {config.root.resolve()}": plain_files(config.root)}
     if config.calibration is not None:
         groups[f"calibration {config.calibration.resolve()}"] = [config.calibration, *plain_files(config.calibration.parent, config.calibration.suffix)]
-    for recording in recordings:
+    for recording in found.recordings:
         files = plain_files(recording.folder)
         for source in recording.sources.values():
             files += plain_files(source, ".json") if source.is_dir() else [source]
@@ -235,10 +216,11 @@ def _input_files(config: RigProjectConfig, recordings: Sequence[Recording]) -> d
     return groups
 
 
-def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bool, cache_key: str, inputs: dict[str, str]) -> PreparedProject:
+def _prepare(config: RigProjectConfig, found: FoundProject, progress: bool, cache_key: str, inputs: dict[str, str]) -> PreparedProject:
     """Every instant of the project prepared from its recordings (`jaxpose.rig.preparation`), and cached."""
     started = time.perf_counter()
-    project_calibration, calibrations = find_calibrations(recordings, config.root, config.calibration, config.calibration_unit)
+    recordings = found.recordings
+    project_calibration, calibrations = read_calibrations(found, config.calibration_unit)
     present = set().union(*(recording.cameras for recording in recordings))
     if project_calibration is not None:
         camera_order = [name for name in project_calibration.camera_names if name in present]
@@ -278,7 +260,6 @@ def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bo
     )  # fmt: skip
     try:
         preparation.run(parts)
-        in_memory = preparation.assembly.close()
     except BaseException:
         if temporary is not None:
             shutil.rmtree(temporary, ignore_errors=True)
@@ -297,14 +278,10 @@ def _prepare(config: RigProjectConfig, recordings: list[Recording], progress: bo
         "rigs": {field: np.stack([np.asarray(getattr(c.cameras, field), np.float32) for c in rigs.calibrations]).tolist() for field in ("K", "R", "t")},
         "inputs": inputs,
     }
-    if temporary is None:
-        arrays, final, how = in_memory[cache.PART], None, f"prepared in memory ({cache_dir} cannot be written: not cached)"
-    else:
-        final = cache.commit(temporary, cache_key, meta, {session.name: session.calibration for session in sessions} or None)
-        arrays, how = cache.read_arrays(final)[cache.PART], f"prepared and written to the cache {final}"
-    note = "" if final is None else f"; {cache.size_note(cache_dir)}"
-    log.info("%d recordings (%d instants) %s in %.1f s%s", len(recordings), len(arrays["frame"]), how, time.perf_counter() - started, note)
-    return PreparedProject(meta, arrays, sessions, final, how)
+    prepared = cache.finish(cache_dir, temporary, cache_key, preparation.assembly, meta, sessions)
+    note = "" if prepared.folder is None else f"; {cache.size_note(cache_dir)}"
+    log.info("%d recordings (%d instants) %s in %.1f s%s", len(recordings), len(prepared.arrays["frame"]), prepared.how, time.perf_counter() - started, note)
+    return prepared
 
 
 def _aligned(
@@ -390,21 +367,3 @@ def with_recorded_settings(config: RigProjectConfig, recorded: dict, source: str
             flag = "--data." + field.name.replace("_", "-")
             notes.append(f"{flag} {given} differs from the run's {value} ({source}): using {given}")
     return dataclasses.replace(config, **changes), notes
-
-
-def _recovered_type(cached: pathlib.Path) -> object | None:
-    """The type the cached recovered rigs decode to (session -> `Calibration`: the calibrate extra
-    recovered them), or None without them."""
-    if not (cached / cache.RECOVERED_JSON).exists():
-        return None
-    from jaxpose.calibration import Calibration
-
-    return dict[str, Calibration]
-
-
-def _sessions(meta: Mapping, recovered: dict | None) -> tuple[RecoveredSession, ...]:
-    """The sessions of a cached prepared project, each with its recovered rig."""
-    return tuple(
-        RecoveredSession(**session | {"recordings": tuple(session["recordings"]), "calibration": recovered[session["name"]]})
-        for session in meta["sessions"]
-    )

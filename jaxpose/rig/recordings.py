@@ -1,7 +1,7 @@
-"""A rig project's recordings as read: the recording folders found, each camera's detections read
-(OpenPose JSON frames, COCO results or a ``detections.npz``), the keypoint layout decided, the
-detections brought onto the lifting skeleton, and a recording's ground truth on its instants
-(the folder is described in `jaxpose.rig.project`).
+"""A rig project's recordings as found and read: the recording folders and calibration files found
+(`find_project`), each camera's detections read (OpenPose JSON frames, COCO results or a
+``detections.npz``), the keypoint layout decided, the detections brought onto the lifting skeleton, and
+a recording's ground truth on its instants (the folder is described in `jaxpose.rig.project`).
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ Views = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
 
 @dataclasses.dataclass(frozen=True)
 class Recording:
-    """One recording as found (`find_recording`): its folder and where each camera's detections are."""
+    """One recording as found (`find_project`): its folder, where each camera's detections are, its own calibration."""
 
     name: str
     folder: pathlib.Path
@@ -49,6 +49,36 @@ class Recording:
     """Its cameras' names (detection folders, COCO files or the detections.npz's camera_names)."""
     sources: dict[str, pathlib.Path]
     """Camera -> its JSON folder or COCO file; {DETECTIONS_NPZ: path} for a detections.npz."""
+    calibration: pathlib.Path | None
+    """Its own calibration file (it overrides the project's), None without one."""
+
+
+@dataclasses.dataclass(frozen=True)
+class FoundProject:
+    """A project folder as found, nothing read but a detections.npz's camera names: its recordings and the
+    calibration files that give their rigs."""
+
+    root: pathlib.Path
+    recordings: tuple[Recording, ...]
+    calibration: pathlib.Path | None
+    """The rig of every recording without its own: --data.calibration, else the file found in the project
+    folder; None without either."""
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(recording.name for recording in self.recordings)
+
+    @property
+    def calibrated(self) -> bool:
+        """Whether any calibration file gives a rig (else the rig is recovered from the recordings)."""
+        return self.calibration is not None or any(recording.calibration is not None for recording in self.recordings)
+
+
+def find_project(root: pathlib.Path, names: Sequence[str] = (), calibration: pathlib.Path | None = None) -> FoundProject:
+    """The project's recordings (all, or those `names`: --data.recordings) and calibration files
+    (`calibration`: --data.calibration, else the one in the project folder)."""
+    recordings = tuple(find_recording(folder) for folder in recording_folders(root, names))
+    return FoundProject(root, recordings, calibration if calibration is not None else find_calibration(root))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,8 +145,9 @@ def recording_folders(root: pathlib.Path, names: Sequence[str] = ()) -> list[pat
     return folders
 
 
-def _camera_sources(folder: pathlib.Path, probe: bool = False) -> dict[str, pathlib.Path]:
-    """Camera name -> its detections (a JSON folder or a COCO results file); {DETECTIONS_NPZ: path} for the npz."""
+def _camera_sources(folder: pathlib.Path, calibration: pathlib.Path | None = None, probe: bool = False) -> dict[str, pathlib.Path]:
+    """Camera name -> its detections (a JSON folder or a COCO results file); {DETECTIONS_NPZ: path} for the
+    npz.  `calibration`: the folder's calibration file, which is no camera's detections."""
     if (folder / DETECTIONS_NPZ).is_file():
         return {DETECTIONS_NPZ: folder / DETECTIONS_NPZ}
     folders = {
@@ -124,7 +155,6 @@ def _camera_sources(folder: pathlib.Path, probe: bool = False) -> dict[str, path
         for entry in sorted(folder.iterdir())
         if not entry.name.startswith(".") and _is_dir(entry) and next(entry.glob("*.json"), None) is not None
     }
-    calibration = None if probe else find_calibration(folder)  # a recording's own camera file is no camera
     files = {
         entry.stem: entry for entry in sorted(folder.glob("*.json")) if not entry.name.startswith(".") and entry != calibration
     }
@@ -140,8 +170,10 @@ def _camera_sources(folder: pathlib.Path, probe: bool = False) -> dict[str, path
 
 
 def find_recording(folder: pathlib.Path) -> Recording:
-    """A recording folder's cameras and where their detections are (nothing read but a detections.npz's camera names)."""
-    sources = _camera_sources(folder)
+    """A recording folder's cameras, where their detections are and its own calibration file (nothing read
+    but a detections.npz's camera names)."""
+    calibration = find_calibration(folder)
+    sources = _camera_sources(folder, calibration)
     if DETECTIONS_NPZ in sources:
         cameras = detections_npz.read_camera_names(sources[DETECTIONS_NPZ])
     else:
@@ -152,7 +184,7 @@ def find_recording(folder: pathlib.Path) -> Recording:
         raise DataFormatError(
             folder, "detections of at least 2 cameras (multi-view geometry needs two views)", f"cameras {sorted(cameras)}"
         )
-    return Recording(name=folder.name, folder=folder, cameras=cameras, sources=sources)
+    return Recording(name=folder.name, folder=folder, cameras=cameras, sources=sources, calibration=calibration)
 
 
 def _npz_cameras(detections: detections_npz.MultiViewDetections) -> dict[str, CameraDetections]:

@@ -1,6 +1,6 @@
 """A prepared rig project split into training and validation parts: row selections of its instants.
 
-The prepared project (`PreparedProject`, `jaxpose.rig.project.prepared_project`) holds every instant of
+The prepared project (`jaxpose.rig.cache.PreparedProject`, `jaxpose.rig.project.prepared_project`) holds every instant of
 every recording, one recording after the other; a split takes, per recording, the whole recording as
 validation where --data.validation-recordings names it, else its final --data.validation-fraction, then
 every --data.train-stride-th / --data.validation-stride-th instant of each part (`split`).  Each part is
@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import pathlib
-from collections.abc import Mapping
 from typing import Protocol
 
 import numpy as np
@@ -23,6 +21,7 @@ from jaxpose.data import ground_truth
 from jaxpose.data.dataset import FrameContext, MultiViewDataset, consecutive_spans
 from jaxpose.layouts import lifting_skeleton
 from jaxpose.rig import cache
+from jaxpose.rig.cache import PreparedProject
 from jaxpose.rig.sessions import RecoveredSession
 
 log = logging.getLogger(__name__)
@@ -81,24 +80,6 @@ class RigProject:
     def recovered_calibration(self) -> object | None:
         """The `jaxpose.calibration.Calibration` recovered from the recordings of a project of one session."""
         return self.sessions[0].calibration if len(self.sessions) == 1 else None
-
-
-@dataclasses.dataclass(frozen=True)
-class PreparedProject:
-    """Every instant of every recording prepared (`jaxpose.rig.project`'s steps 1-7), as the cache holds it:
-    the recordings one after the other, each on its time axis in order."""
-
-    meta: Mapping
-    """project.json: camera_names, layout, recordings (their summaries), ground_truth_seen, rigs, inputs."""
-    arrays: Mapping[str, np.ndarray]
-    """Per instant: keypoints2d, confidence, rig_index, subject, recording, frame, and target3d where some
-    recording has ground truth; memory-mapped from the cache, or in memory."""
-    sessions: tuple[RecoveredSession, ...]
-    """Without a calibration: the sessions and the rig recovered from each."""
-    folder: pathlib.Path | None
-    """The prepared folder in the cache (None: prepared in memory)."""
-    how: str
-    """How the arrays were had: read from the cache, prepared and cached, or prepared in memory."""
 
 
 def split(prepared: PreparedProject, config: SplitConfig) -> RigProject:
