@@ -51,7 +51,7 @@ import numpy as np
 
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.rig.recordings import printable
-from jaxpose.rig.sessions import RecoveredSession
+from jaxpose.rig.recovered import RecoveredSession
 
 log = logging.getLogger(__name__)
 

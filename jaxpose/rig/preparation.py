@@ -27,7 +27,7 @@ from jaxpose.rig.cameras import check_unit_against_people
 from jaxpose.rig.cache import PART, Assembly
 from jaxpose.rig.recordings import Recording, ground_truth_on_instants
 from jaxpose.rig.recovered import ground_truth_into_recovered_world
-from jaxpose.rig.sync import SyncEstimate
+from jaxpose.rig.timeline import SyncEstimate
 from jaxpose.skeleton import Skeleton
 
 log = logging.getLogger(__name__)

@@ -27,11 +27,11 @@ What loading does to each recording, in order (one recording at a time: `jaxpose
    root first: `jaxpose.layouts.to_lifting_skeleton`); scores below `min_confidence` are
    treated as missing;
 3. aligns the cameras in time: camera c's frame f shows instant f + offset[c]; offsets given, or
-   estimated (`jaxpose.rig.timeline`, `jaxpose.rig.sync`); instants seen by no camera are absent, a
+   estimated (`jaxpose.rig.timeline`); instants seen by no camera are absent, a
    camera without a frame at an instant has confidence 0 there; every instant goes further (the split
    and the strides are applied to the prepared instants: `jaxpose.rig.split`);
 4. without any calibration, groups the recordings by rig (sessions: given by --data.sessions, else found
-   from the data) and recovers each session's rig from its recordings (`jaxpose.rig.sessions`);
+   from the data) and recovers each session's rig from its recordings (`jaxpose.rig.recovered`);
 5. undistorts the keypoints with the calibration (the data sets' rigs are then pinhole);
 6. keeps one person per instant, the one the views agree on (`jaxpose.rig.people`), and checks a
    calibration read without a stated unit against that person's limbs;
@@ -74,7 +74,7 @@ from jaxpose.rig.preparation import Aligned, Phases, Preparation
 from jaxpose.rig.cache import PreparedProject
 from jaxpose.rig.split import SPLIT_FIELDS, RigProject, split
 from jaxpose.rig.recordings import FoundProject, Recording, find_project, lifting_views, read_detections
-from jaxpose.rig.sessions import RecoveredSession, recover_sessions
+from jaxpose.rig.recovered import RecoveredSession, recover_sessions
 from jaxpose.rig.timeline import (
     align,
     estimate_recording_offsets,

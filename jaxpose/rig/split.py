@@ -22,7 +22,7 @@ from jaxpose.data.dataset import FrameContext, MultiViewDataset, consecutive_spa
 from jaxpose.layouts import lifting_skeleton
 from jaxpose.rig import cache
 from jaxpose.rig.cache import PreparedProject
-from jaxpose.rig.sessions import RecoveredSession
+from jaxpose.rig.recovered import RecoveredSession
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +70,7 @@ class RigProject:
     ground_truth_joints: tuple[str, ...]
     """The lifting skeleton's joints that the ground truth has (empty without ground truth)."""
     sessions: tuple[RecoveredSession, ...] = ()
-    """Without a calibration: the sessions and the rig recovered from each (`jaxpose.rig.sessions`)."""
+    """Without a calibration: the sessions and the rig recovered from each (`jaxpose.rig.recovered`)."""
     prepared: str = ""
     """How the prepared arrays were had: read from the cache, prepared and cached, or prepared in memory."""
     warnings: tuple[str, ...] = ()

@@ -19,7 +19,7 @@ from jaxpose.formats.calibration_files import read_rig_calibration
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.rig.people import choose_person
 from jaxpose.rig.project import RigProjectConfig, load_rig_project
-from jaxpose.rig.sync import estimate_offsets
+from jaxpose.rig.timeline import estimate_offsets
 from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
 from jaxpose.formats.trc import read_trc
 import paths

@@ -1,5 +1,5 @@
 """A project without calibration whose cameras moved between recordings: the sessions, each with its own
-recovered rig (`jaxpose.rig.sessions`), through the real loader (`load_rig_project`).
+recovered rig (`jaxpose.rig.recovered`), through the real loader (`load_rig_project`).
 
 The project: the simulated room (rig A) and the same room with every camera moved by 100-500 mm and turned
 by 1-3 degrees (rig B, `jaxpose.synthetic.sessions.moved_rig`); recordings of one subject written as
@@ -16,7 +16,7 @@ from jaxpose.calibration import compare_rigs
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_folder import DETECTIONS_NPZ, GROUND_TRUTH_NPZ, write_ground_truth
 from jaxpose.rig.project import RigProjectConfig, load_rig_project
-from jaxpose.rig.sessions import parse_sessions
+from jaxpose.rig.recovered import parse_sessions
 from jaxpose.skeleton import H36M_17
 from jaxpose.synthetic import SyntheticConfig, make_rig, sample_bone_lengths, sample_motion
 from jaxpose.synthetic.sessions import moved_rig, record
@@ -159,7 +159,7 @@ def _calibration(shift_mm: float):
 
 def test_the_report_lists_the_sessions_and_each_rigs_reprojection():
     from experiments.rig import session_notes
-    from jaxpose.rig.sessions import RecoveredSession
+    from jaxpose.rig.recovered import RecoveredSession
 
     sessions = (RecoveredSession("session1", ("a1", "a2"), 4.25, "data", _calibration(0.0)), RecoveredSession("session2", ("b1",), 5.5, "data", _calibration(300.0)))
     notes = session_notes(sessions)
