@@ -61,9 +61,9 @@ def read_rig_calibration(
         raise DataFormatError(path, ACCEPTED, "not a regular file")
     if path.is_dir():
         found = find_calibration(path)
+        if found is None and (path / "extri.yml").is_file():
+            found = path / "extri.yml"  # EasyMocap's reader says that intri.yml is missing
         if found is None:
-            if (path / "extri.yml").is_file():
-                return easymocap_yaml.read_easymocap(path, unit)  # says that intri.yml is missing
             names = sorted(entry.name for entry in path.iterdir())
             raise DataFormatError(path, f"a folder holding {ACCEPTED}", f"none among {names[:30]}")
         path = found
