@@ -12,13 +12,15 @@ is no faster than float32, so jaxpose offers no bf16 switch.
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import tyro
 
 from benchmarks.train_step import medians, timed_rounds
 
@@ -30,10 +32,16 @@ def bf16_instruction_sets() -> list[str]:
     return sorted(flag for flag in flags.split() if "bf16" in flag or flag.startswith("amx"))
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--rounds", type=int, default=5, help="timed calls of each program after warm-up")
-    args = parser.parse_args()
+@dataclasses.dataclass(frozen=True)
+class Args:
+    """The benchmark's flags."""
+
+    rounds: int = 5
+    """Timed calls of each program after warm-up (the median is reported)."""
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = tyro.cli(Args, args=argv, description=__doc__, prog="python -m benchmarks.bf16_matmul")
     rng = np.random.default_rng(0)
     x = jnp.asarray(rng.standard_normal((ROWS, FAN_IN)), jnp.float32)
     w = jnp.asarray(rng.standard_normal((FAN_IN, FAN_OUT)), jnp.float32)
