@@ -11,15 +11,20 @@ the machine's core count, and a JSON line of the same.
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import json
 import os
 import pathlib
 import time
+from collections.abc import Sequence
+from typing import Annotated
 
 import numpy as np
+import tyro
 
 from jaxpose.serving import inference
+
+
 def seconds_per_call(lifter: inference.Lifter3D, count: int, repeats: int) -> dict[str, float]:
     """Median seconds of `predict` on `count` poses, plain and flipped, over `repeats` alternating calls."""
     rng = np.random.default_rng(count)
@@ -35,12 +40,20 @@ def seconds_per_call(lifter: inference.Lifter3D, count: int, repeats: int) -> di
     return {name: float(np.median(values)) for name, values in times.items()}
 
 
-def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--run", type=pathlib.Path, required=True, help="run directory of the lifter timed")
-    parser.add_argument("--poses", type=int, nargs="+", default=[1, 64, 1024, 16384], help="poses per predict call")
-    parser.add_argument("--repeats", type=int, default=15, help="timed calls of each kind per size (the median is reported)")
-    args = parser.parse_args(argv)
+@dataclasses.dataclass(frozen=True)
+class Args:
+    """The benchmark's flags."""
+
+    run: Annotated[pathlib.Path, tyro.conf.arg(metavar="RUN")]
+    """Run directory of the lifter timed."""
+    poses: tuple[int, ...] = (1, 64, 1024, 16384)
+    """Poses per `predict` call: one measurement for each."""
+    repeats: int = 15
+    """Timed calls of each kind per size (the median is reported)."""
+
+
+def main(argv: Sequence[str] | None = None) -> dict:
+    args = tyro.cli(Args, args=argv, description=__doc__, prog="python -m benchmarks.flip_inference")
     lifter = inference.load(args.run)
     seconds = {count: seconds_per_call(lifter, count, args.repeats) for count in args.poses}
     cores = len(os.sched_getaffinity(0))
