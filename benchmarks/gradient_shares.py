@@ -12,22 +12,29 @@ that a change of load on a shared machine hits both; medians of wall and process
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import os
 import statistics
+from collections.abc import Sequence
 
 import jax
+import tyro
 
 from benchmarks.train_step import synthetic_batch, timed_rounds
 from experiments.synthetic import DEFAULT
 from jaxpose.training.step import init_train_state, jit_train_step, make_train_step
 
 
-def main(argv=None) -> dict[str, float]:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.gradient_shares", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--rounds", type=int, default=60, help="timed calls of each step (after one warm-up call)")
-    args = parser.parse_args(argv)
+@dataclasses.dataclass(frozen=True)
+class Args:
+    """The benchmark's flags."""
+
+    rounds: int = 60
+    """Timed calls of each step after one warm-up call (the median is reported)."""
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, float]:
+    args = tyro.cli(Args, args=argv, description=__doc__, prog="python -m benchmarks.gradient_shares")
     model_config, loss_config = DEFAULT.model, dataclasses.replace(DEFAULT.loss, output_triangulation_start=0.0)
     model = model_config.build(17)
     optimizer = DEFAULT.optimizer.build(10_000)
