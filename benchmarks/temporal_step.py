@@ -12,13 +12,16 @@ Each lifter is WINDOW:STAGES (`--model.temporal-window`, `--model.stages`); the 
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import json
 import os
 import time
+from collections.abc import Sequence
+from typing import Annotated
 
 import jax
 import numpy as np
+import tyro
 
 from jaxpose.training import pseudo_labelling
 from jaxpose.training.config import RESCALED_LOSS, ModelConfig, OptimizerConfig, PseudoLabelConfig
@@ -46,14 +49,22 @@ def step_seconds(dataset, window: int, stages: int, batch_size: int, width: int,
     return float(np.median(times))
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--batch-size", type=int, default=128, help="multi-view samples per step (the dev / cpu presets: 128)")
-    parser.add_argument("--width", type=int, default=512, help="lifter width (the presets: 512)")
-    parser.add_argument("--lifters", nargs="+", default=["1:2", "3:2", "9:2", "27:2", "9:1", "27:1", "1:1"],
-                        help="WINDOW:STAGES of each lifter to time; the first is the reference")
-    parser.add_argument("--steps", type=int, default=40, help="timed steps per lifter")
-    args = parser.parse_args()
+@dataclasses.dataclass(frozen=True)
+class Args:
+    """The benchmark's flags."""
+
+    batch_size: int = 128
+    """Multi-view samples per step (the dev / cpu presets: 128)."""
+    width: int = 512
+    """Lifter width (the presets: 512)."""
+    lifters: Annotated[tuple[str, ...], tyro.conf.arg(metavar="WINDOW:STAGES [...]")] = ("1:2", "3:2", "9:2", "27:2", "9:1", "27:1", "1:1")
+    """WINDOW:STAGES of each lifter to time; the first is the reference."""
+    steps: int = 40
+    """Timed steps per lifter (the median is reported)."""
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = tyro.cli(Args, args=argv, description=__doc__, prog="python -m benchmarks.temporal_step")
     dataset = generate(SyntheticConfig())
     dataset = pseudo_labelling.label(dataset.subset(np.arange(20000)), PseudoLabelConfig(method="normal"))
     lifters = [tuple(int(v) for v in lifter.split(":")) for lifter in args.lifters]
