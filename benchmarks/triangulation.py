@@ -16,14 +16,16 @@ All timings are medians of `--rounds` interleaved calls after warm-up, wall and 
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import json
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import tyro
 
 from benchmarks.train_step import PAPER, environment, medians, timed_rounds
 from jaxpose.camera import projection_matrices
@@ -86,13 +88,20 @@ def markdown(result: dict) -> str:
     return "\n".join(lines)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--quick", action="store_true", help="1024 samples instead of the paper's 8192")
-    parser.add_argument("--out", type=Path, default=ROOT / "runs" / "benchmarks" / "triangulation.json")
-    parser.add_argument("--rounds", type=int, default=7)
-    args = parser.parse_args()
+@dataclasses.dataclass(frozen=True)
+class Args:
+    """The benchmark's flags."""
 
+    quick: bool = False
+    """1024 samples instead of the paper's 8192."""
+    out: Path = ROOT / "runs" / "benchmarks" / "triangulation.json"
+    """JSON results (a markdown table is written beside it)."""
+    rounds: int = 7
+    """Timed calls of each program after warm-up (the median is reported)."""
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = tyro.cli(Args, args=argv, description=__doc__, prog="python -m benchmarks.triangulation")
     start = time.perf_counter()
     num_samples = 1024 if args.quick else PAPER[0]
     P, pixels, truth = exact_views(num_samples, PAPER[1])
