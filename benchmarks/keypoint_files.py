@@ -16,16 +16,18 @@ A real project of 4 cameras x 30 min x 60 fps holds ~430k such files.
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import json
 import os
 import platform
 import statistics
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+import tyro
 
 from jaxpose.formats import fast_json, keypoint_files
 
@@ -52,12 +54,20 @@ def write_frames(folder: Path, count: int, seed: int = 0) -> int:
     return size
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--frames", type=int, default=20000)
-    parser.add_argument("--rounds", type=int, default=3)
-    parser.add_argument("--out", type=Path, default=ROOT / "runs" / "benchmarks" / "keypoint_files.json")
-    args = parser.parse_args()
+@dataclasses.dataclass(frozen=True)
+class Args:
+    """The benchmark's flags."""
+
+    frames: int = 20000
+    """OpenPose frames (files) written to the folder read."""
+    rounds: int = 3
+    """Timed reads of each kind (the median is reported)."""
+    out: Path = ROOT / "runs" / "benchmarks" / "keypoint_files.json"
+    """The JSON result."""
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = tyro.cli(Args, args=argv, description=__doc__, prog="python -m benchmarks.keypoint_files")
     cores = os.cpu_count()
     orjson_loads = fast_json.orjson_loads
 
