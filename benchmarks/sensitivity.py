@@ -27,13 +27,16 @@ Writes a JSON of every number (--out) and prints markdown tables.
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import json
 import pathlib
 import sys
 import time
+from collections.abc import Sequence
+from typing import Annotated
 
 import numpy as np
+import tyro
 
 ROOT_DIR = pathlib.Path(__file__).resolve().parents[1]
 if str(ROOT_DIR) not in sys.path:
@@ -181,19 +184,32 @@ def wild_joint_errors(lifter, data_dir: pathlib.Path, reject: float, flip: bool 
     return result
 
 
-def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--run", type=pathlib.Path, action="append", required=True, help="run directory (repeatable)")
-    parser.add_argument("--data-dir", type=pathlib.Path, required=True, help="h36m.zip tree holding S1 and cameras.h5")
-    parser.add_argument("--poses", type=int, default=200, help="test poses (one view each)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--margin", type=float, default=inference.DEFAULT_OUTSIDE_MARGIN, help="--outside-margin of predict")
-    parser.add_argument(
-        "--reject", type=float, default=inference.DEFAULT_INCONSISTENT_RESIDUAL, help="--reject-inconsistent of predict"
-    )
-    parser.add_argument("--flip", action="store_true", help="lift with test-time flip (predict's --flip) in every pass")
-    parser.add_argument("--out", type=pathlib.Path, default=pathlib.Path("runs/benchmarks/sensitivity.json"))
-    args = parser.parse_args(argv)
+@dataclasses.dataclass(frozen=True)
+class Args:
+    """The benchmark's flags."""
+
+    run: Annotated[tuple[pathlib.Path, ...], tyro.conf.UseAppendAction, tyro.conf.arg(metavar="RUN")]
+    """Run directory of a lifter measured (at least one: --run A --run B ...)."""
+    data_dir: Annotated[pathlib.Path, tyro.conf.arg(metavar="DIR")]
+    """The h36m.zip tree holding S1 and cameras.h5."""
+    poses: int = 200
+    """Test poses (one view each)."""
+    seed: int = 0
+    """Seed of the poses drawn and of the displacements."""
+    margin: float = inference.DEFAULT_OUTSIDE_MARGIN
+    """--outside-margin of predict: a keypoint beyond it is missing (the missing-keypoint policy)."""
+    reject: float = inference.DEFAULT_INCONSISTENT_RESIDUAL
+    """--reject-inconsistent of predict: the residual above which the worst-fitting joint is rejected."""
+    flip: bool = False
+    """Lift with test-time flip (predict's --flip) in every pass."""
+    out: pathlib.Path = pathlib.Path("runs/benchmarks/sensitivity.json")
+    """The JSON of every number."""
+
+
+def main(argv: Sequence[str] | None = None) -> dict:
+    args = tyro.cli(Args, args=argv, description=__doc__, prog="python benchmarks/sensitivity.py")
+    if not args.run:
+        raise SystemExit("python benchmarks/sensitivity.py: error: --run RUN is required (repeatable)")
     gt = dev_split(args.data_dir, "gt")
     conditions = (*DISPLACEMENTS_PX, "corner+500", "outside")
     report = {"image_size": IMAGE_SIZE, "margin": args.margin, "flip": args.flip, "runs": {}}
