@@ -10,7 +10,7 @@ peak RSS is the loader's, not the writer's) and reports wall time and peak RSS
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -19,7 +19,11 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Annotated
+
+import tyro
 
 ROOT = Path(__file__).resolve().parents[1]
 SUBJECTS = ("S1", "S5", "S6", "S7", "S8", "S9", "S11")
@@ -79,22 +83,30 @@ def measure(data_dir: str, detections: str, stride: int) -> dict:
     }
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", type=Path, default=ROOT / "runs" / "benchmarks" / "h36m_loading.json")
-    parser.add_argument("--data-dir", type=Path, help="reuse a tree written before (default: write one to a temp dir)")
-    parser.add_argument("--frames-per-sequence", type=int, default=2400)
-    # Internal: the steps run in child processes, because Linux carries a parent's peak RSS over
-    # into the getrusage of a child it forks.
-    parser.add_argument("--write", nargs=2, metavar=("DIR", "FRAMES"), help=argparse.SUPPRESS)
-    parser.add_argument("--measure", nargs=3, metavar=("DIR", "DETECTIONS", "STRIDE"), help=argparse.SUPPRESS)
-    args = parser.parse_args()
+@dataclasses.dataclass(frozen=True)
+class Args:
+    """The benchmark's flags.  --write and --measure are its own steps, each run in a child process, because
+    Linux carries a parent's peak RSS over into the getrusage of a child it forks."""
+
+    out: Path = ROOT / "runs" / "benchmarks" / "h36m_loading.json"
+    """The JSON result."""
+    data_dir: Annotated[Path | None, tyro.conf.arg(metavar="DIR")] = None
+    """A tree written before, to reuse (None: write one to a temporary folder)."""
+    frames_per_sequence: int = 2400
+    """Frames of every synthetic sequence, 50 fps."""
+    write: Annotated[tuple[Path, int] | None, tyro.conf.arg(metavar="DIR FRAMES")] = None
+    """Internal, a child process: write the tree to DIR, FRAMES per sequence, and print what was written."""
+    measure: Annotated[tuple[str, str, int] | None, tyro.conf.arg(metavar="DIR DETECTIONS STRIDE")] = None
+    """Internal, a child process: load the tree in DIR with DETECTIONS at STRIDE and print the time and peak RSS."""
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = tyro.cli(Args, args=argv, description=__doc__, prog="python benchmarks/h36m_loading.py")
     if args.write:
-        print(json.dumps(write_tree(Path(args.write[0]), int(args.write[1]))))
+        print(json.dumps(write_tree(*args.write)))
         return
     if args.measure:
-        data_dir, detections, stride = args.measure
-        print(json.dumps(measure(data_dir, detections, int(stride))))
+        print(json.dumps(measure(*args.measure)))
         return
 
     def child(*step) -> dict:
