@@ -30,7 +30,7 @@ the ten-times project trains within 4 GiB.
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -41,7 +41,11 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Annotated
+
+import tyro
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGETS = {"cold_seconds": 30.0, "cold_peak_rss_gib": 2.0, "warm_seconds": 10.0, "compilations": 20}
@@ -169,17 +173,28 @@ def memory_limited(limit_gib: float) -> tuple[Path | None, str]:
         return None, f"no memory cgroup could be made ({error}): peaks measured, no limit enforced"
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", type=Path, default=ROOT / "runs" / "benchmarks" / "rig_loading.json")
-    parser.add_argument("--keep", type=Path, help="write the data here and keep it (default: a temporary folder)")
-    parser.add_argument("--frames-per-sequence", type=int, default=2400)
-    parser.add_argument("--ten-times", action="store_true", help="also a project of ten copies of every recording")
-    parser.add_argument("--train-steps", type=int, default=200, help="with --ten-times: train the ten-times project this many steps under --memory-limit")
-    parser.add_argument("--memory-limit", type=float, default=4.0, help="GiB: the ten-times training's memory cgroup limit (issue 33's target)")
-    # Internal: every step runs in a child process, so that its peak RSS is its own.
-    parser.add_argument("--step", nargs="+", help=argparse.SUPPRESS)
-    args = parser.parse_args()
+@dataclasses.dataclass(frozen=True)
+class Args:
+    """The benchmark's flags.  --step is its own steps, each run in a child process so that its peak RSS is its own."""
+
+    out: Path = ROOT / "runs" / "benchmarks" / "rig_loading.json"
+    """The JSON result."""
+    keep: Annotated[Path | None, tyro.conf.arg(metavar="DIR")] = None
+    """Write the data here and keep it (None: a temporary folder); data already there is used again."""
+    frames_per_sequence: int = 2400
+    """Frames of every synthetic sequence, 50 fps."""
+    ten_times: bool = False
+    """Also a project of ten copies of every recording."""
+    train_steps: int = 200
+    """With --ten-times: train the ten-times project this many steps under --memory-limit (0: no training)."""
+    memory_limit: float = 4.0
+    """GiB: the ten-times training's memory cgroup limit (issue 33's target)."""
+    step: Annotated[tuple[str, ...], tyro.conf.arg(metavar="KIND [VALUE ...]")] = ()
+    """Internal, a child process: one step and its values (KIND: write-h36m, write-rig, copy-ten-times, rig, h36m, train)."""
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = tyro.cli(Args, args=argv, description=__doc__, prog="python benchmarks/rig_loading.py")
     if args.step:
         kind, *values = args.step
         sys.path.insert(0, str(ROOT))
