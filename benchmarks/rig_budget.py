@@ -22,7 +22,7 @@ ratios of the rig runs' times to the Human3.6M run's.  About an hour on 2 cores.
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -32,7 +32,11 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Annotated
+
+import tyro
 
 from jaxpose.training.run_directory import RunDirectory
 
@@ -96,13 +100,22 @@ def markdown(runs: list[dict], h36m_seconds: float) -> str:
     return "\n".join(lines)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", type=Path, default=ROOT / "runs" / "benchmarks" / "rig_budget.json", help="the JSON result")
-    parser.add_argument("--keep", type=Path, help="write the data and the runs here and keep them (default: a temporary folder)")
-    parser.add_argument("--frames-per-sequence", type=int, default=TRAINING_FRAMES_PER_SEQUENCE, help="frames of every synthetic sequence, 50 fps")
-    parser.add_argument("--flags", default="", help="more flags for every run, one string (e.g. --flags='--train.max-steps 200')")
-    args = parser.parse_args()
+@dataclasses.dataclass(frozen=True)
+class Args:
+    """The benchmark's flags."""
+
+    out: Path = ROOT / "runs" / "benchmarks" / "rig_budget.json"
+    """The JSON result."""
+    keep: Annotated[Path | None, tyro.conf.arg(metavar="DIR")] = None
+    """Write the data and the runs here and keep them (None: a temporary folder); data already there is used again."""
+    frames_per_sequence: int = TRAINING_FRAMES_PER_SEQUENCE
+    """Frames of every synthetic sequence, 50 fps."""
+    flags: str = ""
+    """More flags for every run, one string given with = (e.g. --flags='--train.max-steps 200')."""
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = tyro.cli(Args, args=argv, description=__doc__, prog="python benchmarks/rig_budget.py")
 
     flags = shlex.split(args.flags)
     with tempfile.TemporaryDirectory(prefix="rig_budget_") as scratch:
