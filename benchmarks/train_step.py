@@ -28,7 +28,6 @@ what was used.  `--untuned-paper` adds a row for the paper configuration without
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import importlib.metadata
 import importlib.util
@@ -40,12 +39,14 @@ import statistics
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Annotated
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import tyro
 
 from jaxpose.training import pseudo_labelling
 from jaxpose.training.config import LossConfig, ModelConfig, OptimizerConfig
@@ -53,6 +54,7 @@ from jaxpose.data.batch import MultiViewBatch
 from jaxpose.synthetic import SyntheticConfig, generate
 from jaxpose.losses import total_loss
 from jaxpose.training.step import init_train_state, jit_train_step, make_train_step
+from jaxpose.triangulation import Method
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = (8192, 4)  # (samples per batch, views)
@@ -279,25 +281,35 @@ def markdown(records: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--quick", action="store_true", help="smaller sweep, PyTorch eager only, at B=256 (under 2 minutes)")
-    parser.add_argument(
-        "--out", type=Path, default=ROOT / "runs" / "benchmarks" / "train_step.json",
-        help="JSON results (a markdown table is written beside it)",
-    )  # fmt: skip
-    parser.add_argument("--rounds", type=int, default=5, help="timed steps per program after warm-up")
-    parser.add_argument("--no-torch", action="store_true", help="skip the PyTorch reference")
-    parser.add_argument("--torch-all", action="store_true", help="time PyTorch at every configuration")
-    parser.add_argument("--untuned", action="store_true", help="run the workers without TUNED_ENV")
-    parser.add_argument("--untuned-paper", action="store_true", help="add the paper configuration without TUNED_ENV")
-    parser.add_argument(
-        "--solver", default=LossConfig.triangulation, choices=("svd", "eigh", "normal"),
-        help="solver of the output triangulation in the step (the training default: normal)",
-    )  # fmt: skip
-    parser.add_argument("--worker", help=argparse.SUPPRESS)
-    parser.add_argument("--worker-torch", default="", help=argparse.SUPPRESS)
-    args = parser.parse_args()
+@dataclasses.dataclass(frozen=True)
+class Args:
+    """The benchmark's flags.  --worker and --worker-torch make this process one configuration's worker."""
+
+    quick: bool = False
+    """Smaller sweep, PyTorch eager only, at B=256 (under 2 minutes)."""
+    out: Path = ROOT / "runs" / "benchmarks" / "train_step.json"
+    """JSON results (a markdown table is written beside it)."""
+    rounds: int = 5
+    """Timed steps per program after warm-up (the median is reported)."""
+    torch: bool = True
+    """Time the PyTorch reference (--no-torch skips it)."""
+    torch_all: bool = False
+    """Time PyTorch at every configuration."""
+    untuned: bool = False
+    """Run the workers without TUNED_ENV."""
+    untuned_paper: bool = False
+    """Add the paper configuration without TUNED_ENV."""
+    solver: Method = LossConfig.triangulation
+    """Solver of the output triangulation in the step (the training default: normal)."""
+    worker: Annotated[str | None, tyro.conf.arg(metavar="B,C")] = None
+    """Internal, a worker process: measure the configuration of B samples x C views and print it as JSON."""
+    worker_torch: Annotated[str, tyro.conf.arg(metavar="MODES")] = ""
+    """Internal, with --worker: the PyTorch modes timed beside it, comma-separated (eager, compile)."""
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = tyro.cli(Args, args=argv, description=__doc__, prog="python -m benchmarks.train_step")
 
     if args.worker:
         batch_size, num_views = (int(v) for v in args.worker.split(","))
@@ -305,7 +317,7 @@ def main() -> None:
         print(json.dumps(measure(batch_size, num_views, args.rounds, torch_modes, args.solver)))
         return
 
-    torch_modes = () if args.no_torch else ("eager",) if args.quick else ("eager", "compile")
+    torch_modes = () if not args.torch else ("eager",) if args.quick else ("eager", "compile")
     if torch_modes and importlib.util.find_spec("torch") is None:
         torch_modes = ()
         print("PyTorch not importable: no reference timings (pip install -e '.[bench]')", file=sys.stderr)
@@ -324,7 +336,7 @@ def main() -> None:
         print(markdown([record]).splitlines()[-1], flush=True)
     info["load_average_end"] = os.getloadavg()
     result = {
-        "command": " ".join([Path(sys.executable).name, "-m", "benchmarks.train_step", *sys.argv[1:]]),
+        "command": " ".join([Path(sys.executable).name, "-m", "benchmarks.train_step", *argv]),
         "environment": info,
         "total_s": time.perf_counter() - start,
         "results": records,
