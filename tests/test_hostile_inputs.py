@@ -569,3 +569,65 @@ def test_a_full_disk_a_read_only_folder_and_a_device_are_one_line_each(tmp_path,
     (tmp_path / "calibration.toml").symlink_to("/dev/zero")
     with pytest.raises(DataFormatError, match="not a regular file"):
         read_rig_calibration(tmp_path / "calibration.toml")
+
+
+_WITHOUT_A_SIZE_LIMIT = """
+import jax, jax.numpy as jnp
+for n in (1, 2, 3):
+    jax.jit(lambda x: jnp.sin(x) * n)(jnp.ones(n)).block_until_ready()
+"""
+_JAXPOSE = """
+import jax, jax.numpy as jnp
+from jaxpose.compilation_cache import enable_compilation_cache
+enable_compilation_cache()
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)  # these programs compile in milliseconds
+for n in (4, 5, 6):
+    jax.jit(lambda x: jnp.cos(x) * n)(jnp.ones(n)).block_until_ready()
+"""
+
+
+@pytest.mark.processes
+def test_a_compilation_cache_written_without_a_size_limit_fails_no_later_write(tmp_path):
+    """Issue 42 case 10, the reproduction: a process without a size limit on the shared cache
+    (JAX_COMPILATION_CACHE_DIR naming it, an earlier jaxpose, JAX without filelock) writes programs without
+    the access-time file that JAX's eviction reads for every program; every jaxpose process (which has the
+    limit) then printed "Error writing persistent compilation cache entry" at every compilation and cached
+    nothing.  Now jaxpose writes its programs, each program has its access time, and those there before are
+    unchanged."""
+    from python_process import run_python
+
+    from jaxpose.compilation_cache import ACCESS_TIME, PROGRAM, WRITE_ERROR
+
+    folder = tmp_path / "xla"
+    other = run_python(_WITHOUT_A_SIZE_LIMIT, tmp_path, JAX_COMPILATION_CACHE_DIR=str(folder), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0")
+    assert other.returncode == 0, other.stderr
+    before = {path.name: path.read_bytes() for path in folder.iterdir()}
+    assert any(name.endswith(PROGRAM) for name in before) and not any(name.endswith(ACCESS_TIME) for name in before)
+    ours = run_python(_JAXPOSE, tmp_path, JAXPOSE_COMPILATION_CACHE=str(folder))
+    assert ours.returncode == 0 and WRITE_ERROR not in ours.stderr and "could not take a program" not in ours.stderr, ours.stderr
+    programs = {path.name.removesuffix(PROGRAM) for path in folder.glob(f"*{PROGRAM}")}
+    assert len(programs) > sum(name.endswith(PROGRAM) for name in before)  # jaxpose's own were written
+    assert {path.name.removesuffix(ACCESS_TIME) for path in folder.glob(f"*{ACCESS_TIME}")} == programs
+    assert all((folder / name).read_bytes() == content for name, content in before.items())
+
+
+def test_a_compilation_cache_that_cannot_take_a_program_is_one_line_not_one_per_compilation(caplog, monkeypatch):
+    """Issue 42 case 10: where the cache still cannot take a program (a full disk), JAX warns at every
+    compilation; the first such warning becomes one line naming the folder and the reason, the rest are not
+    shown, other warnings are untouched."""
+    import warnings
+
+    from jaxpose.compilation_cache import WRITE_ERROR, quiet_write_errors
+
+    shown = []
+    monkeypatch.setattr(warnings, "showwarning", lambda message, *rest, **keywords: shown.append(str(message)))
+    quiet_write_errors("/tmp/xla")
+    quiet_write_errors("/tmp/xla")  # a second call wraps nothing twice
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        for module in ("jit_step", "jit_eval", "jit_label"):
+            warnings.warn(f"{WRITE_ERROR} for '{module}': OSError: [Errno 28] No space left on device", UserWarning)
+        warnings.warn("another warning", UserWarning)
+    assert shown == ["another warning"]
+    lines = [record.getMessage() for record in caplog.records if "compilation cache" in record.getMessage()]
+    assert len(lines) == 1 and "/tmp/xla could not take a program (OSError: [Errno 28] No space left on device)" in lines[0]
