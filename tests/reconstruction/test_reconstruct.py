@@ -246,24 +246,3 @@ def test_c3d_files_hold_the_trc_markers(project, run_dir, tmp_path):
     assert c3d["parameters"]["POINT"]["UNITS"]["value"] == ["mm"] and c3d["parameters"]["POINT"]["RATE"]["value"][0] == FPS
     assert c3d["header"]["points"]["first_frame"] == ours.frame_numbers[0]
     np.testing.assert_allclose(c3d["data"]["points"][:3].transpose(2, 1, 0), ours.markers * 1000.0, atol=1e-3)
-
-
-@pytest.mark.trains
-def test_a_recording_no_camera_detects_is_said_and_skipped(project, run_dir, tmp_path):
-    """Issue 42 case 8: a recording whose every score is below --data.min-confidence ended the command in
-    "map_in_chunks: expected arrays of one non-zero length" after the other recordings' files were written."""
-    import json
-
-    copy = tmp_path / "project"
-    shutil.copytree(project, copy, ignore=shutil.ignore_patterns(".jaxpose_cache"))
-    silent, other = sorted(p for p in copy.iterdir() if p.is_dir())
-    for frame in silent.glob("*_json/*.json"):
-        content = json.loads(frame.read_text())
-        for person in content["people"]:
-            person["pose_keypoints_2d"][2::3] = [0.05] * (len(person["pose_keypoints_2d"]) // 3)
-        frame.write_text(json.dumps(content))
-    report = _reconstruct(run_dir, copy, tmp_path / "motion")
-    rows = {row["recording"]: row for row in report["recordings"]}
-    assert rows[silent.name]["skipped"] == "no detection" and rows[silent.name]["files"] == []
-    assert (tmp_path / "motion" / f"{other.name}.trc").is_file() and not list((tmp_path / "motion").glob(f"{silent.name}*"))
-    assert f"| {silent.name} |" in (tmp_path / "motion" / "report.md").read_text()
