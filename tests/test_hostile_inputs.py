@@ -28,7 +28,6 @@ from __future__ import annotations
 import ast
 import contextlib
 import dataclasses
-import io
 import json
 import os
 import pathlib
@@ -325,34 +324,17 @@ def test_the_run_record_carries_the_project_settings_to_the_commands_that_use_th
     assert "--min-confidence 0.05 differs from the run's 0.2" in capsys.readouterr().err
 
 
-_ONE_STEP = ["--model.width", "16", "--train.batch-size", "16", "--train.max-steps", "1", "--train.eval-samples", "20",
-             "--run.no-progress", "--run.plot-samples", "0", "--run.no-tensorboard"]  # fmt: skip
-
-
-@pytest.fixture(scope="module")
-def one_step_run(small_project, tmp_path_factory):
-    """`experiments.rig` for one step on the small project: (the run folder, the run's log)."""
-    from experiments import rig
-
-    run = tmp_path_factory.mktemp("one_step") / "run"
-    log = io.StringIO()
-    with contextlib.redirect_stderr(log):
-        rig.main(["--data.root", str(small_project), "--run.run-dir", str(run), *_ONE_STEP])
-    return run, log.getvalue()
-
-
-@pytest.mark.trains  # the module's one-step run
-def test_a_recording_no_camera_detects_is_said_and_skipped(small_project, one_step_run, tmp_path, capsys):
+@pytest.mark.trains  # the shared rig run (tests/conftest.py)
+def test_a_recording_no_camera_detects_is_said_and_skipped(rig_run, tmp_path, capsys):
     """Issue 42 case 8: a recording whose every score is below --data.min-confidence ended the command in
     "map_in_chunks: expected arrays of one non-zero length" after the other recordings' files were written;
     it is one line naming the recording, listed as skipped, and the others are written."""
     from jaxpose import reconstruct
 
-    run, _ = one_step_run
-    project = _copy_project(small_project, tmp_path / "project")
+    project = _copy_project(rig_run.project, tmp_path / "project")
     _set_scores(project.glob("reaching02/*_json/*.json"), 0.05)  # below the run's --data.min-confidence, 0.1
     before = _snapshot(project)
-    report = reconstruct.main(["--checkpoint", str(run), "--data.root", str(project), "--output", str(tmp_path / "motion"), "--fps", "50", "--no-progress"])
+    report = reconstruct.main(["--checkpoint", str(rig_run.run_dir), "--data.root", str(project), "--output", str(tmp_path / "motion"), "--fps", "50", "--no-progress"])
     said = [line for line in capsys.readouterr().err.splitlines() if "no camera detects" in line]
     assert said == ["recording reaching02: no camera detects the person at any instant (scores below --data.min-confidence 0.1, or no detection): no file written"]
     rows = {row["recording"]: row for row in report["recordings"]}
@@ -755,15 +737,14 @@ def test_leaving_out_training_samples_names_their_recordings(small_project, tmp_
     assert _snapshot(project) == before and not (tmp_path / "run").exists()
 
 
-@pytest.mark.trains  # the module's one-step run
-def test_the_training_line_says_where_max_steps_stops_it(one_step_run):
+@pytest.mark.trains  # the shared rig run (tests/conftest.py)
+def test_the_training_line_says_where_max_steps_stops_it(rig_run):
     """Issue 42 case 10: "training: ... (770 steps)" was logged whatever --train.max-steps; the line says where
-    the cap stops the run, and the run stops there."""
-    run, log = one_step_run
-    (line,) = [line for line in log.splitlines() if " INFO training: " in line]
-    assert re.search(r", \d+ epochs \((\d+) steps; stopping at step 1 \(--train.max-steps\)\), from step 0$", line), line
-    assert int(re.search(r"\((\d+) steps;", line)[1]) > 1
-    assert [path.name for path in (run / "checkpoints").iterdir()] == ["1"]
+    the cap (10) stops the run, and the run stops there."""
+    (line,) = [line for line in rig_run.log.splitlines() if " INFO training: " in line]
+    assert re.search(r", 4 epochs \((\d+) steps; stopping at step 10 \(--train.max-steps\)\), from step 0$", line), line
+    assert int(re.search(r"\((\d+) steps;", line)[1]) > 10
+    assert max(int(path.name) for path in (rig_run.run_dir / "checkpoints").iterdir()) == 10
 
 
 def test_a_camera_at_half_the_frame_rate_is_named_by_sync(small_project, tmp_path):
