@@ -8,7 +8,8 @@ arrays) into a temporary folder, then reads it, interleaved, per round:
 
 - sequential: one process (``workers=1``), with orjson when importable and with the stdlib json;
 - pool: `read_openpose_folder` with ``os.cpu_count()`` worker processes;
-- cached: `read_camera_detections` once the cache is written (listing and stat of every file + one npz).
+- cached: `read_camera_detections` once its cache (a file in the temporary folder) is written (listing and
+  hashing every file + one npz).
 
 Prints the median of `--rounds` rounds (wall time, the page cache warm) and ``os.cpu_count()``.
 A real project of 4 cameras x 30 min x 60 fps holds ~430k such files.
@@ -79,7 +80,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             fast_json.orjson_loads = orjson_loads
 
     with tempfile.TemporaryDirectory(prefix="keypoint_files_benchmark_") as scratch:
-        folder = Path(scratch) / "cam01_json"
+        folder, cache = Path(scratch) / "cam01_json", Path(scratch) / "cache" / "cam01_json.npz"
         folder.mkdir()
         start = time.perf_counter()
         size = write_frames(folder, args.frames)
@@ -88,11 +89,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         programs = {
             "sequential": lambda: keypoint_files.read_openpose_folder(folder, progress=False, workers=1),
             "pool": lambda: keypoint_files.read_openpose_folder(folder, progress=False, workers=cores),
-            "cached": lambda: keypoint_files.read_camera_detections(folder, progress=False),
+            "cached": lambda: keypoint_files.read_camera_detections(folder, progress=False, cache=cache),
         }
         if orjson_loads is not None:
             programs["sequential (stdlib json)"] = lambda: sequential_stdlib(folder)
-        reference = keypoint_files.read_camera_detections(folder, progress=False)  # writes the cache
+        reference = keypoint_files.read_camera_detections(folder, progress=False, cache=cache)  # writes the cache
         seconds: dict[str, list[float]] = {name: [] for name in programs}
         for _ in range(args.rounds):
             for name, program in programs.items():

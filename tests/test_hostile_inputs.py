@@ -1,9 +1,26 @@
 """A hostile or careless user's folders (issue 42): nothing read from a user's folder runs code, no command
 deletes or writes what it was not asked to, and what it refuses is still there afterwards.
 
-Each case here failed before its fix: a crafted pickle in a project's cache ran at the next load; a run
-directory pointed at a folder of other files was emptied by --run.overwrite (or silently filled);
-`jaxpose.predict` wrote into its own input folder; two recordings of `jaxpose.reconstruct` wrote one file.
+Each case failed before its fix.  Issue 42's cases, and where each is tested here:
+
+| Case | Tests |
+|---|---|
+| 1 --run.overwrite deletes any folder | test_a_run_folder_that_holds_other_files_is_refused_and_left_as_it_was, test_overwrite_removes_only_what_a_run_wrote, test_a_run_folder_from_before_the_record_is_still_a_run |
+| 2 predict writes into its input | test_predict_never_writes_into_its_input_folder, test_no_command_touches_a_path_outside_its_named_outputs |
+| 3 reconstruct's names collide | test_reconstruct_refuses_recordings_whose_files_would_collide, test_reconstruct_never_writes_into_its_inputs |
+| 4 a pickle in the cache runs code | test_a_crafted_pickle_in_the_cache_runs_no_code, test_no_module_unpickles_except_the_named_videopose3d_files, test_a_recovered_rig_is_cached_as_json_and_read_back_whole, test_a_damaged_recovered_rig_is_prepared_again |
+| 5 a broken model rewarded | test_a_diverging_run_stops_with_a_message_and_no_nonfinite_checkpoint, test_a_broken_lifter_scores_worse_than_the_truth_on_every_measure |
+| 6 one far-off keypoint | test_a_point_the_lens_cannot_undistort_is_nan_and_the_others_match_opencv, test_one_far_off_keypoint_is_undetected_and_the_project_loads |
+| 7 BODY_25B read as BODY_25 | test_body25_and_body25b_are_told_apart_by_their_joint_8 |
+| 8 reconstruct ignores the run's settings | test_the_run_record_carries_the_project_settings_to_the_commands_that_use_the_run, test_a_recording_no_camera_detects_is_said_and_skipped, test_a_stray_frame_number_is_refused_naming_its_file |
+| 9 tracebacks | test_numbers_no_run_can_take_are_one_line_before_anything_is_written, test_a_full_disk_a_read_only_folder_and_a_device_are_one_line_each, test_coco_and_npz_frame_numbers_are_checked_too, test_a_stray_frame_number_is_refused_naming_its_file |
+| 10 --fps inf, a TRC name with a tab | test_smaller_cases_of_issue_42 |
+| 10 "choose at most 0" | test_no_training_sample_left_says_why |
+| 10 "leaving out N training samples" | test_leaving_out_training_samples_names_their_recordings |
+| 10 a camera at half the frame rate | test_a_camera_at_half_the_frame_rate_is_named_by_sync |
+| 10 an offset of 100,000, limbs of 22 m | test_what_loading_finds_suspect_is_in_the_report |
+| 10 "(770 steps)" despite --train.max-steps | test_the_training_line_says_where_max_steps_stops_it |
+| 10 the shared compilation cache | test_a_compilation_cache_written_without_a_size_limit_fails_no_later_write, test_a_compilation_cache_that_cannot_take_a_program_is_one_line_not_one_per_compilation |
 """
 
 from __future__ import annotations
@@ -11,6 +28,7 @@ from __future__ import annotations
 import ast
 import contextlib
 import dataclasses
+import json
 import os
 import pathlib
 import pickle
@@ -210,6 +228,21 @@ def small_project(tmp_path_factory):
     return write_rig_project(tmp_path_factory.mktemp("hostile") / "project", ExampleProjectConfig(recordings=2, frames_per_recording=20))
 
 
+def _copy_project(project, to):
+    """A copy of `project` to break, without its cache."""
+    shutil.copytree(project, to, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    return to
+
+
+def _set_scores(frames, score: float) -> None:
+    """Every keypoint of every person in these OpenPose frame files given the detector score `score`."""
+    for frame in frames:
+        content = json.loads(frame.read_text())
+        for person in content["people"]:
+            person["pose_keypoints_2d"][2::3] = [score] * (len(person["pose_keypoints_2d"]) // 3)
+        frame.write_text(json.dumps(content))
+
+
 @pytest.mark.parametrize(
     "outputs",
     [
@@ -236,8 +269,7 @@ def test_reconstruct_refuses_recordings_whose_files_would_collide(small_project,
     walking01.seg1.trc: refused before any work, naming both, with the way out."""
     from jaxpose import reconstruct
 
-    project = tmp_path / "project"
-    shutil.copytree(small_project, project, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    project = _copy_project(small_project, tmp_path / "project")
     first, second = sorted(p for p in project.iterdir() if p.is_dir())
     first.rename(project / "trial")
     second.rename(project / "trial.seg1")
@@ -295,6 +327,26 @@ def test_the_run_record_carries_the_project_settings_to_the_commands_that_use_th
     assert "--min-confidence 0.05 differs from the run's 0.2" in capsys.readouterr().err
 
 
+@pytest.mark.trains  # the shared rig run (tests/conftest.py)
+def test_a_recording_no_camera_detects_is_said_and_skipped(rig_run, tmp_path, capsys):
+    """Issue 42 case 8: a recording whose every score is below --data.min-confidence ended the command in
+    "map_in_chunks: expected arrays of one non-zero length" after the other recordings' files were written;
+    it is one line naming the recording, listed as skipped, and the others are written."""
+    from jaxpose import reconstruct
+
+    project = _copy_project(rig_run.project, tmp_path / "project")
+    _set_scores(project.glob("reaching02/*_json/*.json"), 0.05)  # below the run's --data.min-confidence, 0.1
+    before = _snapshot(project)
+    report = reconstruct.main(["--checkpoint", str(rig_run.run_dir), "--data.root", str(project), "--output", str(tmp_path / "motion"), "--fps", "50", "--no-progress"])
+    said = [line for line in capsys.readouterr().err.splitlines() if "no camera detects" in line]
+    assert said == ["recording reaching02: no camera detects the person at any instant (scores below --data.min-confidence 0.1, or no detection): no file written"]
+    rows = {row["recording"]: row for row in report["recordings"]}
+    assert rows["reaching02"]["skipped"] == "no detection" and rows["reaching02"]["files"] == []
+    assert (tmp_path / "motion" / "walking01.trc").is_file() and not list((tmp_path / "motion").glob("reaching02*"))
+    assert "| reaching02 |" in (tmp_path / "motion" / "report.md").read_text()
+    assert _snapshot(project) == before
+
+
 @pytest.mark.trains
 def test_a_diverging_run_stops_with_a_message_and_no_nonfinite_checkpoint(tmp_path):
     """Issue 42 case 5: --optimizer.learning-rate nan is refused before anything is read or written (it trained
@@ -330,6 +382,29 @@ def test_a_diverging_run_stops_with_a_message_and_no_nonfinite_checkpoint(tmp_pa
         assert "no checkpoint was written" in message
 
 
+def test_a_broken_lifter_scores_worse_than_the_truth_on_every_measure(small_project):
+    """Issue 42 case 5: joints that came out NaN or behind the camera were left out of the reprojection, so a
+    diverged lifter scored 2.7 px where a trained one scored 84 px; what a measure cannot score now counts as
+    a failure, far worse than the true poses (the best a lifter can do) on all three measures."""
+    from jaxpose.training import evaluation, pseudo_labelling, self_consistency
+    from jaxpose.training.config import PseudoLabelConfig
+
+    before = _snapshot(small_project)
+    test = pseudo_labelling.label(load_rig_project(RigProjectConfig(root=small_project), progress=False).validation, PseudoLabelConfig())
+    truth, _ = evaluation.ground_truth_in_views(test)
+
+    def measures(lifted):
+        return self_consistency.self_consistency(lifted, test, test.pseudo3d, test.pseudo3d_weight > 0)
+
+    exact, diverged = measures(truth), measures(np.full_like(truth, np.nan))
+    for name in self_consistency.METRICS:
+        assert diverged[name]["overall"] == self_consistency.FAILED > 10 * exact[name]["overall"], name
+    behind = truth.copy()
+    behind[:, 0] += np.asarray([0.0, 0.0, -1e5])  # view 0's lifts placed 100 m behind the other cameras
+    assert measures(behind)["reprojection_px"]["per_camera"][0] > 100 > exact["reprojection_px"]["per_camera"][0]
+    assert _snapshot(small_project) == before
+
+
 def test_a_point_the_lens_cannot_undistort_is_nan_and_the_others_match_opencv():
     """The lens inversion converges (OpenCV's undistortPoints, iterated to convergence, as the oracle) inside
     the image and says NaN far outside it, where the fixed-point iteration does not converge."""
@@ -354,18 +429,17 @@ def test_one_far_off_keypoint_is_undetected_and_the_project_loads(small_project,
     """Issue 42 case 6: one keypoint at 5,000 px (or 1e6) in one frame of one camera made the rig path's
     undistortion diverge ("cannot convert float NaN to integer"); it is now undetected, as predict's
     --outside-margin makes it, and everything prepared is finite."""
-    import json
-
-    project = tmp_path / "project"
-    shutil.copytree(small_project, project, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    project = _copy_project(small_project, tmp_path / "project")
     frame = sorted(project.glob("*/cam02_json/*.json"))[5]
     content = json.loads(frame.read_text())
     content["people"][0]["pose_keypoints_2d"][27:29] = [far, far / 2]  # joint 9 (left wrist, COCO-17)
     frame.write_text(json.dumps(content))
+    before = _snapshot(project)
     data = load_rig_project(RigProjectConfig(root=project), progress=False)
     for part in (data.train, data.validation):
         assert np.isfinite(np.asarray(part.keypoints2d)).all() and np.isfinite(np.asarray(part.confidence)).all()
     assert (np.asarray(data.train.keypoints2d) < 3000).all()
+    assert _snapshot(project) == before
 
 
 @pytest.mark.skipif(not paths.FORMATS.is_dir(), reason="needs ../shared/data/formats (real sample files)")
@@ -381,8 +455,6 @@ def test_body25_and_body25b_are_told_apart_by_their_joint_8():
     check_body25_layout("body25b", keypoints, scores, "cam03_json", "--format")
     with pytest.raises(ValueError, match=r"cam03_json: read as body25, but joint 8 is not the midpoint .* this is BODY25B output; pass --format body25b"):
         check_body25_layout("body25", keypoints, scores, "cam03_json", "--format")
-    import json
-
     spin = json.loads((paths.FORMATS / "openpose-json" / "spin_im1010_single_image" / "im1010_openpose.json").read_text())
     values = np.repeat(np.asarray(spin["people"][0]["pose_keypoints_2d"], np.float32).reshape(1, 25, 3), 3, axis=0)  # its one pose, thrice
     check_body25_layout("body25", values[..., :2], values[..., 2], "im1010", "--format")
@@ -395,8 +467,7 @@ def test_a_stray_frame_number_is_refused_naming_its_file(small_project, tmp_path
     """Issue 42 cases 8 and 9: one stray frame file numbered 000100000000 made the loader allocate 53.6 GiB
     (200000: a 70 MB file of empty rows), and 2^63 ended in an OverflowError traceback; each is one line
     naming the file, and the project is left as it was."""
-    project = tmp_path / "project"
-    shutil.copytree(small_project, project, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    project = _copy_project(small_project, tmp_path / "project")
     folder = next(project.glob("*/cam02_json"))
     first = sorted(folder.glob("*.json"))[0]
     stray = folder / first.name.replace("000000000000", number.rjust(12, "0"))
@@ -409,8 +480,6 @@ def test_a_stray_frame_number_is_refused_naming_its_file(small_project, tmp_path
 
 
 def test_coco_and_npz_frame_numbers_are_checked_too(tmp_path):
-    import json
-
     from jaxpose.formats import detections_npz
     from jaxpose.formats.keypoint_files import read_coco_results
 
@@ -474,7 +543,7 @@ def _allowed(path, named) -> bool:
 @pytest.fixture(scope="module")
 def workspace(tmp_path_factory, small_project, trained_run):
     root = tmp_path_factory.mktemp("property")
-    shutil.copytree(small_project, root / "project", ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    _copy_project(small_project, root / "project")
     shutil.copytree(trained_run[0], root / "run")
     (root / "out").mkdir()
     (root / "out" / "poses.json").write_text("earlier")
@@ -572,3 +641,160 @@ def test_a_full_disk_a_read_only_folder_and_a_device_are_one_line_each(tmp_path,
     (tmp_path / "calibration.toml").symlink_to("/dev/zero")
     with pytest.raises(DataFormatError, match="not a regular file"):
         read_rig_calibration(tmp_path / "calibration.toml")
+
+
+_WITHOUT_A_SIZE_LIMIT = """
+import jax, jax.numpy as jnp
+for n in (1, 2, 3):
+    jax.jit(lambda x: jnp.sin(x) * n)(jnp.ones(n)).block_until_ready()
+"""
+_JAXPOSE = """
+import jax, jax.numpy as jnp
+from jaxpose.compilation_cache import enable_compilation_cache
+enable_compilation_cache()
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)  # these programs compile in milliseconds
+for n in (4, 5, 6):
+    jax.jit(lambda x: jnp.cos(x) * n)(jnp.ones(n)).block_until_ready()
+"""
+
+
+@pytest.mark.processes
+def test_a_compilation_cache_written_without_a_size_limit_fails_no_later_write(tmp_path):
+    """Issue 42 case 10, the reproduction: a process without a size limit on the shared cache
+    (JAX_COMPILATION_CACHE_DIR naming it, an earlier jaxpose, JAX without filelock) writes programs without
+    the access-time file that JAX's eviction reads for every program; every jaxpose process (which has the
+    limit) then printed "Error writing persistent compilation cache entry" at every compilation and cached
+    nothing.  Now jaxpose writes its programs, each program has its access time, and those there before are
+    unchanged."""
+    from python_process import run_python
+
+    from jaxpose.compilation_cache import ACCESS_TIME, PROGRAM, WRITE_ERROR
+
+    folder = tmp_path / "xla"
+    other = run_python(_WITHOUT_A_SIZE_LIMIT, tmp_path, JAX_COMPILATION_CACHE_DIR=str(folder), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0")
+    assert other.returncode == 0, other.stderr
+    before = {path.name: path.read_bytes() for path in folder.iterdir()}
+    assert any(name.endswith(PROGRAM) for name in before) and not any(name.endswith(ACCESS_TIME) for name in before)
+    ours = run_python(_JAXPOSE, tmp_path, JAXPOSE_COMPILATION_CACHE=str(folder))
+    assert ours.returncode == 0 and WRITE_ERROR not in ours.stderr and "could not take a program" not in ours.stderr, ours.stderr
+    programs = {path.name.removesuffix(PROGRAM) for path in folder.glob(f"*{PROGRAM}")}
+    assert len(programs) > sum(name.endswith(PROGRAM) for name in before)  # jaxpose's own were written
+    assert {path.name.removesuffix(ACCESS_TIME) for path in folder.glob(f"*{ACCESS_TIME}")} == programs
+    assert all((folder / name).read_bytes() == content for name, content in before.items())
+
+
+def test_a_compilation_cache_that_cannot_take_a_program_is_one_line_not_one_per_compilation(caplog, monkeypatch):
+    """Issue 42 case 10: where the cache still cannot take a program (a full disk), JAX warns at every
+    compilation; the first such warning becomes one line naming the folder and the reason, the rest are not
+    shown, other warnings are untouched."""
+    import warnings
+
+    from jaxpose.compilation_cache import WRITE_ERROR, quiet_write_errors
+
+    shown = []
+    monkeypatch.setattr(warnings, "showwarning", lambda message, *rest, **keywords: shown.append(str(message)))
+    quiet_write_errors("/tmp/xla")
+    quiet_write_errors("/tmp/xla")  # a second call wraps nothing twice
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        for module in ("jit_step", "jit_eval", "jit_label"):
+            warnings.warn(f"{WRITE_ERROR} for '{module}': OSError: [Errno 28] No space left on device", UserWarning)
+        warnings.warn("another warning", UserWarning)
+    assert shown == ["another warning"]
+    lines = [record.getMessage() for record in caplog.records if "compilation cache" in record.getMessage()]
+    assert len(lines) == 1 and "/tmp/xla could not take a program (OSError: [Errno 28] No space left on device)" in lines[0]
+
+
+@pytest.mark.parametrize("held", ["every recording held out", "every score below the threshold"])
+def test_no_training_sample_left_says_why(small_project, tmp_path, held):
+    """Issue 42 case 10: with every recording held out, or every score below --data.min-confidence, the run
+    stopped on "--train.batch-size 256 is larger than the training set (0 samples); choose at most 0"."""
+    from experiments import rig
+
+    project = _copy_project(small_project, tmp_path / "project")
+    flags = ["--data.validation-recordings", "reaching02", "walking01"] if held == "every recording held out" else ["--data.min-confidence", "0.999"]
+    before = _snapshot(project)
+    _refused(
+        rig.main, ["--data.root", str(project), "--run.run-dir", str(tmp_path / "run"), "--run.no-progress", *flags],
+        r"^error: no training sample is left: every instant was held out \(--data.validation-\*\), or has fewer usable views than"
+        r" --pseudo-labels.min-views \(scores below the data's score threshold, e.g. --data.min-confidence\)$",
+    )
+    assert _snapshot(project) == before and not (tmp_path / "run").exists()
+
+
+def test_leaving_out_training_samples_names_their_recordings(small_project, tmp_path, capsys):
+    """Issue 42 case 10: "leaving out N training samples with fewer than 2 usable views" did not say from which
+    recordings; only walking01 has such instants (its first 4 frames, seen by cam01 alone).  A batch larger
+    than what is left then stops the run in one line, before anything is written."""
+    from experiments import rig
+
+    project = _copy_project(small_project, tmp_path / "project")
+    _set_scores([frame for camera in ("cam02", "cam03", "cam04") for frame in sorted(project.glob(f"walking01/{camera}_json/*.json"))[:4]], 0.0)
+    before = _snapshot(project)
+    _refused(
+        rig.main, ["--data.root", str(project), "--run.run-dir", str(tmp_path / "run"), "--run.no-progress", "--train.batch-size", "64"],
+        r"^error: --train.batch-size 64 is larger than the training set \(28 samples\); choose at most 28$",
+    )
+    said = [line.split(" WARNING ", 1)[1] for line in capsys.readouterr().err.splitlines() if "leaving out" in line]
+    assert said == ["leaving out 4 training samples with fewer than 2 usable views (walking01: 4)"]
+    assert _snapshot(project) == before and not (tmp_path / "run").exists()
+
+
+@pytest.mark.trains  # the shared rig run (tests/conftest.py)
+def test_the_training_line_says_where_max_steps_stops_it(rig_run):
+    """Issue 42 case 10: "training: ... (770 steps)" was logged whatever --train.max-steps; the line says where
+    the cap (10) stops the run, and the run stops there."""
+    (line,) = [line for line in rig_run.log.splitlines() if " INFO training: " in line]
+    assert re.search(r", 4 epochs \((\d+) steps; stopping at step 10 \(--train.max-steps\)\), from step 0$", line), line
+    assert int(re.search(r"\((\d+) steps;", line)[1]) > 10
+    assert max(int(path.name) for path in (rig_run.run_dir / "checkpoints").iterdir()) == 10
+
+
+def test_a_camera_at_half_the_frame_rate_is_named_by_sync(small_project, tmp_path):
+    """Issue 42 case 10: with --data.sync auto, a camera at half the others' frame rate (its frames numbered 0,
+    1, 2, ... as a 25 fps camera's are) was blamed on the person ("too little motion"); the warning names the
+    camera and the frame rate, in one line, for the log and the report."""
+    from experiments import rig
+
+    project = _copy_project(small_project, tmp_path / "project")
+    for folder in project.glob("*/cam02_json"):
+        for index, frame in enumerate(sorted(folder.glob("*.json"))):
+            if index % 2:
+                frame.unlink()
+            else:
+                frame.rename(frame.with_name(frame.name.replace(f"{index:012d}", f"{index // 2:012d}")))
+    before = _snapshot(project)
+    config = RigProjectConfig(root=project, sync="auto")
+    loaded = load_rig_project(config, progress=False)
+    expected = ("frame offsets UNRELIABLE: camera cam02 has 10 frames against the others' 20: another frame rate? Every camera must run"
+                " at one rate (resample it, or leave it out)")  # fmt: skip
+    assert [r.warnings for r in loaded.recordings] == [(expected,)] * 2
+    assert f"- walking01: {expected}" in rig.project_notes(loaded, config)[0]
+    assert _snapshot(project) == before
+
+
+def test_what_loading_finds_suspect_is_in_the_report(small_project, tmp_path):
+    """Issue 42 case 10: a calibration whose people come out three times an adult's size (limbs of metres: a
+    warning, not a wrong unit's refusal) and a frame offset of 100,000 that leaves a camera sharing no instant
+    with the others trained without a word in the report; each is one line naming the file or the camera, in
+    the log and under the report's recordings table."""
+    from experiments import rig
+    from jaxpose.rig.timeline import lone_cameras
+
+    views = {"a": (np.arange(10), None, None), "b": (np.arange(5, 15), None, None), "c": (np.arange(10), None, None)}
+    assert lone_cameras(views, {}) == [] and lone_cameras(views, {"c": 100_000}) == ["c"]
+    project = _copy_project(small_project, tmp_path / "project")
+    calibration = project / "calibration.toml"
+    text = calibration.read_text()
+    calibration.write_text(re.sub(r"translation = \[([^\]]*)\]", lambda m: "translation = [" + ", ".join(str(3 * float(v)) for v in m[1].split(",")) + "]", text))
+    before = _snapshot(project)
+    config = RigProjectConfig(root=project, frame_offsets=("cam03=100000",))
+    loaded = load_rig_project(config, progress=False)
+    (sanity,) = loaded.warnings
+    assert re.fullmatch(rf"{calibration}: the people in view have limbs of .* mm where an adult's are .* mm: is the calibration right\?", sanity)
+    lone = "camera cam03 (frame offset +100000) shares no instant with the other cameras: are --data.frame-offsets right?"
+    assert [r.warnings for r in loaded.recordings] == [(lone,)] * 2
+    notes = rig.project_notes(loaded, config)[0]
+    assert "**Warnings of loading**" in notes and f"- {sanity}" in notes and f"- walking01: {lone}" in notes
+    assert load_rig_project(config, progress=False).warnings == loaded.warnings  # kept with the prepared project
+    assert _snapshot(project) == before

@@ -1,5 +1,5 @@
-"""Parsed input files kept as arrays, beside them in ``.jaxpose_cache/<name>.npz`` (or where the caller
-says: a rig project's cache), reused while unchanged.
+"""Parsed input files kept as arrays in a file the caller names (a rig project's cache, `CACHE_DIR`: never
+beside the input, which is only read), reused while unchanged.
 
 The key digests what was cached (a label that carries its version) and the input files' names and
 contents (`content_digest`, BLAKE2b of every byte): a file added, removed, renamed or with other bytes, or
@@ -25,14 +25,9 @@ import numpy as np
 
 logger = logging.getLogger(__name__)
 
-CACHE_DIR = ".jaxpose_cache"
+CACHE_DIR = ".jaxpose_cache"  # a rig project's cache folder, PROJECT/.jaxpose_cache (jaxpose.rig.project)
 
 _Parsed = TypeVar("_Parsed")
-
-
-def cache_file(path: Path) -> Path:
-    """Where the cache of the input file or folder `path` lives: beside it, in `CACHE_DIR`."""
-    return path.parent / CACHE_DIR / f"{path.name}.npz"
 
 
 def content_digest(data: bytes) -> bytes:

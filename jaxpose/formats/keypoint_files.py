@@ -21,9 +21,9 @@ file and the field, before anything is returned.
 
 Folders of many files are parsed by a process pool (`read_openpose_folder`), with orjson when it is
 importable (`jaxpose.formats.fast_json`); COCO files by `jaxpose.formats.coco_results`.  The results of
-`read_camera_detections` are cached beside the input, in ``.jaxpose_cache/<name>.npz`` in the folder that
-holds the camera folder or results file (a rig project's in the project's cache instead), keyed by the
-input files' names and contents (`file_cache`); see benchmarks/README.md for the speeds.
+`read_camera_detections` are cached in the file its caller names (a rig project's cache; never beside the
+input: a user's folders are only read), keyed by the input files' names and contents (`file_cache`); see
+benchmarks/README.md for the speeds.
 """
 
 from __future__ import annotations
@@ -316,14 +316,14 @@ def read_coco_results(path: str | Path) -> CameraDetections:
 # Dispatch and cache (`jaxpose.formats.file_cache`)
 
 
-def read_camera_detections(path: str | Path, progress: bool = True, cache: bool | Path = True) -> CameraDetections:
+def read_camera_detections(path: str | Path, progress: bool = True, cache: Path | None = None) -> CameraDetections:
     """One camera's detections: a folder -> OpenPose frames, a ``.json`` file -> COCO results (or, when
     the file holds one JSON object, a single OpenPose frame).
 
-    With `cache` True, the arrays are kept in ``.jaxpose_cache/<name>.npz`` in the folder that holds `path`
-    (a path: in that file, e.g. a rig project's cache) and reused while no input file was added, removed,
-    renamed or changed in content (`jaxpose.formats.file_cache`: the files are hashed where a cache exists,
-    and as they are parsed where none does); a corrupt or unwritable cache is ignored with a warning.
+    `cache`: the file the arrays are kept in (e.g. in a rig project's cache), reused while no input file was
+    added, removed, renamed or changed in content (`jaxpose.formats.file_cache`: the files are hashed where
+    a cache exists, and as they are parsed where none does); a corrupt or unwritable cache is ignored with a
+    warning.  None: parsed every time, nothing written.
     """
     path = Path(path)
     if path.is_dir():
@@ -351,18 +351,18 @@ def read_camera_detections(path: str | Path, progress: bool = True, cache: bool 
     else:
         found = "nothing there" if not path.exists() else f"a {path.suffix or 'suffix-less'} file"
         raise DataFormatError(path, "a folder of OpenPose JSON frames or a COCO keypoint-results .json file", found)
-    if not cache:
+    if cache is None:
         return parse()[0]
     label = f"jaxpose keypoint cache v{CACHE_VERSION}"
-    cache_file = file_cache.cache_file(path) if cache is True else Path(cache)
-    if cache_file.exists():
+    cache = Path(cache)
+    if cache.exists():
         key = file_cache.cache_key(label, digests())
-        cached = file_cache.load(cache_file, key, str(path), lambda arrays: _from_arrays(arrays, str(path)))
+        cached = file_cache.load(cache, key, str(path), lambda arrays: _from_arrays(arrays, str(path)))
         if cached is not None:
             return cached
     detections, contents = parse()
     arrays = {field: np.asarray(getattr(detections, field)) for field in CACHED_FIELDS}
-    file_cache.save(cache_file, file_cache.cache_key(label, contents), detections.source, arrays)
+    file_cache.save(cache, file_cache.cache_key(label, contents), detections.source, arrays)
     return detections
 
 

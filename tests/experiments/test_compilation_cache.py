@@ -1,15 +1,13 @@
 """The command lines' persistent compilation cache (jaxpose.compilation_cache): where it goes, how to
-move or disable it, a cache JAX was given left alone, and the experiments' command lines turning it on."""
+move or disable it, a cache JAX was given left alone, the experiments' command lines turning it on, and no
+cache without the size bound.  What a shared or full cache does: tests/test_hostile_inputs.py (issue 42)."""
 
-import os
 import pathlib
-import subprocess
-import sys
 
 import jax
 import pytest
+from python_process import run_python
 
-import paths
 from experiments import cli, synthetic
 from jaxpose.training import runner
 from jaxpose.compilation_cache import ENVIRONMENT, MIN_COMPILE_TIME_S, cache_folder
@@ -33,18 +31,12 @@ print(enable_compilation_cache(), jax.config.jax_persistent_cache_min_compile_ti
 """
 
 
-def _python(code: str, tmp_path, **environment) -> subprocess.CompletedProcess:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_COMPILATION_CACHE") and k != ENVIRONMENT}
-    env |= {"JAX_PLATFORMS": "cpu", "HOME": str(tmp_path / "home")} | environment
-    return subprocess.run([sys.executable, "-c", code], cwd=paths.REPO, env=env, capture_output=True, text=True, timeout=300)
-
-
 @pytest.mark.processes
 def test_a_cache_jax_was_given_is_kept_and_an_unwritable_folder_is_one_warning(tmp_path):
-    kept = _python(CHOSEN, tmp_path, JAX_COMPILATION_CACHE_DIR=str(tmp_path / "jax"), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0")
+    kept = run_python(CHOSEN, tmp_path, JAX_COMPILATION_CACHE_DIR=str(tmp_path / "jax"), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0")
     assert kept.stdout.split() == [str(tmp_path / "jax"), "0.0"]
     (tmp_path / "file").write_text("")
-    refused = _python(CHOSEN, tmp_path, **{ENVIRONMENT: str(tmp_path / "file" / "xla")})
+    refused = run_python(CHOSEN, tmp_path, **{ENVIRONMENT: str(tmp_path / "file" / "xla")})
     assert refused.stdout.split() == ["None", "1.0"]
     assert f"no compilation cache: {tmp_path / 'file' / 'xla'} cannot be written" in refused.stderr
 
@@ -76,22 +68,13 @@ def test_every_experiment_run_turns_it_on_in_the_folder_given_before_loading(tmp
     assert seen == {"folder": str(tmp_path / "xla"), "min_time": MIN_COMPILE_TIME_S} and (tmp_path / "xla").is_dir()
 
 
-def test_cache_write_errors_are_one_line_not_one_per_compilation(caplog, monkeypatch):
-    """Issue 42 case 10: several processes writing one cache folder made JAX warn at every compilation; the
-    first such warning becomes one log line, the rest are not shown, other warnings are untouched."""
-    import warnings
+def test_without_filelock_there_is_no_cache_rather_than_one_that_breaks_the_others(tmp_path, monkeypatch, caplog, jax_cache_settings):
+    """JAX bounds the cache's size only with filelock; a process without the bound writes programs that make
+    every write of the processes with it fail (test_hostile_inputs, issue 42 case 10), so it writes none."""
+    from jaxpose import compilation_cache
 
-    from jaxpose.compilation_cache import WRITE_ERROR, quiet_write_errors
-
-    shown = []
-    monkeypatch.setattr(warnings, "showwarning", lambda message, *rest, **keywords: shown.append(str(message)))
-    quiet_write_errors("/tmp/xla")
-    quiet_write_errors("/tmp/xla")  # a second call wraps nothing twice
-    with warnings.catch_warnings():
-        warnings.simplefilter("always")
-        for module in ("jit_step", "jit_eval", "jit_label"):
-            warnings.warn(f"{WRITE_ERROR} for '{module}': FileNotFoundError: [Errno 2] No such file", UserWarning)
-        warnings.warn("another warning", UserWarning)
-    assert shown == ["another warning"]
-    lines = [record.getMessage() for record in caplog.records if "compilation cache" in record.getMessage()]
-    assert len(lines) == 1 and "/tmp/xla could not take a program (FileNotFoundError: [Errno 2] No such file)" in lines[0]
+    jax.config.update("jax_compilation_cache_dir", None)
+    monkeypatch.setattr(compilation_cache, "filelock", None)
+    assert compilation_cache.enable_compilation_cache({ENVIRONMENT: str(tmp_path / "xla")}) is None
+    assert jax.config.jax_compilation_cache_dir is None and not (tmp_path / "xla").exists()
+    assert "no compilation cache: JAX bounds its size only with the filelock package (pip install filelock)" in caplog.text

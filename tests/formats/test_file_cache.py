@@ -1,6 +1,6 @@
 """The cache of parsed keypoint files (`jaxpose.formats.file_cache`, as `keypoint_files.read_camera_detections`
-uses it): reused while the input is unchanged, rebuilt when it changes, and a cache that cannot be read or
-written only a warning."""
+uses it): in the file named, reused while the input is unchanged, rebuilt when it changes, a cache that
+cannot be read or written only a warning, and nothing written beside the input."""
 
 from __future__ import annotations
 
@@ -17,8 +17,9 @@ from jaxpose.formats import keypoint_files as kf
 from keypoint_writers import check_matches, coco_entry, random_people, write_folder, write_frame
 
 
-def _cache_file(folder: Path) -> Path:
-    return folder.parent / file_cache.CACHE_DIR / f"{folder.name}.npz"
+def _cache_file(tmp_path: Path) -> Path:
+    """Where the tests keep the cache: a folder of its own, as a rig project's cache."""
+    return tmp_path / "cache" / "cam.npz"
 
 
 def _no_parsing(monkeypatch) -> None:
@@ -33,13 +34,13 @@ def _no_parsing(monkeypatch) -> None:
 def test_cache_is_reused_and_rebuilt_when_files_change(tmp_path, monkeypatch, caplog):
     folder = tmp_path / "cam01_json"
     written = write_folder(folder, [1, 2, 0, 1])
-    first = kf.read_camera_detections(folder, progress=False)
+    first = kf.read_camera_detections(folder, progress=False, cache=_cache_file(tmp_path))
     check_matches(first, written)
-    assert _cache_file(folder).is_file()
-    assert [p.name for p in _cache_file(folder).parent.iterdir()] == ["cam01_json.npz"]  # no temp file left
+    assert _cache_file(tmp_path).is_file()
+    assert [p.name for p in _cache_file(tmp_path).parent.iterdir()] == ["cam.npz"]  # no temp file left
     with monkeypatch.context() as patch:
         _no_parsing(patch)
-        again = kf.read_camera_detections(folder, progress=False)
+        again = kf.read_camera_detections(folder, progress=False, cache=_cache_file(tmp_path))
     check_matches(again, written)
     assert again.source == str(folder)
 
@@ -47,7 +48,7 @@ def test_cache_is_reused_and_rebuilt_when_files_change(tmp_path, monkeypatch, ca
         change()
         caplog.clear()
         with caplog.at_level("INFO", logger=file_cache.__name__):
-            result = kf.read_camera_detections(folder, progress=False)
+            result = kf.read_camera_detections(folder, progress=False, cache=_cache_file(tmp_path))
         assert "changed since" in caplog.text and "reading it again" in caplog.text
         return result
 
@@ -67,7 +68,7 @@ def test_cache_is_reused_and_rebuilt_when_files_change(tmp_path, monkeypatch, ca
     os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))
     with monkeypatch.context() as patch:
         _no_parsing(patch)
-        check_matches(kf.read_camera_detections(folder, progress=False), written)
+        check_matches(kf.read_camera_detections(folder, progress=False, cache=_cache_file(tmp_path)), written)
 
 
 @pytest.mark.parametrize("kind", ["openpose", "coco"])
@@ -82,7 +83,7 @@ def test_same_size_and_time_but_other_bytes_are_read_again(tmp_path, kind, caplo
         source = path = tmp_path / "cam01.json"
         people = random_people(np.random.default_rng(5), 2, joints=17)
         path.write_text(json.dumps([coco_entry(3, people[0]), coco_entry(4, people[1])]))
-    stale = kf.read_camera_detections(source, progress=False)
+    stale = kf.read_camera_detections(source, progress=False, cache=_cache_file(tmp_path))
     before, stat = path.read_bytes(), path.stat()
     values = before.index(b"keypoints")  # pose_keypoints_2d or keypoints: past OpenPose's "version": 1.3
     digit = next(i for i in range(values, len(before)) if before[i - 1 : i] == b"." and before[i : i + 1].isdigit())
@@ -91,9 +92,9 @@ def test_same_size_and_time_but_other_bytes_are_read_again(tmp_path, kind, caplo
     os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns))
     assert (path.stat().st_size, path.stat().st_mtime_ns) == (stat.st_size, stat.st_mtime_ns)
     with caplog.at_level("INFO", logger=file_cache.__name__):
-        again = kf.read_camera_detections(source, progress=False)
+        again = kf.read_camera_detections(source, progress=False, cache=_cache_file(tmp_path))
     assert "changed since" in caplog.text and "reading it again" in caplog.text
-    np.testing.assert_array_equal(again.keypoints, kf.read_camera_detections(source, cache=False).keypoints)
+    np.testing.assert_array_equal(again.keypoints, kf.read_camera_detections(source).keypoints)
     assert not np.array_equal(again.keypoints, stale.keypoints)
 
 
@@ -101,33 +102,33 @@ def test_same_size_and_time_but_other_bytes_are_read_again(tmp_path, kind, caplo
 def test_corrupt_cache_is_ignored_with_a_warning(tmp_path, damage):
     folder = tmp_path / "cam"
     written = write_folder(folder, [1, 1])
-    kf.read_camera_detections(folder, progress=False)
-    _cache_file(folder).write_bytes(damage)
+    kf.read_camera_detections(folder, progress=False, cache=_cache_file(tmp_path))
+    _cache_file(tmp_path).write_bytes(damage)
     with pytest.warns(UserWarning, match=r"ignoring the unreadable cache .*cam\.npz"):
-        check_matches(kf.read_camera_detections(folder, progress=False), written)
+        check_matches(kf.read_camera_detections(folder, progress=False, cache=_cache_file(tmp_path)), written)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # rewritten: read quietly now
-        check_matches(kf.read_camera_detections(folder, progress=False), written)
+        check_matches(kf.read_camera_detections(folder, progress=False, cache=_cache_file(tmp_path)), written)
 
 
 def test_cache_with_wrong_arrays_is_ignored(tmp_path):
     folder = tmp_path / "cam"
     written = write_folder(folder, [2, 1])
-    kf.read_camera_detections(folder, progress=False)
-    with np.load(_cache_file(folder)) as data:
+    kf.read_camera_detections(folder, progress=False, cache=_cache_file(tmp_path))
+    with np.load(_cache_file(tmp_path)) as data:
         arrays = dict(data)
     arrays["scores"] = arrays["scores"][:, :1]
-    np.savez(_cache_file(folder), **arrays)
+    np.savez(_cache_file(tmp_path), **arrays)
     with pytest.warns(UserWarning, match="inconsistent shapes"):
-        check_matches(kf.read_camera_detections(folder, progress=False), written)
+        check_matches(kf.read_camera_detections(folder, progress=False, cache=_cache_file(tmp_path)), written)
 
 
 def test_unwritable_cache_is_a_warning(tmp_path):
     folder = tmp_path / "cam"
     written = write_folder(folder, [1])
-    (tmp_path / file_cache.CACHE_DIR).write_text("a file where the cache folder should be")
+    _cache_file(tmp_path).parent.write_text("a file where the cache folder should be")
     with pytest.warns(UserWarning, match="could not write the cache"):
-        check_matches(kf.read_camera_detections(folder, progress=False), written)
+        check_matches(kf.read_camera_detections(folder, progress=False, cache=_cache_file(tmp_path)), written)
 
 
 def test_interrupted_cache_write_leaves_no_cache(tmp_path, monkeypatch):
@@ -140,19 +141,23 @@ def test_interrupted_cache_write_leaves_no_cache(tmp_path, monkeypatch):
 
     monkeypatch.setattr(np, "savez", interrupted)
     with pytest.warns(UserWarning, match="No space left on device"):
-        check_matches(kf.read_camera_detections(folder, progress=False), written)
-    assert list((tmp_path / file_cache.CACHE_DIR).iterdir()) == []
+        check_matches(kf.read_camera_detections(folder, progress=False, cache=_cache_file(tmp_path)), written)
+    assert list(_cache_file(tmp_path).parent.iterdir()) == []
 
 
-def test_a_cache_file_named_by_the_caller_is_used_and_nothing_is_written_beside_the_input(tmp_path, monkeypatch):
-    """A rig project keeps its parsed JSON in its own cache (`jaxpose.rig.project`): the file named, its
-    folders made, reused while unchanged, and no `.jaxpose_cache` beside the camera folder."""
+def test_the_cache_is_the_file_named_and_nothing_is_written_beside_the_input(tmp_path, monkeypatch):
+    """A rig project keeps its parsed JSON in its own cache (`jaxpose.rig.recordings`): the file named, its
+    folders made, reused while unchanged; without one nothing is written at all.  The recording's folder
+    (a user's) is only read."""
     folder = tmp_path / "recording" / "cam01_json"
     written = write_folder(folder, [1, 2, 0, 1])
+    check_matches(kf.read_camera_detections(folder, progress=False), written)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["recording"]
     named = tmp_path / "cache" / "parsed" / "recording" / "cam01_json.npz"
     check_matches(kf.read_camera_detections(folder, progress=False, cache=named), written)
-    assert named.is_file() and not _cache_file(folder).exists()
+    assert named.is_file()
     with monkeypatch.context() as patch:
         _no_parsing(patch)
         check_matches(kf.read_camera_detections(folder, progress=False, cache=named), written)
     assert sorted(p.name for p in (tmp_path / "recording").iterdir()) == ["cam01_json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cache", "recording"]

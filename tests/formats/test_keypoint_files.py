@@ -53,14 +53,14 @@ def test_pose2sim_body25b_demo(camera, people):
     assert 0 < detections.scores.max() <= 1
     # Pixels inside the demo's 1088 x 1920 portrait frames.
     assert detections.keypoints[..., 0].max() < 1088 and detections.keypoints[..., 1].max() < 1920
-    dispatched = kf.read_camera_detections(folder, progress=False, cache=False)
+    dispatched = kf.read_camera_detections(folder, progress=False)
     np.testing.assert_array_equal(dispatched.keypoints, detections.keypoints)
 
 
 @needs_formats
 @pytest.mark.parametrize("camera", ["cam03", "cam04"])
 def test_pose2sim_rtmpose_halpe26(camera):
-    detections = kf.read_camera_detections(HALPE26 / camera, progress=False, cache=False)
+    detections = kf.read_camera_detections(HALPE26 / camera, progress=False)
     check_types(detections)
     assert detections.frames.tolist() == list(range(1, 21))  # 1-based frame_00001.json ... frame_00020.json
     assert detections.values_per_person == 78 and detections.people.tolist() == [1] * 20
@@ -78,7 +78,7 @@ def test_pose2sim_rtmpose_halpe26(camera):
 @needs_formats
 def test_spin_single_openpose_file():
     for path in (SPIN, SPIN / "im1010_openpose.json"):
-        detections = kf.read_camera_detections(path, progress=False, cache=False)
+        detections = kf.read_camera_detections(path, progress=False)
         check_types(detections)
         assert detections.frames.tolist() == [1010] and detections.people.tolist() == [1]
         assert detections.values_per_person == 75  # version 1.2, no person_id
@@ -90,7 +90,7 @@ def test_spin_single_openpose_file():
 
 @needs_formats
 def test_alphapose_results():
-    detections = kf.read_camera_detections(ALPHAPOSE, cache=False)
+    detections = kf.read_camera_detections(ALPHAPOSE)
     check_types(detections)
     entries = json.loads(ALPHAPOSE.read_text())
     assert {e["image_id"] for e in entries} == {"out-002.jpg"} and max(e["score"] for e in entries) > 1
@@ -215,9 +215,9 @@ def test_the_clipped_count_is_cached(tmp_path, monkeypatch):
     written = write_folder(folder, [2, 1])
     written[1][0][:3, 2] = [1.5, 2.0, 1.0]
     write_frame(folder / "clip_000000000001_keypoints.json", written[1])
-    first = kf.read_camera_detections(folder, progress=False)
+    first = kf.read_camera_detections(folder, progress=False, cache=tmp_path / "cam.npz")
     monkeypatch.setattr(kf, "_parse_chunk", None)  # served from the cache below
-    cached = kf.read_camera_detections(folder, progress=False)
+    cached = kf.read_camera_detections(folder, progress=False, cache=tmp_path / "cam.npz")
     assert first.clipped_scores == cached.clipped_scores == 2
     np.testing.assert_array_equal(first.scores, cached.scores)
 
@@ -317,7 +317,7 @@ def test_coco_invalid_json(tmp_path):
     path = tmp_path / "results.json"
     path.write_text('[{"image_id": 1,')
     with pytest.raises(DataFormatError, match=r"results\.json: .*found invalid JSON: Expecting"):
-        kf.read_camera_detections(path, cache=False)
+        kf.read_camera_detections(path)
 
 
 def test_coco_frames_group_people_in_file_order(tmp_path):
@@ -351,10 +351,10 @@ def test_pool_equals_sequential(tmp_path, monkeypatch):
     for field in ("frames", "keypoints", "scores", "people"):
         np.testing.assert_array_equal(getattr(pooled, field), getattr(sequential, field))
     # The cache key from the digests the pool's parse computed is the one its digest pass computes.
-    kf.read_camera_detections(tmp_path / "cam01_json", progress=False)
+    kf.read_camera_detections(tmp_path / "cam01_json", progress=False, cache=tmp_path / "cam01.npz")
     with monkeypatch.context() as patch:
         patch.setattr(kf, "_parse_chunk", None)
-        check_matches(kf.read_camera_detections(tmp_path / "cam01_json", progress=False), written)
+        check_matches(kf.read_camera_detections(tmp_path / "cam01_json", progress=False, cache=tmp_path / "cam01.npz"), written)
     # A bad file in a later chunk: the pool reports it as the sequential path does.
     (tmp_path / "cam01_json" / "cam01.0031.json").write_text('{"people": [{"pose_keypoints_2d": [1, 2]}]}')
     for workers in (1, 2):

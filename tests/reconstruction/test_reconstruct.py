@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 from help_text import assert_every_flag_documented
 
-from experiments import rig as rig_job
 from jaxpose import reconstruct
 from jaxpose.serving import inference
 from jaxpose.formats.camera_file import save_cameras
@@ -25,33 +24,19 @@ from jaxpose.reconstruction.motion_files import (
 from jaxpose.reconstruction import recording
 from jaxpose.rig.project import RigProjectConfig
 from jaxpose.training.run_directory import RECOVERED_CAMERAS_FILE, RECOVERED_SESSIONS_DIR
-from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
 
-PROJECT = ExampleProjectConfig(recordings=2, frames_per_recording=160, desync_camera=-1)
-GAP = range(60, 90)  # frames no camera has in the first recording: longer than --max-gap
 FPS = 50.0
 
 
 @pytest.fixture(scope="module")
-def project(tmp_path_factory):
-    root = write_rig_project(tmp_path_factory.mktemp("reconstruct") / "project", PROJECT)
-    first = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith("."))[0]
-    for frame in GAP:
-        for path in first.glob(f"*_json/*_{frame:012d}_keypoints.json"):
-            path.unlink()
-    return root
+def project(rig_run):
+    """The shared rig project (tests/conftest.py): its first recording has a gap of `rig_run.gap`."""
+    return rig_run.project
 
 
 @pytest.fixture(scope="module")
-def run_dir(project, tmp_path_factory):
-    """A lifter of a few steps: enough to lift (the fusion judges a lift by the triangulated body)."""
-    run = tmp_path_factory.mktemp("reconstruct_run") / "run"
-    rig_job.main([
-        "--data.root", str(project), "--run.run-dir", str(run), "--model.width", "64", "--train.batch-size", "64",
-        "--train.epochs", "1", "--train.max-steps", "10", "--train.eval-every", "10", "--train.eval-samples", "20",
-        "--run.no-progress", "--run.plot-samples", "0", "--run.no-tensorboard",
-    ])  # fmt: skip
-    return run
+def run_dir(rig_run):
+    return rig_run.run_dir
 
 
 def _reconstruct(run_dir, root, output, *flags):
@@ -60,14 +45,14 @@ def _reconstruct(run_dir, root, output, *flags):
 
 
 @pytest.mark.trains
-def test_every_seen_instant_is_reconstructed_and_the_files_agree(project, run_dir, tmp_path):
+def test_every_seen_instant_is_reconstructed_and_the_files_agree(project, run_dir, rig_run, tmp_path):
     out = tmp_path / "out"
     report = _reconstruct(run_dir, project, out)
     assert report["up_axis"] == "+z"  # the simulated room's cameras stand upright in a Z-up world
     rotation = opensim_rotation("+z")
     first, second = report["recordings"]
     assert (first["segments"], second["segments"]) == (2, 1)  # the gap of 30 frames splits the first
-    assert first["dropped_frames"] >= len(GAP)
+    assert first["dropped_frames"] >= len(rig_run.gap)
     for row in report["recordings"]:
         saved = np.load(out / f"{row['recording']}.npz")
         points, provenance, seen = saved["points_mm"], saved["provenance"], saved["seen"]
@@ -246,24 +231,3 @@ def test_c3d_files_hold_the_trc_markers(project, run_dir, tmp_path):
     assert c3d["parameters"]["POINT"]["UNITS"]["value"] == ["mm"] and c3d["parameters"]["POINT"]["RATE"]["value"][0] == FPS
     assert c3d["header"]["points"]["first_frame"] == ours.frame_numbers[0]
     np.testing.assert_allclose(c3d["data"]["points"][:3].transpose(2, 1, 0), ours.markers * 1000.0, atol=1e-3)
-
-
-@pytest.mark.trains
-def test_a_recording_no_camera_detects_is_said_and_skipped(project, run_dir, tmp_path):
-    """Issue 42 case 8: a recording whose every score is below --data.min-confidence ended the command in
-    "map_in_chunks: expected arrays of one non-zero length" after the other recordings' files were written."""
-    import json
-
-    copy = tmp_path / "project"
-    shutil.copytree(project, copy, ignore=shutil.ignore_patterns(".jaxpose_cache"))
-    silent, other = sorted(p for p in copy.iterdir() if p.is_dir())
-    for frame in silent.glob("*_json/*.json"):
-        content = json.loads(frame.read_text())
-        for person in content["people"]:
-            person["pose_keypoints_2d"][2::3] = [0.05] * (len(person["pose_keypoints_2d"]) // 3)
-        frame.write_text(json.dumps(content))
-    report = _reconstruct(run_dir, copy, tmp_path / "motion")
-    rows = {row["recording"]: row for row in report["recordings"]}
-    assert rows[silent.name]["skipped"] == "no detection" and rows[silent.name]["files"] == []
-    assert (tmp_path / "motion" / f"{other.name}.trc").is_file() and not list((tmp_path / "motion").glob(f"{silent.name}*"))
-    assert f"| {silent.name} |" in (tmp_path / "motion" / "report.md").read_text()

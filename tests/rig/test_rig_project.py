@@ -205,13 +205,7 @@ def test_ground_truth_free_measures_against_an_oracle(project):
     assert worse["disagreement_mm"]["per_camera"][1] > 50 > exact["disagreement_mm"]["per_camera"][1]
     assert worse["reprojection_px"]["per_camera"][1] > 2 * exact["reprojection_px"]["per_camera"][1]
     assert worse["reprojection_px"]["per_camera"][0] == pytest.approx(exact["reprojection_px"]["per_camera"][0])
-    # A broken lifter (issue 42 case 5): what cannot be scored counts as a failure, never as left out.
-    diverged = self_consistency.self_consistency(np.full_like(truth, np.nan), test, test.pseudo3d, test.pseudo3d_weight > 0)
-    for name in self_consistency.METRICS:
-        assert diverged[name]["overall"] == self_consistency.FAILED > 10 * exact[name]["overall"], name
-    behind = truth.copy()
-    behind[:, 0] += np.asarray([0.0, 0.0, -1e5])  # view 0's lifts placed 100 m behind the other cameras
-    assert self_consistency.self_consistency(behind, test, test.pseudo3d, test.pseudo3d_weight > 0)["reprojection_px"]["per_camera"][0] > 100
+    # A broken lifter (issue 42 case 5): tests/test_hostile_inputs.py.
 
 
 def _raises(match, root, **config):
@@ -498,25 +492,3 @@ def test_a_read_only_project_trains_and_reconstructs_with_a_cache_folder_given(p
     assert "cannot be written" in log and "prepared in memory" in log  # the run without --data.cache-dir
     assert (tmp_path / "motion" / "report.json").is_file() and (tmp_path / "cache" / "parsed").is_dir()
     assert sorted((str(p.relative_to(project_copy)), p.stat().st_mtime_ns) for p in project_copy.rglob("*")) == before
-
-
-def test_what_loading_finds_suspect_is_in_the_report(project_copy):
-    """Issue 42 case 10: a calibration whose people come out three times an adult's size (a warning, not a
-    wrong unit's refusal) and a frame offset that leaves a camera sharing no instant with the others are said
-    in the report, per recording, not only in the log."""
-    import re
-
-    from jaxpose.rig.timeline import lone_cameras
-
-    views = {"a": (np.arange(10), None, None), "b": (np.arange(5, 15), None, None), "c": (np.arange(10), None, None)}
-    assert lone_cameras(views, {}) == [] and lone_cameras(views, {"c": 100_000}) == ["c"]
-    calibration = project_copy / "calibration.toml"
-    text = calibration.read_text()
-    calibration.write_text(re.sub(r"translation = \[([^\]]*)\]", lambda m: "translation = [" + ", ".join(str(3 * float(v)) for v in m[1].split(",")) + "]", text))
-    config = RigProjectConfig(root=project_copy, frame_offsets=("cam03=100000",))
-    loaded = load_rig_project(config, progress=False)
-    assert len(loaded.warnings) == 1 and "is the calibration right?" in loaded.warnings[0]
-    assert all(r.warnings == ("camera cam03 (frame offset +100000) shares no instant with the other cameras: are --data.frame-offsets right?",) for r in loaded.recordings)
-    notes = rig_job.project_notes(loaded, config)[0]
-    assert "**Warnings of loading**" in notes and "is the calibration right?" in notes and "cam03 (frame offset +100000)" in notes
-    assert load_rig_project(config, progress=False).warnings == loaded.warnings  # kept with the prepared project
