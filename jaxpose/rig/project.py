@@ -52,7 +52,9 @@ not grow with the number or the lengths of the recordings.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import logging
+import os
 import pathlib
 import shutil
 import time
@@ -299,7 +301,7 @@ def _aligned(
     parsed = cache_folder(config) / PARSED
     for recording in recordings:
         with phases("recordings read"):
-            read = read_detections(recording, config.skeleton, phases.progress, parsed / recording.name)
+            read = read_detections(recording, config.skeleton, phases.progress, parsed / _parsed_name(recording))
             views = lifting_views(read, config.min_confidence)
         layouts[recording.name] = read.layout
         if len(set(layouts.values())) > 1:
@@ -337,7 +339,14 @@ def _aligned(
 
 
 PARSED = "parsed"
-"""The cache's folder of parsed JSON detections, one sub-folder per recording."""
+"""The cache's folder of parsed JSON detections, one sub-folder per recording (`_parsed_name`)."""
+
+
+def _parsed_name(recording: Recording) -> str:
+    """The name of a recording's folder of parsed JSON in the cache: its name and a digest of its folder's
+    absolute path, so that projects sharing one --data.cache-dir never take each other's recordings of the
+    same name (never stale, as each file's key checks the content; but parsed again and again)."""
+    return f"{recording.name}-{hashlib.blake2b(os.fsencode(recording.folder.resolve()), digest_size=8).hexdigest()}"
 
 
 def recorded_settings(config: RigProjectConfig, layout: str) -> dict:

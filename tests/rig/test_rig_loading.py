@@ -171,6 +171,24 @@ def test_the_pseudo_labels_of_a_prepared_project_are_cached_beside_it(small, tmp
     assert len(list(pathlib.Path(train.keypoints2d.filename).parent.glob("pseudo_labels/train-*"))) == 2
 
 
+def test_projects_sharing_a_cache_folder_keep_their_parsed_recordings_apart(small, tmp_path, caplog):
+    """Two projects whose recordings have the same names, one --data.cache-dir: each recording's parsed JSON
+    is kept under its own folder's name, so that preparing the first again (another --data.min-confidence)
+    reads its parsed files instead of parsing again over what the second left there."""
+    first, second = tmp_path / "first", tmp_path / "second"
+    shutil.copytree(small, first, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    shutil.copytree(small, second, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    shared = tmp_path / "cache"
+    for root in (first, second):
+        load_rig_project(RigProjectConfig(root=root, frame_offsets=("cam03=3",), cache_dir=shared), progress=False)
+    names = sorted(recording.name for recording in first.iterdir() if recording.is_dir())
+    parsed = sorted(folder.name for folder in (shared / "parsed").iterdir())
+    assert len(parsed) == 2 * len(names) and all(any(folder.startswith(f"{name}-") for folder in parsed) for name in names)
+    with caplog.at_level("INFO"):
+        load_rig_project(RigProjectConfig(root=first, frame_offsets=("cam03=3",), cache_dir=shared, min_confidence=0.2), progress=False)
+    assert "changed since" not in caplog.text and caplog.text.count("from the cache") >= 4 * len(names)  # every camera's parsed file
+
+
 def test_a_calibration_in_centimetres_without_its_unit_is_refused(small, tmp_path):
     """Issue 34 item 3: the example's calibration written in centimetres with no unit stated reads as
     millimetres (its rig is then 1 m across: plausible); the people in view, 10 times too small, say otherwise."""
