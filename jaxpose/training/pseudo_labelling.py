@@ -84,9 +84,10 @@ def label(
     dataset = dataset.undistorted()
     cache = _cache_folder(dataset, config)
     if cache is not None and cache.is_dir():
-        labels = {name: np.load(cache / f"{name}.npy", mmap_mode="r") for name in _STORED if (cache / f"{name}.npy").exists()}
+        # A label the method does not make (detection_weight of the plain DLT) has no file: None.
+        labels = {name: np.load(cache / f"{name}.npy", mmap_mode="r") if (cache / f"{name}.npy").exists() else None for name in _STORED}
         log.info("pseudo-labels (%s) of %s instants read from %s", config.method, f"{len(dataset):,}", cache)
-        return dataset.with_samples(**({"detection_weight": None} | labels))
+        return dataset.with_samples(**labels)
     size = chunk_size
     rig_matrices = np.asarray(projection_matrices(dataset.rigs))  # [R, C, 3, 4]
     bar = tqdm(total=len(dataset), desc="pseudo-labels", unit="instant", unit_scale=True, disable=not progress, leave=False)
@@ -96,7 +97,7 @@ def label(
         points, weight, views = jax.device_get(_solve(P, jnp.asarray(keypoints2d), jnp.asarray(confidence), config=config))
         bar.update(min(len(rows), len(dataset) - bar.n))
         weight = weight.astype(np.float32) * weight[:, :1]
-        return {"pseudo3d": points, "pseudo3d_weight": weight, "detection_weight": None if views is None else views.astype(np.float32)}
+        return dict(zip(_STORED, (points, weight, None if views is None else views.astype(np.float32))))
 
     # One chunk per part, each written into the labels as it comes: only a chunk of them is ever in
     # memory where they go to the cache (memory-mapped files), a large data set's labels never twice.
@@ -118,7 +119,7 @@ def label(
     return dataset.with_samples(**labels)
 
 
-_STORED = ("pseudo3d", "pseudo3d_weight", "detection_weight")
+_STORED = ("pseudo3d", "pseudo3d_weight", "detection_weight")  # the `Samples` fields `label` sets, one cache file each
 _CACHE_VERSION = 1  # bump when the labels of one method and its settings change
 
 
