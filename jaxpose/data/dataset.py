@@ -63,13 +63,11 @@ def consecutive_spans(labels: Mapping[str, np.ndarray]) -> np.ndarray:
 
 @dataclasses.dataclass(frozen=True)
 class MultiViewDataset:
-    """N instants seen by C views, J joints: the `samples`' arrays (`Samples`: keypoints2d f32[N, C, J, 2]
-    pixels, confidence, rig_index, target3d, the pseudo-labels once `jaxpose.training.pseudo_labelling.label`
-    has set them, labels, context rows), and what they share: the skeleton, the `rigs` (`Cameras` of numpy
-    arrays with leading [R, C], gathered per sample by `samples.rig_index`) and the `context`: every frame
-    of the samples' recordings (`samples.context_row` is each sample's own row in it, `samples.context_span`
-    its stretch of consecutive frames, `window_rows`); None where the loader keeps no full-rate 2D (then
-    only the frame lifter trains on it).
+    """N instants seen by C views, J joints: their per-sample arrays (`samples`, see `Samples`), and what
+    they share: the skeleton, the `rigs` (`Cameras` of numpy arrays with leading [R, C], gathered per sample
+    by `samples.rig_index`) and the `context`: every frame of the samples' recordings, which each sample's
+    context rows point into (`window_rows`); None where the loader keeps no full-rate 2D (then only the
+    frame lifter trains on it).
     """
 
     skeleton: Skeleton
