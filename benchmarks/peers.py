@@ -249,17 +249,17 @@ def cut(inputs: RecordingInput, frames: int | None) -> RecordingInput:
 def accuracy(args: PeersArgs, lifter: inference.Lifter3D, python: pathlib.Path | None, families: dict[str, list[str]]) -> dict:
     project = load_rig_project(args.data, progress=True)
     dataset = project.validation
-    if project.recovered_calibration is not None or dataset.target3d is None:
+    if project.recovered_calibration is not None or dataset.samples.target3d is None:
         raise SystemExit(f"{args.data.root}: the benchmark needs a calibrated project with ground_truth.npz (world mm)")
-    if len(np.unique(dataset.rig_index)) != 1:
-        rigs = len(np.unique(dataset.rig_index))
+    if len(np.unique(dataset.samples.rig_index)) != 1:
+        rigs = len(np.unique(dataset.samples.rig_index))
         raise SystemExit(f"{args.data.root}: {rigs} rigs among the held-out recordings; the benchmark takes one")
     source = args.data.calibration or find_calibration(args.data.root)
     rig = read_rig_calibration(source).select(project.camera_names, f"cameras of {args.data.root}")
     if rig.image_size is None:
         raise SystemExit(f"{source}: no image sizes, which Pose2Sim needs")
     args.output.mkdir(parents=True, exist_ok=True)
-    rigs = dataset.rigs[int(dataset.rig_index[0])]
+    rigs = dataset.rigs[int(dataset.samples.rig_index[0])]
     calibration = write_calibration(
         args.output / "calibration.toml", project.camera_names, rigs, rig.image_size, str(source), args.overwrite
     )

@@ -73,8 +73,8 @@ def sample_poses(test, names: tuple[str, ...], count: int, rng: np.random.Genera
     rows = rng.choice(len(test), size=min(count, len(test)), replace=False)
     views = rng.integers(0, test.num_views, size=len(rows))
     index = joint_indices(test.skeleton.joint_names, names)
-    keypoints = undistorted.keypoints2d[rows, views][:, index]
-    K = np.asarray(test.rigs.K)[test.rig_index[rows], views]
+    keypoints = undistorted.samples.keypoints2d[rows, views][:, index]
+    K = np.asarray(test.rigs.K)[test.samples.rig_index[rows], views]
     inside = ((keypoints >= 0) & (keypoints <= np.array(IMAGE_SIZE))).all((1, 2))
     return keypoints[inside].astype(np.float32), K[inside].astype(np.float32)
 
@@ -148,16 +148,16 @@ def wild_joint_errors(lifter, data_dir: pathlib.Path, reject: float, flip: bool 
         return None
     gt = dev_split(data_dir, "gt")
     index = joint_indices(gt.skeleton.joint_names, sh.skeleton.joint_names)
-    projected = gt.keypoints2d[:, :, index]
-    if projected.shape != sh.keypoints2d.shape:
-        raise SystemExit(f"SH {sh.keypoints2d.shape} and ground-truth 2D {projected.shape} test sets differ")
-    N, C, J, _ = sh.keypoints2d.shape
-    offset = np.linalg.norm(sh.keypoints2d - projected, axis=-1).reshape(N * C, J)
+    projected = gt.samples.keypoints2d[:, :, index]
+    if projected.shape != sh.samples.keypoints2d.shape:
+        raise SystemExit(f"SH {sh.samples.keypoints2d.shape} and ground-truth 2D {projected.shape} test sets differ")
+    N, C, J, _ = sh.samples.keypoints2d.shape
+    offset = np.linalg.norm(sh.samples.keypoints2d - projected, axis=-1).reshape(N * C, J)
     wild_joint = (offset > WILD_PX) & (np.arange(J) != 0)  # the root is never lifted as missing
     wild = (offset > WILD_PX).any(-1)
-    keypoints = sh.undistorted().keypoints2d.reshape(N * C, J, 2)
-    K = np.asarray(sh.rigs.K)[sh.rig_index].reshape(N * C, 3, 3)
-    confidence = sh.confidence.reshape(N * C, J)
+    keypoints = sh.undistorted().samples.keypoints2d.reshape(N * C, J, 2)
+    K = np.asarray(sh.rigs.K)[sh.samples.rig_index].reshape(N * C, 3, 3)
+    confidence = sh.samples.confidence.reshape(N * C, J)
     target, valid = ground_truth_in_views(sh)
     target, valid = target.reshape(N * C, J, 3), valid.reshape(N * C)
     rejected = lifter.inconsistent_joints(lifter.prepare(keypoints, K, confidence), threshold=reject)

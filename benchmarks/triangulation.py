@@ -44,8 +44,8 @@ def exact_views(num_samples: int, num_views: int, subjects: int = 4) -> tuple[np
         noise_sigma_scale=0.0, outlier_rate=0.0, swap_rate=0.0, missing_rate=0.0,
     )
     data = generate(clean)
-    P = np.asarray(projection_matrices(data.rigs))[data.rig_index]
-    return P.astype(np.float32), data.keypoints2d, data.target3d
+    P = np.asarray(projection_matrices(data.rigs))[data.samples.rig_index]
+    return P.astype(np.float32), data.samples.keypoints2d, data.samples.target3d
 
 
 def solver_speed(P: jax.Array, points: jax.Array, rounds: int) -> dict:

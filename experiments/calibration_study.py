@@ -47,22 +47,22 @@ def main(argv=None) -> list[dict]:
         " scale error | prior's scale error | re-projection median (px) | time (s) |\n|---|---|---|---|---|---|---|---|"
     )
     rows = []
-    for subject in dict.fromkeys(dataset.labels["subject"].tolist()):
-        samples = dataset.where(subject=[subject])
-        rig = samples.rigs[int(samples.rig_index[0])]
+    for subject in dict.fromkeys(dataset.samples.labels["subject"].tolist()):
+        of_subject = dataset.where(subject=[subject])
+        rig = of_subject.rigs[int(of_subject.samples.rig_index[0])]
         R, t = np.asarray(rig.R, np.float64), np.asarray(rig.t, np.float64)
-        detections = from_dataset(samples, subject, names, image_size)
+        detections = from_dataset(of_subject, subject, names, image_size)
         detections = detections.without_intrinsics() if args.unknown_intrinsics else detections
         calibration = calibrate(detections, args.calibration)
         comparison = compare_rigs(calibration.cameras.R, calibration.cameras.t, R, t)
-        distance = np.linalg.norm(camera_centres(R, t) - np.median(samples.target3d[:, 0], axis=0), axis=-1)
+        distance = np.linalg.norm(camera_centres(R, t) - np.median(of_subject.samples.target3d[:, 0], axis=0), axis=-1)
         row = {
             "subject": subject,
             "rotation_deg": float(comparison.rotation_deg.max()),
             "centre_mm": float(comparison.centre_mm.max()),
             "centre_share": float((comparison.centre_mm / distance).max()),
             "scale_error": comparison.scale_error,
-            "prior_scale_error": prior_scale_error(samples.target3d, samples.skeleton, args.calibration.limb_lengths_mm),
+            "prior_scale_error": prior_scale_error(of_subject.samples.target3d, of_subject.skeleton, args.calibration.limb_lengths_mm),
             "reprojection_px": float(np.median(calibration.reprojection_median_px)),
             "seconds": calibration.seconds,
         }

@@ -86,11 +86,11 @@ def load_splits(data: H36MData) -> Splits:
         cameras_path=reference,
     )
     if trials:
-        first = first_trials(dataset.labels["subject"], dataset.labels["action"], dataset.labels["sequence"])
-        train = first & (dataset.labels["frame"] % data.train_stride == 0)
-        test = ~first & (dataset.labels["frame"] % data.test_stride == 0)
+        first = first_trials(dataset.samples.labels["subject"], dataset.samples.labels["action"], dataset.samples.labels["sequence"])
+        train = first & (dataset.samples.labels["frame"] % data.train_stride == 0)
+        test = ~first & (dataset.samples.labels["frame"] % data.test_stride == 0)
     else:
-        train = np.isin(dataset.labels["subject"], list(data.train_subjects))
+        train = np.isin(dataset.samples.labels["subject"], list(data.train_subjects))
         test = ~train
     train_set = dataset.subset(np.flatnonzero(train))
     return Splits(

@@ -72,9 +72,9 @@ def load_splits(data: HumanEvaData) -> Splits:
     train = load("train", data.train_subjects, data.train_stride)
     test = load("test", data.test_subjects, data.test_stride)
     train = on_training_calibration(train, data.cameras_path, reference, subject_rigs, data.train_subjects)
-    labels = test.labels
+    labels = test.samples.labels
     action_subject = np.array([f"{action} {subject}" for action, subject in zip(labels["action"], labels["subject"])])
-    test = dataclasses.replace(test, labels={**labels, GROUP_LABEL: action_subject})
+    test = test.with_samples(labels={**labels, GROUP_LABEL: action_subject})
     return Splits(train=train, test=test, group_label=GROUP_LABEL)
 
 

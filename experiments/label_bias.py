@@ -100,30 +100,30 @@ def relabelled(kind: str, train: MultiViewDataset) -> MultiViewDataset:
     """The labelled training set with the pseudo-labels of `kind` (one of `LABEL_KINDS`)."""
     if kind == "pseudo-labels":
         return train
-    if train.target3d is None:
+    if train.samples.target3d is None:
         raise ValueError("the label-bias study needs the training half's 3D ground truth (a reference calibration)")
     bias = training_bias(train)
-    frames = body_frames(train.target3d, train.skeleton)
+    frames = body_frames(train.samples.target3d, train.skeleton)
     if kind == "definition bias only":
-        labels = moved_in_body(train.target3d, frames, bias)
+        labels = moved_in_body(train.samples.target3d, frames, bias)
     elif kind == "bias removed":
-        labels = moved_in_body(train.pseudo3d, frames, -bias)
+        labels = moved_in_body(train.samples.pseudo3d, frames, -bias)
     else:
         raise ValueError(f"unknown label kind {kind!r}; expected one of {LABEL_KINDS}")
-    return dataclasses.replace(train, pseudo3d=labels.astype(np.float32))
+    return train.with_samples(pseudo3d=labels.astype(np.float32))
 
 
 def label_errors(dataset: MultiViewDataset, labels: np.ndarray, group_label: str, joints: np.ndarray | None = None) -> float:
     """P-MPJPE (mm) of [N, J, 3] `labels` against `dataset`'s ground truth over `joints` (default all),
     averaged over the groups of `group_label`, as the reports average their rows."""
     joints = np.arange(labels.shape[1]) if joints is None else joints
-    per_pose, _ = evaluation.compute_metrics(labels[:, joints].astype(np.float32), dataset.target3d[:, joints].astype(np.float32))
-    return evaluation.summarize(per_pose, dataset.labels.get(group_label))["group_average"]["p_mpjpe"]
+    per_pose, _ = evaluation.compute_metrics(labels[:, joints].astype(np.float32), dataset.samples.target3d[:, joints].astype(np.float32))
+    return evaluation.summarize(per_pose, dataset.samples.labels.get(group_label))["group_average"]["p_mpjpe"]
 
 
 def training_bias(train: MultiViewDataset) -> np.ndarray:
     """f64[J, 3]: the definition bias of a labelled training set's taught pseudo-labels."""
-    return definition_bias(train.pseudo3d, train.target3d, train.pseudo3d_weight > 0, train.skeleton)
+    return definition_bias(train.samples.pseudo3d, train.samples.target3d, train.samples.pseudo3d_weight > 0, train.skeleton)
 
 
 def label_table(train: MultiViewDataset, test: MultiViewDataset, splits: Splits, bias: np.ndarray) -> str:
@@ -152,10 +152,10 @@ def label_table(train: MultiViewDataset, test: MultiViewDataset, splits: Splits,
         "|" + "---|" * len(header),
     ]
     for half, dataset in (("training", train), ("test", test)):
-        removed = moved_in_body(dataset.pseudo3d, body_frames(dataset.target3d, dataset.skeleton), -bias)
-        cells = [label_errors(dataset, labels, splits.group_label) for labels in (dataset.pseudo3d, removed)]
+        removed = moved_in_body(dataset.samples.pseudo3d, body_frames(dataset.samples.target3d, dataset.skeleton), -bias)
+        cells = [label_errors(dataset, labels, splits.group_label) for labels in (dataset.samples.pseudo3d, removed)]
         if agreeing is not None:
-            cells += [label_errors(dataset, labels, splits.group_label, agreeing) for labels in (dataset.pseudo3d, removed)]
+            cells += [label_errors(dataset, labels, splits.group_label, agreeing) for labels in (dataset.samples.pseudo3d, removed)]
         lines.append(f"| {half} | " + " | ".join(f"{v:.1f}" for v in cells) + " |")
     return "\n".join(lines)
 
@@ -173,7 +173,7 @@ def mapped_output_report(config: ExperimentConfig, splits: Splits, offset: np.nd
     )
     flat = pred.reshape(-1, *pred.shape[2:])
     mapped = moved_in_body(flat, body_frames(flat, test.skeleton), offset).reshape(pred.shape).astype(np.float32)
-    summary = evaluation.evaluate_poses(mapped, target, test.labels.get(splits.group_label), valid, splits.agreeing_joints())
+    summary = evaluation.evaluate_poses(mapped, target, test.samples.labels.get(splits.group_label), valid, splits.agreeing_joints())
     return {"method": label, "results": {label: summary}}
 
 
@@ -200,7 +200,7 @@ def main(argv: list[str] | None = None) -> str:
         raise SystemExit("error: the label-bias study trains self-supervised rows (and adds the supervised twin itself): leave --supervision self")
     load_splits = h36m.EXPERIMENT.loader()
     splits = load_splits(base.data)
-    if splits.train.target3d is None:
+    if splits.train.samples.target3d is None:
         raise SystemExit("error: the label-bias study needs the training half's 3D ground truth: leave --data.cameras-path unset")
     train = pseudo_labelling.label(splits.train, base.pseudo_labels)
     test = pseudo_labelling.label(splits.test, base.pseudo_labels)
@@ -211,7 +211,7 @@ def main(argv: list[str] | None = None) -> str:
         results.append((label, run(config, load_splits, replace_labels=functools.partial(relabelled, kind))))
     # The first row's lifter, unchanged, its output mapped to the ground truth's joint definitions.
     first_label, _, first_config = row_configs(base)[0]
-    offset = definition_map(train.pseudo3d, train.target3d, train.pseudo3d_weight > 0, train.skeleton)
+    offset = definition_map(train.samples.pseudo3d, train.samples.target3d, train.samples.pseudo3d_weight > 0, train.skeleton)
     mapped_label = f"{first_label}, output mapped to the mocap's joints"
     results.append((mapped_label, mapped_output_report(first_config, splits, offset, mapped_label)))
     results.append((ablation.SUPERVISED_LABEL, run(ablation.supervised_twin(base), load_splits)))

@@ -78,7 +78,7 @@ def generator_config(scenario: str, samples_per_subject: int) -> SyntheticConfig
 
 def withhold_confidence(dataset: MultiViewDataset) -> MultiViewDataset:
     """Confidence 1 for every detected joint (0 stays 0): a detector without scores."""
-    return dataclasses.replace(dataset, confidence=(dataset.confidence > 0).astype(np.float32))
+    return dataset.with_samples(confidence=(dataset.samples.confidence > 0).astype(np.float32))
 
 
 def scenario_splits(scenario: str, data: SyntheticData) -> Splits:
@@ -94,8 +94,8 @@ def label_quality(train: MultiViewDataset, method: str, options: PseudoLabelConf
     begin = time.perf_counter()
     labelled = pseudo_labelling.label(train, dataclasses.replace(options, method=method))
     seconds = time.perf_counter() - begin
-    error = np.linalg.norm(labelled.pseudo3d - labelled.target3d, axis=-1)
-    taught = labelled.pseudo3d_weight > 0
+    error = np.linalg.norm(labelled.samples.pseudo3d - labelled.samples.target3d, axis=-1)
+    taught = labelled.samples.pseudo3d_weight > 0
     return {
         "mpjpe": float(error[taught].mean()),
         "median": float(np.median(error[taught])),

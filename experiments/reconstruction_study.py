@@ -309,7 +309,7 @@ def run(args: StudyArgs) -> dict:
     check_report(args.output, args.overwrite)
     lifter = inference.load(args.checkpoint)
     project = load_rig_project(args.data, progress=True)
-    if project.recovered_calibration is not None or project.validation.target3d is None:
+    if project.recovered_calibration is not None or project.validation.samples.target3d is None:
         raise ValueError(f"{args.data.root}: the study needs a calibrated project with ground_truth.npz (world mm)")
     dataset = project.validation
     held_out = ", ".join(args.data.validation_recordings) or f"the last {args.data.validation_fraction:.0%} of every recording"

@@ -106,7 +106,7 @@ def write_project(args: Args) -> list[str]:
         if match is None or match[1] not in CAMERA_NAMES:
             raise SystemExit(f"--shift {value!r}: expected CAMERA=N with CAMERA one of {CAMERA_NAMES}")
         shifts[match[1]] = int(match[2])
-    sequences = dataset.labels["sequence"]
+    sequences = dataset.samples.labels["sequence"]
     moved = sorted(name for name in set(sequences.tolist()) if any(fnmatch.fnmatchcase(name, pattern) for pattern in args.moved))
     if args.moved and not moved:
         raise SystemExit(f"--moved {list(args.moved)}: matches no recording (have {sorted(set(sequences.tolist()))[:6]} ...)")
@@ -126,7 +126,7 @@ def write_project(args: Args) -> list[str]:
         with atomic_output(args.output / CALIBRATION_TOML) as temporary:
             write_anipose_toml(temporary, rig, unit="m")
         print(f"calibration.toml: Human3.6M's distortion as OpenCV's, largest difference {error_px:.3f} px")
-    train = first_trials(dataset.labels["subject"], dataset.labels["action"], sequences)
+    train = first_trials(dataset.samples.labels["subject"], dataset.samples.labels["action"], sequences)
     image_size = np.array([H36M_IMAGE_SIZES[name] for name in CAMERA_NAMES])
     lenses = {}
     if args.intrinsics:
@@ -134,11 +134,11 @@ def write_project(args: Args) -> list[str]:
         lenses = {"K": np.asarray(lens.K, np.float64), "dist": np.asarray(lens.dist, np.float64), "distortion_model": np.array("opencv")}
     for sequence in sorted(set(sequences.tolist())):
         rows = np.flatnonzero(sequences == sequence)
-        frames = dataset.labels["frame"][rows].astype(np.int64)
-        keypoints = dataset.keypoints2d[rows].copy()
-        confidence = dataset.confidence[rows].copy()
+        frames = dataset.samples.labels["frame"][rows].astype(np.int64)
+        keypoints = dataset.samples.keypoints2d[rows].copy()
+        confidence = dataset.samples.confidence[rows].copy()
         if sequence in moved:
-            keypoints = _through_moved_rig(keypoints, dataset.target3d[rows], true_rig.cameras, moved_cameras)
+            keypoints = _through_moved_rig(keypoints, dataset.samples.target3d[rows], true_rig.cameras, moved_cameras)
         for camera, shift in shifts.items():
             c = CAMERA_NAMES.index(camera)
             # Camera c's frame f shows the instant of the others' frame f + shift.
@@ -161,7 +161,7 @@ def write_project(args: Args) -> list[str]:
         with atomic_output(folder / GROUND_TRUTH_NPZ) as temporary:
             np.savez(
                 temporary,
-                points3d=dataset.target3d[rows], frames=frames, joint_names=np.array(dataset.skeleton.joint_names),
+                points3d=dataset.samples.target3d[rows], frames=frames, joint_names=np.array(dataset.skeleton.joint_names),
             )  # fmt: skip
     return sorted(set(sequences[~train].tolist()))
 

@@ -104,7 +104,7 @@ def run(args: TuningArgs) -> dict:
     check_report(args.output, args.overwrite)
     lifter = inference.load(args.checkpoint)
     project = load_rig_project(args.data, progress=True)
-    if project.validation.target3d is None:
+    if project.validation.samples.target3d is None:
         raise ValueError(f"{args.data.root}: tuning needs ground_truth.npz (world mm)")
     configs = grid(args)
     bones = lifter.skeleton.bones

@@ -87,11 +87,11 @@ def synthetic_rows(subjects: int, max_frames: int) -> list[tuple[str, dict]]:
     dataset = generate(config)
     names = tuple(f"camera{c}" for c in range(dataset.num_views))
     rows = []
-    for index, subject in enumerate(dict.fromkeys(dataset.labels["subject"].tolist())):
-        samples = dataset.where(subject=[subject])
-        detections = from_dataset(samples, subject, names, np.tile(config.image_size, (dataset.num_views, 1))).without_intrinsics()
+    for index, subject in enumerate(dict.fromkeys(dataset.samples.labels["subject"].tolist())):
+        of_subject = dataset.where(subject=[subject])
+        detections = from_dataset(of_subject, subject, names, np.tile(config.image_size, (dataset.num_views, 1))).without_intrinsics()
         bones = sample_bone_lengths(stream_rng(config, Stream.BODY, index))
-        rows.append((subject, measure(detections, samples.target3d.astype(np.float64), dataset.skeleton, subject_height(bones), max_frames)))
+        rows.append((subject, measure(detections, of_subject.samples.target3d.astype(np.float64), dataset.skeleton, subject_height(bones), max_frames)))
     return rows
 
 

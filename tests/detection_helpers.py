@@ -10,9 +10,9 @@ from jaxpose.skeleton import COCO_17, H36M_17
 
 def views(test):
     """Every test view as one single-view sample: keypoints [M, J, 2], confidence [M, J], K [M, 3, 3]."""
-    N, C, J, _ = test.keypoints2d.shape
-    K = np.asarray(test.rigs.K)[test.rig_index].reshape(N * C, 3, 3)
-    return test.keypoints2d.reshape(N * C, J, 2), test.confidence.reshape(N * C, J), K
+    N, C, J, _ = test.samples.keypoints2d.shape
+    K = np.asarray(test.rigs.K)[test.samples.rig_index].reshape(N * C, 3, 3)
+    return test.samples.keypoints2d.reshape(N * C, J, 2), test.samples.confidence.reshape(N * C, J), K
 
 
 def coco_from_h36m(keypoints: np.ndarray) -> np.ndarray:

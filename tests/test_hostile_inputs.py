@@ -109,7 +109,7 @@ def test_a_crafted_pickle_in_the_cache_runs_no_code(tmp_path):
     (prepared / "train.evil.npy").write_bytes(pickle.dumps(_Payload(str(marker))))  # an object array's way in
     again = load_rig_project(config, progress=False)
     assert not marker.exists()
-    np.testing.assert_array_equal(np.asarray(first.train.keypoints2d), np.asarray(again.train.keypoints2d))
+    np.testing.assert_array_equal(np.asarray(first.train.samples.keypoints2d), np.asarray(again.train.samples.keypoints2d))
 
 
 def test_a_damaged_recovered_rig_is_prepared_again(tmp_path):
@@ -394,7 +394,7 @@ def test_a_broken_lifter_scores_worse_than_the_truth_on_every_measure(small_proj
     truth, _ = evaluation.ground_truth_in_views(test)
 
     def measures(lifted):
-        return self_consistency.self_consistency(lifted, test, test.pseudo3d, test.pseudo3d_weight > 0)
+        return self_consistency.self_consistency(lifted, test, test.samples.pseudo3d, test.samples.pseudo3d_weight > 0)
 
     exact, diverged = measures(truth), measures(np.full_like(truth, np.nan))
     for name in self_consistency.METRICS:
@@ -437,8 +437,8 @@ def test_one_far_off_keypoint_is_undetected_and_the_project_loads(small_project,
     before = _snapshot(project)
     data = load_rig_project(RigProjectConfig(root=project), progress=False)
     for part in (data.train, data.validation):
-        assert np.isfinite(np.asarray(part.keypoints2d)).all() and np.isfinite(np.asarray(part.confidence)).all()
-    assert (np.asarray(data.train.keypoints2d) < 3000).all()
+        assert np.isfinite(np.asarray(part.samples.keypoints2d)).all() and np.isfinite(np.asarray(part.samples.confidence)).all()
+    assert (np.asarray(data.train.samples.keypoints2d) < 3000).all()
     assert _snapshot(project) == before
 
 

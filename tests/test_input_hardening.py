@@ -112,7 +112,7 @@ def _load_and_prepare(root, loader: str):
     if isinstance(data, MultiViewDataset):
         labelled = pseudo_labelling.label(data)
         validate_batch(labelled.batch(np.arange(len(labelled))))
-        arrays = [labelled.keypoints2d, labelled.target3d, labelled.pseudo3d, labelled.pseudo3d_weight]
+        arrays = [labelled.samples.keypoints2d, labelled.samples.target3d, labelled.samples.pseudo3d, labelled.samples.pseudo3d_weight]
     else:
         arrays = [data.keypoints2d, data.univ3d, data.camera3d]
     for array in arrays:

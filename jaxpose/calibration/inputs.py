@@ -80,16 +80,16 @@ def from_dataset(
 
     The extrinsics of the data set are dropped: they are what calibration recovers.
     """
-    rows = np.flatnonzero(dataset.labels["subject"] == subject)
+    rows = np.flatnonzero(dataset.samples.labels["subject"] == subject)
     if not len(rows):
-        raise DataFormatError(source, f"samples of subject {subject!r}", f"subjects {sorted(set(dataset.labels['subject']))}")
-    rig_indices = np.unique(dataset.rig_index[rows])
+        raise DataFormatError(source, f"samples of subject {subject!r}", f"subjects {sorted(set(dataset.samples.labels['subject']))}")
+    rig_indices = np.unique(dataset.samples.rig_index[rows])
     if len(rig_indices) != 1:
         raise ValueError(f"{source}: subject {subject!r} spans {len(rig_indices)} rigs; calibrate one rig at a time")
     rig = dataset.rigs[int(rig_indices[0])]
     return RigDetections(
-        keypoints=dataset.keypoints2d[rows],
-        confidence=dataset.confidence[rows],
+        keypoints=dataset.samples.keypoints2d[rows],
+        confidence=dataset.samples.confidence[rows],
         camera_names=tuple(camera_names),
         image_size=np.asarray(image_size, np.int64),
         skeleton=dataset.skeleton,

@@ -7,11 +7,13 @@ from jaxpose.data.dataset import (
     steps_per_epoch,
     training_indices,
 )
+from jaxpose.data.samples import Samples
 
 __all__ = [
     "BatchValidationError",
     "MultiViewBatch",
     "MultiViewDataset",
+    "Samples",
     "epoch_order",
     "steps_per_epoch",
     "training_indices",

@@ -1,7 +1,8 @@
 """`MultiViewBatch`, the unit of training data, and its host-side validation.
 
 Validation runs in numpy on the host, before data enter `jax.jit`: inside the step a bad value can
-only become a NaN, outside it can become an error message that names the field, shape and index.
+only become a NaN, outside it can become an error message that names the field, shape and index.  A field
+that is also a data set's per-sample array has the shape `jaxpose.data.samples.Samples` gives it.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import numpy as np
 from flax import struct
 
 from jaxpose.camera import Cameras, camera_centres
+from jaxpose.data import samples
 from jaxpose.formats.rig_cameras import MIN_BASELINE_MM
 
 
@@ -136,9 +138,9 @@ def validate_batch(batch: MultiViewBatch, min_views: int = 2) -> None:
         raise BatchValidationError(
             f"keypoints2d: need at least 1 sample and 2 joints (root and one more), got shape {keypoints.shape}"
         )
-    keypoints = _check_shape("keypoints2d", keypoints, (B, C, J, 2))
-    confidence = _check_shape("confidence", batch.confidence, (B, C, J))
-    pseudo3d = _check_shape("pseudo3d", batch.pseudo3d, (B, J, 3))
+    keypoints = _check_shape("keypoints2d", keypoints, samples.field_shape("keypoints2d", B, C, J))
+    confidence = _check_shape("confidence", batch.confidence, samples.field_shape("confidence", B, C, J))
+    pseudo3d = _check_shape("pseudo3d", batch.pseudo3d, samples.field_shape("pseudo3d", B, C, J))
     _check_finite("keypoints2d", keypoints)
     _check_finite("confidence", confidence)
     _check_finite("pseudo3d", pseudo3d)
@@ -146,16 +148,16 @@ def validate_batch(batch: MultiViewBatch, min_views: int = 2) -> None:
     if out_of_range.any():
         index = _first_index(out_of_range)
         raise BatchValidationError(f"confidence: values must lie in [0, 1]; {confidence[index]} at index {index}")
-    for name, shape in (("pseudo3d_weight", (B, J)), ("detection_weight", (B, C, J))):
+    for name in ("pseudo3d_weight", "detection_weight"):
         if getattr(batch, name) is not None:
-            weight = _check_shape(name, getattr(batch, name), shape)
+            weight = _check_shape(name, getattr(batch, name), samples.field_shape(name, B, C, J))
             _check_finite(name, weight)
             outside = (weight < 0) | (weight > 1)
             if outside.any():
                 index = _first_index(outside)
                 raise BatchValidationError(f"{name}: values must lie in [0, 1]; {weight[index]} at index {index}")
     if batch.target3d is not None:
-        target = _check_shape("target3d", batch.target3d, (B, J, 3))
+        target = _check_shape("target3d", batch.target3d, samples.field_shape("target3d", B, C, J))
         _check_finite("target3d", target)
     if (batch.window2d is None) != (batch.window_confidence is None):
         raise BatchValidationError("window2d and window_confidence: both or neither")

@@ -6,6 +6,11 @@ never mix views of different instants (the authors' release recovered views by r
 Cameras are stored once per rig (a subject's calibration) and gathered per batch by `rig_index`.
 A data set can also carry every frame of the recordings its samples come from (`FrameContext`), so that
 a temporal lifter's window can be cut around any sample however the samples were thinned.
+
+The per-sample arrays are one pytree, `jaxpose.data.samples.Samples`, which alone lists them; code reads
+them as `dataset.samples.keypoints2d`, not through accessors here: accessors would list every field a
+second time, and the explicit `samples.` tells a per-sample array from what the samples share (skeleton,
+rigs, context).  `with_samples` replaces some of them.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import numpy as np
 from jaxpose.camera import Cameras, undistort_compiled
 from jaxpose.chunks import map_in_chunks
 from jaxpose.data.batch import MultiViewBatch
+from jaxpose.data.samples import Samples, check_shapes
 from jaxpose.skeleton import Skeleton
 
 
@@ -57,70 +63,49 @@ def consecutive_spans(labels: Mapping[str, np.ndarray]) -> np.ndarray:
 
 @dataclasses.dataclass(frozen=True)
 class MultiViewDataset:
-    """N instants, C views, J joints; all arrays numpy float32 unless said otherwise.
-
-    keypoints2d f32[N, C, J, 2] pixels; confidence f32[N, C, J]; rigs: `Cameras` of numpy arrays
-    with leading [R, C]; rig_index i32[N]; target3d f32[N, J, 3] world mm or None; pseudo3d and
-    pseudo3d_weight (f32[N, J, 3], f32[N, J]) once `jaxpose.training.pseudo_labelling.label` has set them, and detection_weight
-    f32[N, C, J] when its method rejects outlying views (see `MultiViewBatch`); labels: per-sample
-    string/int arrays such as "subject", "action", "frame" used to group evaluation results.
-    context, context_row i32[N], context_span i32[N, 2]: every frame of the samples' recordings, each
-    sample's own row in it and its stretch of consecutive frames (`window_rows`); None where the loader
-    keeps no full-rate 2D (then only the frame lifter trains on it).
+    """N instants seen by C views, J joints: their per-sample arrays (`samples`, see `Samples`), and what
+    they share: the skeleton, the `rigs` (`Cameras` of numpy arrays with leading [R, C], gathered per sample
+    by `samples.rig_index`) and the `context`: every frame of the samples' recordings, which each sample's
+    context rows point into (`window_rows`); None where the loader keeps no full-rate 2D (then only the
+    frame lifter trains on it).
     """
 
     skeleton: Skeleton
-    keypoints2d: np.ndarray
-    confidence: np.ndarray
     rigs: Cameras
-    rig_index: np.ndarray
-    target3d: np.ndarray | None = None
-    pseudo3d: np.ndarray | None = None
-    pseudo3d_weight: np.ndarray | None = None
-    detection_weight: np.ndarray | None = None
-    labels: Mapping[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    samples: Samples
     context: FrameContext | None = None
-    context_row: np.ndarray | None = None
-    context_span: np.ndarray | None = None
 
     def __post_init__(self):
-        N, C, J, two = self.keypoints2d.shape
+        samples = self.samples
+        N, C, J, two = samples.keypoints2d.shape
         if two != 2 or J != self.skeleton.num_joints:
             raise ValueError(
                 f"keypoints2d: expected (N, C, {self.skeleton.num_joints}, 2) for skeleton {self.skeleton.name},"
-                f" got {self.keypoints2d.shape}"
+                f" got {samples.keypoints2d.shape}"
             )
-        expected = {
-            "confidence": (self.confidence, (N, C, J)),
-            "rig_index": (self.rig_index, (N,)),
-            "target3d": (self.target3d, (N, J, 3)),
-            "pseudo3d": (self.pseudo3d, (N, J, 3)),
-            "pseudo3d_weight": (self.pseudo3d_weight, (N, J)),
-            "detection_weight": (self.detection_weight, (N, C, J)),
-            "context_row": (self.context_row, (N,)),
-            "context_span": (self.context_span, (N, 2)),
-        }
-        for name, (array, shape) in expected.items():
-            if array is not None and array.shape != shape:
-                raise ValueError(f"{name}: expected shape {shape}, got {array.shape}")
+        check_shapes(samples, C, J)
         if self.rigs.K.shape[1] != C:
             raise ValueError(f"rigs: {self.rigs.K.shape[1]} views per rig but keypoints2d has C={C}")
-        if N and (self.rig_index.min() < 0 or self.rig_index.max() >= self.rigs.K.shape[0]):
-            raise ValueError(f"rig_index: values must lie in [0, {self.rigs.K.shape[0]}), got {self.rig_index.max()}")
-        for name, values in self.labels.items():
-            if len(values) != N:
-                raise ValueError(f"labels[{name!r}]: {len(values)} entries for {N} samples")
-        if (self.context is None) != (self.context_row is None) or (self.context is None) != (self.context_span is None):
+        if N and (samples.rig_index.min() < 0 or samples.rig_index.max() >= self.rigs.K.shape[0]):
+            raise ValueError(f"rig_index: values must lie in [0, {self.rigs.K.shape[0]}), got {samples.rig_index.max()}")
+        if (self.context is None) != (samples.context_row is None) or (self.context is None) != (samples.context_span is None):
             raise ValueError("context, context_row and context_span: all three or none")
         if self.context is not None and self.context.keypoints2d.shape[1:] != (C, J, 2):
             raise ValueError(f"context.keypoints2d: expected (M, {C}, {J}, 2), got {self.context.keypoints2d.shape}")
 
+    def with_samples(self, **arrays) -> "MultiViewDataset":
+        """This data set with the per-sample `arrays` (fields of `Samples`) replaced."""
+        return dataclasses.replace(self, samples=dataclasses.replace(self.samples, **arrays))
+
     def with_own_context(self) -> "MultiViewDataset":
         """This data set, whose samples are every frame of its recordings in order, as its own context:
         subsets taken afterwards (a stride, a split) keep the frames between their samples for windows."""
-        context = FrameContext(self.keypoints2d, self.confidence)
+        samples = self.samples
+        rows = np.arange(len(self), dtype=np.int32)
         return dataclasses.replace(
-            self, context=context, context_row=np.arange(len(self), dtype=np.int32), context_span=consecutive_spans(self.labels)
+            self,
+            context=FrameContext(samples.keypoints2d, samples.confidence),
+            samples=dataclasses.replace(samples, context_row=rows, context_span=consecutive_spans(samples.labels)),
         )
 
     def windows(self, indices: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
@@ -131,47 +116,31 @@ class MultiViewDataset:
                 f"a temporal window of {window} frames needs each recording's frames in order, and this data set"
                 " keeps none (its loader gives single frames): use --model.temporal-window 1"
             )
-        rows = window_rows(self.context_row[indices], self.context_span[indices], window)
+        rows = window_rows(self.samples.context_row[indices], self.samples.context_span[indices], window)
         return (
             np.moveaxis(self.context.keypoints2d[rows], 1, 2),
             np.moveaxis(self.context.confidence[rows], 1, 2),
         )
 
     def __len__(self) -> int:
-        return self.keypoints2d.shape[0]
+        return self.samples.keypoints2d.shape[0]
 
     @property
     def num_views(self) -> int:
-        return self.keypoints2d.shape[1]
+        return self.samples.keypoints2d.shape[1]
 
     def subset(self, indices: np.ndarray) -> "MultiViewDataset":
         """The samples `indices`, copied; every sample in order is the data set itself (a memory-mapped
         data set then stays on disk)."""
         if len(indices) == len(self) and np.array_equal(indices, np.arange(len(self))):
             return self
-
-        def take(array):
-            return None if array is None else array[indices]
-
-        return dataclasses.replace(
-            self,
-            keypoints2d=self.keypoints2d[indices],
-            confidence=self.confidence[indices],
-            rig_index=self.rig_index[indices],
-            target3d=take(self.target3d),
-            pseudo3d=take(self.pseudo3d),
-            pseudo3d_weight=take(self.pseudo3d_weight),
-            detection_weight=take(self.detection_weight),
-            labels={name: values[indices] for name, values in self.labels.items()},
-            context_row=take(self.context_row),
-            context_span=take(self.context_span),
-        )
+        return dataclasses.replace(self, samples=jax.tree.map(lambda array: array[indices], self.samples))
 
     def where(self, **label_values) -> "MultiViewDataset":
         """The samples whose labels are in the given values, e.g. `where(subject=["S9", "S11"])`."""
         keep = np.ones(len(self), dtype=bool)
         for name, values in label_values.items():
-            keep &= np.isin(self.labels[name], np.asarray(values))
+            keep &= np.isin(self.samples.labels[name], np.asarray(values))
         return self.subset(np.flatnonzero(keep))
 
     def recalibrated(self, rigs: Mapping[str, Cameras]) -> "MultiViewDataset":
@@ -180,38 +149,41 @@ class MultiViewDataset:
         For training on a calibration recovered from the detections (`jaxpose.calibrate`): its world
         frame is not the motion capture's, so the 3D ground truth no longer fits and is dropped.
         """
-        subjects = list(dict.fromkeys(self.labels["subject"].tolist()))
+        of_sample = self.samples.labels["subject"].tolist()
+        subjects = list(dict.fromkeys(of_sample))
         missing = [subject for subject in subjects if subject not in rigs]
         if missing:
             raise ValueError(f"recalibrated: no rig for subjects {missing} (given: {sorted(rigs)})")
         stacked = jax.tree.map(lambda *fields: np.stack(fields), *[rigs[subject] for subject in subjects])
         index = {subject: i for i, subject in enumerate(subjects)}
-        rig_index = np.array([index[subject] for subject in self.labels["subject"].tolist()], np.int32)
-        return dataclasses.replace(self, rigs=stacked, rig_index=rig_index, target3d=None)
+        rig_index = np.array([index[subject] for subject in of_sample], np.int32)
+        return dataclasses.replace(self.with_samples(rig_index=rig_index, target3d=None), rigs=stacked)
 
     def usable_view_count(self) -> np.ndarray:
         """i32[N]: views whose root and at least one other joint were detected (confidence > 0)."""
-        return ((self.confidence[..., 0] > 0) & ((self.confidence[..., 1:] > 0).sum(-1) >= 1)).sum(-1)
+        confidence = self.samples.confidence
+        return ((confidence[..., 0] > 0) & ((confidence[..., 1:] > 0).sum(-1) >= 1)).sum(-1)
 
     def cameras_for(self, indices: np.ndarray) -> Cameras:
-        return jax.tree.map(lambda field: field[self.rig_index[indices]], self.rigs)
+        return jax.tree.map(lambda field: field[self.samples.rig_index[indices]], self.rigs)
 
     def batch(self, indices: np.ndarray, window: int = 1) -> MultiViewBatch:
         """Gather samples into a `MultiViewBatch` of numpy arrays (vectorized, no per-sample loop), with
         the lifter's input windows of `window` frames where it is > 1."""
-        if self.pseudo3d is None:
+        samples = self.samples
+        if samples.pseudo3d is None:
             raise ValueError("dataset has no pseudo-labels yet: label it with jaxpose.training.pseudo_labelling.label first")
         window2d, window_confidence = self.windows(indices, window) if window > 1 else (None, None)
         return MultiViewBatch(
             window2d=window2d,
             window_confidence=window_confidence,
-            keypoints2d=self.keypoints2d[indices],
-            confidence=self.confidence[indices],
+            keypoints2d=samples.keypoints2d[indices],
+            confidence=samples.confidence[indices],
             cameras=self.cameras_for(indices),
-            pseudo3d=self.pseudo3d[indices],
-            pseudo3d_weight=self.pseudo3d_weight[indices],
-            detection_weight=None if self.detection_weight is None else self.detection_weight[indices],
-            target3d=None if self.target3d is None else self.target3d[indices],
+            pseudo3d=samples.pseudo3d[indices],
+            pseudo3d_weight=samples.pseudo3d_weight[indices],
+            detection_weight=None if samples.detection_weight is None else samples.detection_weight[indices],
+            target3d=None if samples.target3d is None else samples.target3d[indices],
         )
 
     def undistorted(self) -> "MultiViewDataset":
@@ -222,12 +194,13 @@ class MultiViewDataset:
         """
         if self.rigs.dist is None:
             return self
-        points = _undistort(self.rigs, self.rig_index, self.keypoints2d)
+        samples = self.samples
+        points = _undistort(self.rigs, samples.rig_index, samples.keypoints2d)
         # A detection the lens model cannot undistort (far outside the image: NaN) is undetected.
         placed = np.isfinite(points).all(-1)
-        confidence = np.where(placed, self.confidence, 0.0).astype(self.confidence.dtype) if not placed.all() else self.confidence
+        confidence = np.where(placed, samples.confidence, 0.0).astype(samples.confidence.dtype) if not placed.all() else samples.confidence
         points = np.where(placed[..., None], points, 0.0).astype(np.float32) if not placed.all() else points
-        dataset = dataclasses.replace(self, keypoints2d=points, confidence=confidence, rigs=self.rigs.without_distortion())
+        dataset = dataclasses.replace(self.with_samples(keypoints2d=points, confidence=confidence), rigs=self.rigs.without_distortion())
         if self.context is None:
             return dataset
         # Only the frames some sample's window can reach, each through the rig of a sample that reaches it.
@@ -243,24 +216,26 @@ class MultiViewDataset:
     def _compact_context(dataset: "MultiViewDataset") -> "MultiViewDataset":
         """`dataset` with its context reduced to the stretches its samples lie in."""
         M = len(dataset.context.keypoints2d)
+        samples = dataset.samples
         edges = np.zeros(M + 1, np.int64)
-        spans = np.unique(dataset.context_span, axis=0)
+        spans = np.unique(samples.context_span, axis=0)
         np.add.at(edges, spans[:, 0], 1)
         np.add.at(edges, spans[:, 1], -1)
         used = np.cumsum(edges[:M]) > 0
         new_row = (np.cumsum(used) - 1).astype(np.int32)
-        span = np.stack([new_row[dataset.context_span[:, 0]], new_row[dataset.context_span[:, 1] - 1] + 1], -1)
+        span = np.stack([new_row[samples.context_span[:, 0]], new_row[samples.context_span[:, 1] - 1] + 1], -1)
         context = FrameContext(dataset.context.keypoints2d[used], dataset.context.confidence[used])
-        return dataclasses.replace(dataset, context=context, context_row=new_row[dataset.context_row], context_span=span.astype(np.int32))
+        renumbered = dataclasses.replace(samples, context_row=new_row[samples.context_row], context_span=span.astype(np.int32))
+        return dataclasses.replace(dataset, context=context, samples=renumbered)
 
     @staticmethod
     def _context_rig_index(dataset: "MultiViewDataset") -> np.ndarray:
         """i32[M]: each context row's rig, that of a sample whose stretch contains it (all of a stretch's
         samples come from one recording, so one rig)."""
-        spans, first = np.unique(dataset.context_span, axis=0, return_index=True)
+        spans, first = np.unique(dataset.samples.context_span, axis=0, return_index=True)
         rig = np.zeros(len(dataset.context.keypoints2d), np.int32)
         for (start, end), sample in zip(spans.tolist(), first.tolist()):
-            rig[start:end] = dataset.rig_index[sample]
+            rig[start:end] = dataset.samples.rig_index[sample]
         return rig
 
 
@@ -279,44 +254,33 @@ def _undistort(rigs: Cameras, rig_index: np.ndarray, keypoints2d: np.ndarray) ->
 
 
 def concatenate(parts: Sequence[MultiViewDataset]) -> MultiViewDataset:
-    """One data set of parts that share skeleton, rigs and labels' names; their contexts (shared or
-    not) are joined with the rows renumbered."""
-    first = parts[0]
-
-    def joined(name):
-        arrays = [getattr(part, name) for part in parts]
-        return None if arrays[0] is None else np.concatenate(arrays)
-
-    contexts, offsets, rows, spans = [], {}, [], []
+    """One data set of parts that share skeleton and rigs and have the same per-sample fields (the same
+    labels' names); their contexts (shared or not) are joined with the rows renumbered."""
+    contexts, offsets, renumbered = [], {}, []
     for part in parts:
-        if part.context is None:
-            continue
-        if id(part.context) not in offsets:
-            offsets[id(part.context)] = sum(len(c.keypoints2d) for c in contexts)
-            contexts.append(part.context)
-        rows.append(part.context_row + offsets[id(part.context)])
-        spans.append(part.context_span + offsets[id(part.context)])
-    if contexts and len(rows) != len(parts):
+        samples = part.samples
+        if part.context is not None:
+            if id(part.context) not in offsets:
+                offsets[id(part.context)] = sum(len(c.keypoints2d) for c in contexts)
+                contexts.append(part.context)
+            offset = offsets[id(part.context)]
+            samples = dataclasses.replace(
+                samples, context_row=(samples.context_row + offset).astype(np.int32), context_span=(samples.context_span + offset).astype(np.int32)
+            )
+        renumbered.append(samples)
+    if contexts and any(part.context is None for part in parts):
         raise ValueError("concatenate: either every part has a frame context or none has")
+    for field in dataclasses.fields(Samples):
+        structures = {str(jax.tree.structure(getattr(samples, field.name))) for samples in renumbered}
+        if len(structures) > 1:
+            raise ValueError(f"concatenate: the parts differ in {field.name} (None in some, or other labels): {sorted(structures)}")
     context = None
     if contexts:
         context = FrameContext(
             np.concatenate([c.keypoints2d for c in contexts]), np.concatenate([c.confidence for c in contexts])
         )
-    return dataclasses.replace(
-        first,
-        keypoints2d=joined("keypoints2d"),
-        confidence=joined("confidence"),
-        rig_index=joined("rig_index"),
-        target3d=joined("target3d"),
-        pseudo3d=joined("pseudo3d"),
-        pseudo3d_weight=joined("pseudo3d_weight"),
-        detection_weight=joined("detection_weight"),
-        labels={name: np.concatenate([part.labels[name] for part in parts]) for name in first.labels},
-        context=context,
-        context_row=np.concatenate(rows).astype(np.int32) if contexts else None,
-        context_span=np.concatenate(spans).astype(np.int32) if contexts else None,
-    )
+    samples = jax.tree.map(lambda *arrays: np.concatenate(arrays), *renumbered)
+    return dataclasses.replace(parts[0], samples=samples, context=context)
 
 
 def epoch_order(num_samples: int, seed: int, epoch: int) -> np.ndarray:

@@ -21,7 +21,7 @@ def ground_truth_joints(dataset: MultiViewDataset) -> np.ndarray:
     project's ground truth shares only some joint names with the detector's skeleton; NaN elsewhere).
     A joint counts where it is known in most instants that have ground truth; the root always counts
     (evaluation is root-relative), and an instant lacking any counted joint has no ground truth."""
-    finite = np.isfinite(dataset.target3d).all(-1)  # [N, J]
+    finite = np.isfinite(dataset.samples.target3d).all(-1)  # [N, J]
     rows = finite.any(-1)
     if not rows.any():
         return np.arange(dataset.skeleton.num_joints)
@@ -32,7 +32,7 @@ def ground_truth_joints(dataset: MultiViewDataset) -> np.ndarray:
 
 def ground_truth_joint_names(dataset: MultiViewDataset) -> tuple[str, ...]:
     """The names of `ground_truth_joints`; empty where the data set has no ground truth at all."""
-    if dataset.target3d is None or not len(dataset) or not np.isfinite(dataset.target3d).any():
+    if dataset.samples.target3d is None or not len(dataset) or not np.isfinite(dataset.samples.target3d).any():
         return ()
     return tuple(dataset.skeleton.joint_names[j] for j in ground_truth_joints(dataset))
 

@@ -23,6 +23,7 @@ import numpy as np
 from jaxpose.camera import Cameras, project
 from jaxpose.chunks import map_in_chunks
 from jaxpose.data.dataset import MultiViewDataset
+from jaxpose.data.samples import Samples
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.skeleton import Skeleton
 
@@ -77,20 +78,14 @@ def build_dataset(skeleton: Skeleton, recordings: Sequence[CapturedSequence], ri
     def label(field):
         return np.concatenate([np.full(len(r.frames), getattr(r, field)) for r in recordings])
 
-    every_frame = MultiViewDataset(
-        skeleton=skeleton,
-        keypoints2d=keypoints2d,
-        confidence=confidence,
-        rigs=stacked,
-        rig_index=rig_index,
-        target3d=target3d,
-        labels={
-            "subject": label("subject"),
-            "action": label("action"),
-            "sequence": label("sequence"),
-            "frame": np.concatenate([r.frames for r in recordings]).astype(np.int32),
-        },
-    ).with_own_context()
+    labels = {
+        "subject": label("subject"),
+        "action": label("action"),
+        "sequence": label("sequence"),
+        "frame": np.concatenate([r.frames for r in recordings]).astype(np.int32),
+    }
+    samples = Samples(keypoints2d=keypoints2d, confidence=confidence, rig_index=rig_index, target3d=target3d, labels=labels)
+    every_frame = MultiViewDataset(skeleton=skeleton, rigs=stacked, samples=samples).with_own_context()
     offsets = np.cumsum([0] + [len(r.frames) for r in recordings[:-1]])
     kept = [np.arange(len(r.frames)) if r.kept is None else np.asarray(r.kept) for r in recordings]
     return every_frame.subset(np.concatenate([offset + rows for offset, rows in zip(offsets, kept)]))

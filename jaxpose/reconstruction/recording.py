@@ -130,24 +130,24 @@ def recording_inputs(dataset: MultiViewDataset) -> Iterator[RecordingInput]:
     """The recordings of a data set (labels "recording" and "frame", e.g. `load_every_instant`'s
     validation part), each undistorted and on its whole frame axis, in the order they appear."""
     dataset = dataset.undistorted()
-    names = dataset.labels["recording"]
+    names = dataset.samples.labels["recording"]
     _, first = np.unique(names, return_index=True)
     for name in names[np.sort(first)]:
         rows = np.flatnonzero(names == name)
-        rows = rows[np.argsort(dataset.labels["frame"][rows], kind="stable")]
-        rigs = np.unique(dataset.rig_index[rows])
+        rows = rows[np.argsort(dataset.samples.labels["frame"][rows], kind="stable")]
+        rigs = np.unique(dataset.samples.rig_index[rows])
         if len(rigs) != 1:
             raise ValueError(f"recording {name}: its instants have {len(rigs)} rigs; expected one")
-        frame = dataset.labels["frame"][rows].astype(np.int64)
+        frame = dataset.samples.labels["frame"][rows].astype(np.int64)
         index = frame - frame[0]
         F = int(index[-1]) + 1
-        keypoints = np.zeros((F, *dataset.keypoints2d.shape[1:]), np.float32)
-        confidence = np.zeros((F, *dataset.confidence.shape[1:]), np.float32)
-        keypoints[index], confidence[index] = dataset.keypoints2d[rows], dataset.confidence[rows]
+        keypoints = np.zeros((F, *dataset.samples.keypoints2d.shape[1:]), np.float32)
+        confidence = np.zeros((F, *dataset.samples.confidence.shape[1:]), np.float32)
+        keypoints[index], confidence[index] = dataset.samples.keypoints2d[rows], dataset.samples.confidence[rows]
         target = None
-        if dataset.target3d is not None:
-            target = np.full((F, *dataset.target3d.shape[1:]), np.nan, np.float32)
-            target[index] = dataset.target3d[rows]
+        if dataset.samples.target3d is not None:
+            target = np.full((F, *dataset.samples.target3d.shape[1:]), np.nan, np.float32)
+            target[index] = dataset.samples.target3d[rows]
         cameras = dataset.rigs[int(rigs[0])]
         yield RecordingInput(str(name), frame[0] + np.arange(F), cameras, keypoints, confidence, target)
 

@@ -19,6 +19,7 @@ import numpy as np
 from jaxpose.camera import Cameras
 from jaxpose.data import ground_truth
 from jaxpose.data.dataset import FrameContext, MultiViewDataset, consecutive_spans
+from jaxpose.data.samples import Samples
 from jaxpose.layouts import lifting_skeleton
 from jaxpose.rig import cache
 from jaxpose.rig.cache import PreparedProject
@@ -98,10 +99,10 @@ def split(prepared: PreparedProject, config: SplitConfig) -> RigProject:
     spans = consecutive_spans({"frame": arrays["frame"], "sequence": arrays["recording"]})
     train = _dataset(prepared, spans, "train", np.flatnonzero(sample & ~held_out))
     validation = _dataset(prepared, spans, "validation", np.flatnonzero(sample & held_out))
-    if train.target3d is not None and not np.isfinite(train.target3d).all():
+    if train.samples.target3d is not None and not np.isfinite(train.samples.target3d).all():
         # Ground truth for only some joints or recordings serves evaluation, not the supervised twin.
         log.info("the ground truth does not cover every training instant and joint: no --supervision full")
-        train = dataclasses.replace(train, target3d=None)
+        train = train.with_samples(target3d=None)
     return RigProject(
         train=train,
         validation=validation,
@@ -124,12 +125,12 @@ def _dataset(prepared: PreparedProject, spans: np.ndarray, part: str, rows: np.n
     skeleton = lifting_skeleton(meta["layout"])
     rigs = Cameras(**{field: np.asarray(values, np.float32) for field, values in meta["rigs"].items()})
     selected = cache.selected_rows(prepared.folder, part, arrays, rows)
-    return MultiViewDataset(
-        skeleton=skeleton, keypoints2d=selected["keypoints2d"], confidence=selected["confidence"], rigs=rigs,
-        rig_index=selected["rig_index"], target3d=selected.get("target3d"),
+    samples = Samples(
+        keypoints2d=selected["keypoints2d"], confidence=selected["confidence"], rig_index=selected["rig_index"], target3d=selected.get("target3d"),
         labels={"subject": selected["subject"], "recording": selected["recording"], "sequence": selected["recording"], "frame": selected["frame"]},
-        context=FrameContext(arrays["keypoints2d"], arrays["confidence"]), context_row=rows.astype(np.int32), context_span=spans[rows],
+        context_row=rows.astype(np.int32), context_span=spans[rows],
     )  # fmt: skip
+    return MultiViewDataset(skeleton, rigs, samples, context=FrameContext(arrays["keypoints2d"], arrays["confidence"]))
 
 
 def _held_out(config: SplitConfig, recording: str, instants: int) -> np.ndarray:

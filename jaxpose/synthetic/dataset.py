@@ -6,6 +6,7 @@ import numpy as np
 
 from jaxpose.camera import Cameras
 from jaxpose.data.dataset import MultiViewDataset
+from jaxpose.data.samples import Samples
 from jaxpose.synthetic.config import Stream, SyntheticConfig, stream_rng
 from jaxpose.synthetic.detector import simulate_detector
 from jaxpose.synthetic.motion import simulate_subject
@@ -45,12 +46,14 @@ def generate(config: SyntheticConfig = SyntheticConfig()) -> MultiViewDataset:
         sequence_offset += int(motion.sequence.max()) + 1
     return MultiViewDataset(
         skeleton=H36M_17,
-        keypoints2d=np.concatenate(keypoints),
-        confidence=np.concatenate(confidence),
         rigs=Cameras(
             K=np.stack([r.K for r in rigs]), R=np.stack([r.R for r in rigs]), t=np.stack([r.t for r in rigs]), dist=None
         ),
-        rig_index=np.repeat(np.arange(config.num_subjects, dtype=np.int32), config.samples_per_subject),
-        target3d=np.concatenate(targets),
-        labels={name: np.concatenate(values) for name, values in labels.items()},
+        samples=Samples(
+            keypoints2d=np.concatenate(keypoints),
+            confidence=np.concatenate(confidence),
+            rig_index=np.repeat(np.arange(config.num_subjects, dtype=np.int32), config.samples_per_subject),
+            target3d=np.concatenate(targets),
+            labels={name: np.concatenate(values) for name, values in labels.items()},
+        ),
     ).with_own_context()

@@ -35,11 +35,11 @@ def ground_truth_in_views(dataset: MultiViewDataset) -> tuple[np.ndarray, np.nda
     """What single-view evaluation compares with: the 3D ground truth root-relative in every view's
     camera frame [N, C, J, 3], and bool[N, C]: the views that can be lifted (their root was detected)
     and have ground truth (every joint of `ground_truth_joints`; other joints may be NaN)."""
-    if dataset.target3d is None:
+    if dataset.samples.target3d is None:
         raise ValueError("the test split has no 3D ground truth to evaluate against")
-    has_truth = np.isfinite(dataset.target3d[:, ground_truth_joints(dataset)]).all((-2, -1))  # [N]
-    target = np.where(has_truth[:, None, None], dataset.target3d, 0.0)
-    return poses_in_views(dataset, target), (dataset.confidence[..., 0] > 0) & has_truth[:, None]
+    has_truth = np.isfinite(dataset.samples.target3d[:, ground_truth_joints(dataset)]).all((-2, -1))  # [N]
+    target = np.where(has_truth[:, None, None], dataset.samples.target3d, 0.0)
+    return poses_in_views(dataset, target), (dataset.samples.confidence[..., 0] > 0) & has_truth[:, None]
 
 
 def lift_every_view(
@@ -52,14 +52,14 @@ def lift_every_view(
     step compiles once, whatever the data set's size.
     """
     dataset = dataset.undistorted()
-    N, C, J, _ = dataset.keypoints2d.shape
-    K = np.asarray(dataset.rigs.K)[dataset.rig_index]  # [N, C, 3, 3]
+    N, C, J, _ = dataset.samples.keypoints2d.shape
+    K = np.asarray(dataset.rigs.K)[dataset.samples.rig_index]  # [N, C, 3, 3]
 
     def lift(samples, K):
         if window > 1:
             keypoints, confidence = dataset.windows(samples, window)
         else:
-            keypoints, confidence = dataset.keypoints2d[samples], dataset.confidence[samples]
+            keypoints, confidence = dataset.samples.keypoints2d[samples], dataset.samples.confidence[samples]
         n = len(samples)
         flat = eval_step(variables, keypoints.reshape(n * C, *keypoints.shape[2:]), K.reshape(n * C, 3, 3),
                          confidence.reshape(n * C, *confidence.shape[2:]))  # fmt: skip
@@ -214,13 +214,13 @@ def mean_pose_prediction(train: MultiViewDataset, chunk_size: int = 65536) -> np
     """The mean-pose baseline: the average training pseudo-label in camera frames [J, 3], over the
     samples whose root has one (without it the label is meaningless).  Summed `chunk_size` samples at
     a time: a large (memory-mapped) training set is never held in every view at once."""
-    if train.pseudo3d is None:
+    if train.samples.pseudo3d is None:
         raise ValueError("mean_pose_prediction needs the training pseudo-labels")
-    labelled = np.flatnonzero(train.pseudo3d_weight[:, ROOT] > 0)
+    labelled = np.flatnonzero(train.samples.pseudo3d_weight[:, ROOT] > 0)
     total = np.zeros((train.skeleton.num_joints, 3))
     for start in range(0, len(labelled), chunk_size):
         part = train.subset(labelled[start : start + chunk_size])
-        total += poses_in_views(part, part.pseudo3d).sum((0, 1), dtype=np.float64)
+        total += poses_in_views(part, part.samples.pseudo3d).sum((0, 1), dtype=np.float64)
     return (total / (len(labelled) * train.num_views)).astype(np.float32)
 
 

@@ -43,34 +43,34 @@ class Truth:
 class Evaluator:
     """Held-out samples, pseudo-labelled, and how the lifter is run on them (see the module docstring)."""
 
-    samples: MultiViewDataset
+    held_out: MultiViewDataset
     eval_step: Callable
     batch_size: int
     window: int
     truth: Truth | None
 
     @classmethod
-    def of(cls, config: ExperimentConfig, samples: MultiViewDataset, model, flip: bool = False) -> Evaluator:
-        """The evaluator of `samples` for `model` as `config` lifts it (with test-time flip where `flip`)."""
-        labelled = pseudo_labelling.label(samples, config.pseudo_labels)
+    def of(cls, config: ExperimentConfig, held_out: MultiViewDataset, model, flip: bool = False) -> Evaluator:
+        """The evaluator of `held_out` for `model` as `config` lifts it (with test-time flip where `flip`)."""
+        labelled = pseudo_labelling.label(held_out, config.pseudo_labels)
         truth = None
-        if labelled.target3d is not None:
+        if labelled.samples.target3d is not None:
             joints = np.asarray(ground_truth.ground_truth_joints(labelled))
             target, valid = evaluation.ground_truth_in_views(labelled)
             truth = Truth(joints, target[..., joints, :], valid)
         eval_step = make_eval_step(model, config.model)
         if flip:
-            eval_step = flip_averaged(eval_step, samples.skeleton)
+            eval_step = flip_averaged(eval_step, held_out.skeleton)
         return cls(labelled, eval_step, config.train.eval_batch_size, config.model.temporal_window, truth)
 
     def lift(self, variables) -> np.ndarray:
         """f32[N, C, J, 3]: every view's lifted pose, root-relative mm in its camera frame."""
-        return evaluation.lift_every_view(self.eval_step, variables, self.samples, self.batch_size, self.window)
+        return evaluation.lift_every_view(self.eval_step, variables, self.held_out, self.batch_size, self.window)
 
     def ground_truth_free(self, pred: np.ndarray) -> dict:
         """The ground-truth-free measures of `pred` (`jaxpose.training.self_consistency`)."""
-        samples = self.samples
-        return self_consistency.self_consistency(pred, samples, samples.pseudo3d, samples.pseudo3d_weight > 0)
+        held_out = self.held_out
+        return self_consistency.self_consistency(pred, held_out, held_out.samples.pseudo3d, held_out.samples.pseudo3d_weight > 0)
 
     def overall(self, variables) -> dict:
         """The periodic record: eval_p_mpjpe / eval_mpjpe (mm) where there is ground truth, and the
@@ -86,7 +86,7 @@ class Evaluator:
     def triangulation(self) -> np.ndarray:
         """f32[N, C, J, 3]: the samples' pseudo-labels (their views' triangulation) in each view, made once
         (the reference row and the report's figure both read it)."""
-        return evaluation.poses_in_views(self.samples, self.samples.pseudo3d)
+        return evaluation.poses_in_views(self.held_out, self.held_out.samples.pseudo3d)
 
     def results(self, pred: np.ndarray, method: str, splits: Splits) -> dict:
         """Per row (the lifter as `method`, the input triangulation, the mean pose of the training split), the
@@ -94,7 +94,7 @@ class Evaluator:
         {} without ground truth."""
         if self.truth is None:
             return {}
-        samples, truth = self.samples, self.truth
+        samples, truth = self.held_out.samples, self.truth
         mean_pose = np.broadcast_to(evaluation.mean_pose_prediction(splits.train), pred.shape)
         # Each row with the views it is evaluated on: the triangulation is a reference only where its
         # root has a label (two agreeing views); elsewhere it is no estimate at all.
@@ -114,5 +114,5 @@ class Evaluator:
     def motion_axes(self) -> tuple[np.ndarray, np.ndarray]:
         """(sequence, frame) of every sample, which the motion metrics follow: every loader labels each sample
         with its subject, sequence and frame number (a sequence name such as "Walking 1" recurs across subjects)."""
-        labels = self.samples.labels
+        labels = self.held_out.samples.labels
         return np.char.add(np.char.add(labels["subject"].astype(str), "/"), labels["sequence"].astype(str)), labels["frame"]

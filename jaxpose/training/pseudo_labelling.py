@@ -84,24 +84,26 @@ def label(
     dataset = dataset.undistorted()
     cache = _cache_folder(dataset, config)
     if cache is not None and cache.is_dir():
-        labels = {name: np.load(cache / f"{name}.npy", mmap_mode="r") for name in _STORED if (cache / f"{name}.npy").exists()}
+        # A label the method does not make (detection_weight of the plain DLT) has no file: None.
+        labels = {name: np.load(cache / f"{name}.npy", mmap_mode="r") if (cache / f"{name}.npy").exists() else None for name in _STORED}
         log.info("pseudo-labels (%s) of %s instants read from %s", config.method, f"{len(dataset):,}", cache)
-        return dataclasses.replace(dataset, **({"detection_weight": None} | labels))
+        return dataset.with_samples(**labels)
     size = chunk_size
     rig_matrices = np.asarray(projection_matrices(dataset.rigs))  # [R, C, 3, 4]
     bar = tqdm(total=len(dataset), desc="pseudo-labels", unit="instant", unit_scale=True, disable=not progress, leave=False)
 
     def solve_rows(rows, keypoints2d, confidence):
-        P = rig_matrices[dataset.rig_index[rows]]
+        P = rig_matrices[dataset.samples.rig_index[rows]]
         points, weight, views = jax.device_get(_solve(P, jnp.asarray(keypoints2d), jnp.asarray(confidence), config=config))
         bar.update(min(len(rows), len(dataset) - bar.n))
         weight = weight.astype(np.float32) * weight[:, :1]
-        return {"pseudo3d": points, "pseudo3d_weight": weight, "detection_weight": None if views is None else views.astype(np.float32)}
+        return dict(zip(_STORED, (points, weight, None if views is None else views.astype(np.float32))))
 
     # One chunk per part, each written into the labels as it comes: only a chunk of them is ever in
     # memory where they go to the cache (memory-mapped files), a large data set's labels never twice.
     starts = range(0, len(dataset), size)
-    parts = ((np.arange(start, min(start + size, len(dataset))), dataset.keypoints2d[start : start + size], dataset.confidence[start : start + size]) for start in starts)
+    samples = dataset.samples
+    parts = ((np.arange(start, min(start + size, len(dataset))), samples.keypoints2d[start : start + size], samples.confidence[start : start + size]) for start in starts)
     temporary = None if cache is None else _temporary_folder(cache)
     labels: dict[str, np.ndarray | None] = {}
     with bar:
@@ -114,16 +116,16 @@ def label(
     log.info("pseudo-labels (%s) of %s instants in %.1f s", config.method, f"{len(dataset):,}", time.perf_counter() - started)
     if temporary is not None:
         labels = _commit(temporary, cache, labels)
-    return dataclasses.replace(dataset, **labels)
+    return dataset.with_samples(**labels)
 
 
-_STORED = ("pseudo3d", "pseudo3d_weight", "detection_weight")
+_STORED = ("pseudo3d", "pseudo3d_weight", "detection_weight")  # the `Samples` fields `label` sets, one cache file each
 _CACHE_VERSION = 1  # bump when the labels of one method and its settings change
 
 
 def _cache_folder(dataset: MultiViewDataset, config: PseudoLabelConfig) -> Path | None:
     """Where the labels of a data set whose detections are memory-mapped .npy files are kept (None otherwise)."""
-    mapped = (dataset.keypoints2d, dataset.confidence, dataset.rig_index)
+    mapped = (dataset.samples.keypoints2d, dataset.samples.confidence, dataset.samples.rig_index)
     if not all(isinstance(array, np.memmap) and array.filename for array in mapped):
         return None
     key = hashlib.blake2b(repr((_CACHE_VERSION, dataclasses.asdict(config), len(dataset))).encode(), digest_size=16)
@@ -132,7 +134,7 @@ def _cache_folder(dataset: MultiViewDataset, config: PseudoLabelConfig) -> Path 
     for array in mapped:
         status = os.stat(array.filename)
         key.update(f"{array.filename}|{array.offset}|{array.shape}|{status.st_size}|{status.st_mtime_ns}|{status.st_ctime_ns}|{status.st_ino}".encode())
-    source = Path(dataset.keypoints2d.filename)
+    source = Path(dataset.samples.keypoints2d.filename)
     return source.parent / "pseudo_labels" / f"{source.name.split('.')[0]}-{key.hexdigest()}"
 
 

@@ -80,7 +80,7 @@ def _run_holding_the_directory(
     usable = splits.train.usable_view_count() >= config.pseudo_labels.min_views
     samples = None
     if not usable.all():
-        groups = splits.train.labels.get(splits.group_label) if splits.group_label in splits.train.labels else None
+        groups = splits.train.samples.labels.get(splits.group_label) if splits.group_label in splits.train.samples.labels else None
         where = "" if groups is None else " (" + ", ".join(f"{name}: {count}" for name, count in zip(*np.unique(groups[~usable], return_counts=True))) + ")"
         log.warning("leaving out %d training samples with fewer than %d usable views%s", int((~usable).sum()), config.pseudo_labels.min_views, where)
         samples = np.flatnonzero(usable)

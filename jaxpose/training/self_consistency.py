@@ -46,7 +46,7 @@ def self_consistency(pred: np.ndarray, dataset: MultiViewDataset, triangulated: 
     """
     N, C, J, _ = pred.shape
     dataset = dataset.undistorted()
-    lifted = dataset.confidence[..., 0] > 0  # [N, C]: views whose root was detected
+    lifted = dataset.samples.confidence[..., 0] > 0  # [N, C]: views whose root was detected
     disagreement, reprojection = np.empty((N, C)), np.empty((N, C))
     for start in range(0, N, CHUNK):  # bounded memory: [chunk, C, C, J, 3] intermediates
         rows = np.arange(start, min(start + CHUNK, N))
@@ -69,7 +69,7 @@ def _view_agreement(pred, dataset: MultiViewDataset, rows, triangulated, labelle
     C = pred.shape[1]
     cameras = dataset.cameras_for(rows)
     R = np.asarray(cameras.R, np.float64)  # [n, C, 3, 3]
-    lifted = dataset.confidence[rows, :, 0] > 0
+    lifted = dataset.samples.confidence[rows, :, 0] > 0
     world = np.einsum("ncij,ncki->nckj", R, pred.astype(np.float64))  # R^T p: camera axes -> world axes
 
     # (a) Each lifted view against the other lifted views of its instant (a non-finite pair scores FAILED).
@@ -87,9 +87,9 @@ def _view_agreement(pred, dataset: MultiViewDataset, rows, triangulated, labelle
     depth = projected[..., 2]
     with np.errstate(invalid="ignore", divide="ignore"):
         pixels = projected[..., :2] / depth[..., None]
-    distance = np.linalg.norm(pixels - dataset.keypoints2d[rows][:, None].astype(np.float64), axis=-1)  # [n, C, C', J]
+    distance = np.linalg.norm(pixels - dataset.samples.keypoints2d[rows][:, None].astype(np.float64), axis=-1)  # [n, C, C', J]
     distance = np.where((depth > 0) & np.isfinite(distance), distance, FAILED)  # behind the camera, or not finite
-    seen = (dataset.confidence[rows][:, None] > 0) & labelled[:, None, None, :1]
+    seen = (dataset.samples.confidence[rows][:, None] > 0) & labelled[:, None, None, :1]
     seen = seen & ~np.eye(C, dtype=bool)[None, :, :, None]
     with np.errstate(invalid="ignore", divide="ignore"):
         reprojection = np.where(seen, distance, 0.0).sum((2, 3)) / seen.sum((2, 3))

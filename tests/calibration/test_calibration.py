@@ -46,12 +46,12 @@ def synthetic_subject():
 
 def own_rig(dataset: MultiViewDataset) -> Cameras:
     """The rig of a one-subject data set (`where` keeps every subject's rig; S2's is not the first)."""
-    return dataset.rigs[int(dataset.rig_index[0])]
+    return dataset.rigs[int(dataset.samples.rig_index[0])]
 
 
 def write_npz(path, dataset: MultiViewDataset, with_intrinsics: bool) -> None:
     arrays = dict(
-        keypoints=dataset.keypoints2d, confidence=dataset.confidence, camera_names=np.array(NAMES),
+        keypoints=dataset.samples.keypoints2d, confidence=dataset.samples.confidence, camera_names=np.array(NAMES),
         image_size=np.tile(np.array([1000, 1000], np.int32), (4, 1)), skeleton=np.array(dataset.skeleton.name),
     )  # fmt: skip
     if with_intrinsics:
@@ -73,12 +73,12 @@ def test_synthetic_rig_is_recovered_through_the_command_line(synthetic_subject, 
 
     distance = np.linalg.norm(
         camera_centres(np.asarray(rig.R, np.float64), np.asarray(rig.t, np.float64))
-        - np.median(synthetic_subject.target3d[:, 0], axis=0), axis=-1,
+        - np.median(synthetic_subject.samples.target3d[:, 0], axis=0), axis=-1,
     )  # fmt: skip
     assert comparison.rotation_deg.max() < 0.5
     assert (comparison.centre_mm / distance).max() < 0.01
     # The scale is as right as the prior is for this body: the error is the body's deviation from it.
-    expected = prior_scale_error(synthetic_subject.target3d, synthetic_subject.skeleton)
+    expected = prior_scale_error(synthetic_subject.samples.target3d, synthetic_subject.skeleton)
     assert abs(comparison.scale_error - expected) < 0.015
     assert abs(comparison.scale_error) < 0.03
     assert np.all(calibration.reprojection_median_px < 6.0)  # the detector's noise is 3-8 px
@@ -110,10 +110,10 @@ def test_two_views_with_occluded_joints(synthetic_subject):
     """The smallest rig, with a third of one view's joints missing (some joints then seen by one view only)."""
     rig = own_rig(synthetic_subject)
     views = np.array([0, 2])
-    confidence = synthetic_subject.confidence[:, views].copy()
+    confidence = synthetic_subject.samples.confidence[:, views].copy()
     confidence[:, 1][np.random.default_rng(0).random(confidence[:, 1].shape) < 0.33] = 0.0
     detections = RigDetections(
-        keypoints=synthetic_subject.keypoints2d[:, views], confidence=confidence, camera_names=("c0", "c2"),
+        keypoints=synthetic_subject.samples.keypoints2d[:, views], confidence=confidence, camera_names=("c0", "c2"),
         image_size=np.full((2, 2), 1000), skeleton=synthetic_subject.skeleton, K=np.asarray(rig.K, np.float64)[views],
     )  # fmt: skip
     calibration = calibrate(detections, FAST)
@@ -152,7 +152,7 @@ def test_every_skeleton_has_all_four_limbs_on_both_sides(name):
 
 def test_metric_scale_recovers_a_scaled_skeleton():
     dataset = generate(SyntheticConfig(num_train_subjects=1, num_test_subjects=0, samples_per_subject=50))
-    points = dataset.target3d.astype(np.float64)
+    points = dataset.samples.target3d.astype(np.float64)
     true = metric_scale(points, np.ones(points.shape[:2], bool), H36M_17).mm_per_unit
     shrunk = metric_scale(points / 7.5, np.ones(points.shape[:2], bool), H36M_17)
     assert shrunk.mm_per_unit == pytest.approx(7.5 * true, rel=1e-9)
@@ -190,7 +190,7 @@ def test_one_view_is_refused():
 
 
 def test_nan_keypoint_with_positive_confidence_is_named(synthetic_subject):
-    keypoints = synthetic_subject.keypoints2d[:20].copy()
+    keypoints = synthetic_subject.samples.keypoints2d[:20].copy()
     keypoints[3, 2, 5] = np.nan
     with pytest.raises(ValueError, match=r"frame 3, view 2 \(c2\), joint 'LKnee'"):
         detections(keypoints)
@@ -200,26 +200,26 @@ def test_nan_keypoint_with_positive_confidence_is_named(synthetic_subject):
 
 
 def test_a_person_standing_still_is_refused(synthetic_subject):
-    still = np.repeat(synthetic_subject.keypoints2d[:1], 200, axis=0)
+    still = np.repeat(synthetic_subject.samples.keypoints2d[:1], 200, axis=0)
     still = still + np.random.default_rng(0).normal(0.0, 1.0, still.shape).astype(np.float32)
     with pytest.raises(CalibrationError, match="barely moves"):
         calibrate(detections(still, K=np.asarray(own_rig(synthetic_subject).K, np.float64)))
 
 
 def test_too_few_shared_frames_are_refused(synthetic_subject):
-    confidence = synthetic_subject.confidence.copy()
+    confidence = synthetic_subject.samples.confidence.copy()
     confidence[20:] = 0.0
     with pytest.raises(CalibrationError, match=r"only 20 frames .* needs >= 30"):
-        calibrate(detections(synthetic_subject.keypoints2d, confidence))
+        calibrate(detections(synthetic_subject.samples.keypoints2d, confidence))
 
 
 def test_a_view_that_never_sees_the_person_with_the_others_is_named(synthetic_subject):
-    confidence = synthetic_subject.confidence.copy()
+    confidence = synthetic_subject.samples.confidence.copy()
     confidence[:, 3, :] = 0.0
     confidence[:40, :3, :] = 0.0
     confidence[:40, 3, :] = 1.0  # c3 sees the person only in frames nobody else does
     with pytest.raises(CalibrationError, match="view c3 cannot be placed"):
-        calibrate(detections(synthetic_subject.keypoints2d, confidence, K=np.asarray(own_rig(synthetic_subject).K, np.float64)))
+        calibrate(detections(synthetic_subject.samples.keypoints2d, confidence, K=np.asarray(own_rig(synthetic_subject).K, np.float64)))
 
 
 def test_recalibrated_dataset_uses_the_new_rigs_and_drops_the_ground_truth(synthetic_subject):
@@ -227,7 +227,7 @@ def test_recalibrated_dataset_uses_the_new_rigs_and_drops_the_ground_truth(synth
     moved = Cameras(K=np.asarray(rig.K), R=np.asarray(rig.R), t=np.asarray(rig.t) + 100.0)  # another rig
     recalibrated = synthetic_subject.recalibrated({"S2": moved})
     np.testing.assert_array_equal(recalibrated.cameras_for(np.arange(3)).t, np.broadcast_to(moved.t, (3, 4, 3)))
-    assert recalibrated.target3d is None
+    assert recalibrated.samples.target3d is None
     with pytest.raises(ValueError, match=r"no rig for subjects \['S2'\]"):
         synthetic_subject.recalibrated({"S9": moved})
 

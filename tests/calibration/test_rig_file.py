@@ -99,7 +99,7 @@ def test_the_rig_in_the_upright_world_projects_as_before(recovered, tmp_path):
     dataset, calibration = recovered
     # The subject's true joints in view 0's camera frame: about where the recovered world (that frame) has them.
     rig = dataset.rigs[0]
-    points = dataset.target3d[:300].astype(np.float64) @ np.asarray(rig.R[0], np.float64).T + np.asarray(rig.t[0], np.float64)
+    points = dataset.samples.target3d[:300].astype(np.float64) @ np.asarray(rig.R[0], np.float64).T + np.asarray(rig.t[0], np.float64)
     frame = world_frame(points, np.ones(points.shape[:2], bool), dataset.skeleton, height_mm=1750.0)
     path = write_recovered_rig(tmp_path / "upright.toml", calibration, frame, unit="mm")
     document = tomllib.loads(path.read_text(encoding="utf-8"))

@@ -46,22 +46,22 @@ def _check_against_fixture(dataset, fixture, mocap_joints, strides):
         for (fixture_subject, sequence), mocap in fixture.mocap.items():
             if fixture_subject != subject:
                 continue
-            rows = np.flatnonzero((dataset.labels["subject"] == subject) & (dataset.labels["sequence"] == sequence))
+            rows = np.flatnonzero((dataset.samples.labels["subject"] == subject) & (dataset.samples.labels["sequence"] == sequence))
             if not len(rows):
                 continue
-            frames = dataset.labels["frame"][rows]
+            frames = dataset.samples.labels["frame"][rows]
             np.testing.assert_array_equal(frames, np.arange(0, len(mocap), stride))
             expected3d = mocap[frames][:, mocap_joints]
-            np.testing.assert_allclose(dataset.target3d[rows], expected3d, atol=2e-3)
+            np.testing.assert_allclose(dataset.samples.target3d[rows], expected3d, atol=2e-3)
             for view, camera in enumerate(fixture.cameras[subject]):
-                present = dataset.confidence[rows, view, 0] > 0  # a missing view's file was not written
+                present = dataset.samples.confidence[rows, view, 0] > 0  # a missing view's file was not written
                 reference = h36m_project(camera, expected3d[present])
-                np.testing.assert_allclose(dataset.keypoints2d[rows[present], view], reference, atol=1e-3)
+                np.testing.assert_allclose(dataset.samples.keypoints2d[rows[present], view], reference, atol=1e-3)
     # The loaded cameras reproduce the 2D from the 3D through jaxpose.camera.project.
     cameras = dataset.cameras_for(np.arange(len(dataset)))
-    projected = np.asarray(project(cameras, dataset.target3d[:, None]))
-    present = dataset.confidence > 0
-    np.testing.assert_allclose(projected[present], dataset.keypoints2d[present], atol=1e-3)
+    projected = np.asarray(project(cameras, dataset.samples.target3d[:, None]))
+    present = dataset.samples.confidence > 0
+    np.testing.assert_allclose(projected[present], dataset.samples.keypoints2d[present], atol=1e-3)
 
 
 def test_martinez_stacked_hourglass(tree):
@@ -72,19 +72,19 @@ def test_martinez_stacked_hourglass(tree):
     assert any("1 sequences miss some views" in m and "S9 'Walking 1' (no 2D for cameras ['54138969'])" in m for m in messages)
     assert any("skipped 1 sequences" in m and "S9 'Eating_2' (2D without 3D)" in m for m in messages)
     assert dataset.skeleton == H36M_16 and dataset.num_views == 4
-    assert dataset.keypoints2d.dtype == np.float32 and dataset.target3d.dtype == np.float32
-    assert set(dataset.labels) == {"subject", "action", "sequence", "frame"}
-    assert set(dataset.labels["action"]) == {"Directions", "Photo", "WalkDog", "Walking"}
+    assert dataset.samples.keypoints2d.dtype == np.float32 and dataset.samples.target3d.dtype == np.float32
+    assert set(dataset.samples.labels) == {"subject", "action", "sequence", "frame"}
+    assert set(dataset.samples.labels["action"]) == {"Directions", "Photo", "WalkDog", "Walking"}
     s9_sequences = {"Directions 1", "TakingPhoto", "WalkingDog 1", "Walking 1"}
-    assert set(dataset.where(subject="S9").labels["sequence"]) == s9_sequences
-    assert "TakingPhoto" in set(dataset.labels["sequence"])
+    assert set(dataset.where(subject="S9").samples.labels["sequence"]) == s9_sequences
+    assert "TakingPhoto" in set(dataset.samples.labels["sequence"])
     # The sequence without camera 54138969's file keeps its three other views; the missing one has
     # confidence 0 (and coordinates 0), every other view confidence 1.
-    partial = (dataset.labels["subject"] == "S9") & (dataset.labels["sequence"] == "Walking 1")
-    np.testing.assert_array_equal(dataset.confidence[partial, 0], 0.0)
-    np.testing.assert_array_equal(dataset.keypoints2d[partial, 0], 0.0)
-    np.testing.assert_array_equal(dataset.confidence[partial, 1:], 1.0)
-    np.testing.assert_array_equal(dataset.confidence[~partial], 1.0)
+    partial = (dataset.samples.labels["subject"] == "S9") & (dataset.samples.labels["sequence"] == "Walking 1")
+    np.testing.assert_array_equal(dataset.samples.confidence[partial, 0], 0.0)
+    np.testing.assert_array_equal(dataset.samples.keypoints2d[partial, 0], 0.0)
+    np.testing.assert_array_equal(dataset.samples.confidence[partial, 1:], 1.0)
+    np.testing.assert_array_equal(dataset.samples.confidence[~partial], 1.0)
     _check_against_fixture(dataset, tree, MOCAP_16, {"S1": 5, "S9": 2})
     assert dataset.rigs.K.shape == (2, 4, 3, 3) and dataset.rigs.distortion_model == "h36m"
 
@@ -94,7 +94,7 @@ def test_ground_truth_2d_projects_with_distortion(tree):
         warnings.simplefilter("error")  # "gt" reads no 2D files, so nothing is skipped
         dataset = _load(tree.root, detections="gt", train_stride=3, test_stride=1)
     assert dataset.skeleton == H36M_17
-    assert "Walking 1" in set(dataset.where(subject="S9").labels["sequence"])
+    assert "Walking 1" in set(dataset.where(subject="S9").samples.labels["sequence"])
     _check_against_fixture(dataset, tree, list(H36M_MOCAP_17), {"S1": 3, "S9": 1})
 
 
@@ -104,10 +104,10 @@ def test_videopose3d_layout_with_json_cameras(tree, tmp_path):
     with pytest.warns(UserWarning, match=r"miss some views.*S1 'Walking 1' \(no 2D for cameras \['60457274'\]\)"):
         dataset = _load(tmp_path, detections="cpn", cameras_path=tmp_path / "cameras.json", test_stride=4)
     assert dataset.skeleton == H36M_17
-    walking = dataset.labels["sequence"] == "Walking 1"
-    assert walking.any() and (dataset.confidence[walking & (dataset.labels["subject"] == "S1"), 3] == 0).all()
+    walking = dataset.samples.labels["sequence"] == "Walking 1"
+    assert walking.any() and (dataset.samples.confidence[walking & (dataset.samples.labels["subject"] == "S1"), 3] == 0).all()
     # Sequence labels are the 3D file's names, here VideoPose3D's ("Photo", "WalkDog 1").
-    assert set(dataset.labels["sequence"]) == {"Directions 1", "Photo", "WalkDog 1", "Walking 1"}
+    assert set(dataset.samples.labels["sequence"]) == {"Directions 1", "Photo", "WalkDog 1", "Walking 1"}
     renamed_mocap = {(subject, h36m_canonical_name(name)): m for (subject, name), m in tree.mocap.items()}
     renamed = type(tree)(tree.root, tree.cameras, renamed_mocap)
     _check_against_fixture(dataset, renamed, list(H36M_MOCAP_17), {"S1": 5, "S9": 4})
@@ -118,7 +118,7 @@ def test_martinez_3d_with_npz_2d_matches_renamed_sequences(tree, tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # every sequence finds its 2D despite the renaming
         dataset = _load(tree.root, detections=tmp_path / "my_detector.npz", subjects=("S1",))
-    assert set(dataset.labels["sequence"]) == {"Directions 1", "TakingPhoto", "WalkingDog 1", "Walking 1"}
+    assert set(dataset.samples.labels["sequence"]) == {"Directions 1", "TakingPhoto", "WalkingDog 1", "Walking 1"}
     _check_against_fixture(dataset, tree, list(H36M_MOCAP_17), {"S1": 5})
 
 

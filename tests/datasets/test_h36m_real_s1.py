@@ -54,11 +54,11 @@ def test_real_cameras_h5_loads_with_float64_names():
 def test_real_s1_loads_and_its_geometry_matches_the_detections(s1_sh):
     dataset = s1_sh
     assert dataset.num_views == 4 and dataset.skeleton.num_joints == 16
-    assert len(set(dataset.labels["sequence"])) == 30 and len(set(dataset.labels["action"])) == 15
-    np.testing.assert_array_equal(dataset.confidence, 1.0)
+    assert len(set(dataset.samples.labels["sequence"])) == 30 and len(set(dataset.samples.labels["action"])) == 15
+    np.testing.assert_array_equal(dataset.samples.confidence, 1.0)
     cameras = dataset.cameras_for(np.arange(len(dataset)))
-    projected = np.asarray(project(cameras, dataset.target3d[:, None]))
-    error = np.linalg.norm(projected - dataset.keypoints2d, axis=-1)  # [N, C, J] px
+    projected = np.asarray(project(cameras, dataset.samples.target3d[:, None]))
+    error = np.linalg.norm(projected - dataset.samples.keypoints2d, axis=-1)  # [N, C, J] px
     median = dict(zip(dataset.skeleton.joint_names, np.median(error, axis=(0, 1))))
     agreeing = [median[name] for name in dataset.skeleton.joint_names if name not in ("Spine", "Head")]
     assert max(agreeing) < 18.0 and np.median(agreeing) < 12.0, median
@@ -67,7 +67,7 @@ def test_real_s1_loads_and_its_geometry_matches_the_detections(s1_sh):
     assert np.all(np.median(error, axis=(0, 2)) < 15.0)
     # The detections triangulate to within a few centimetres of the mocap for the agreeing joints.
     labelled = pseudo_labelling.label(dataset, PseudoLabelConfig(method="ransac"))
-    label_error = np.median(np.linalg.norm(labelled.pseudo3d - dataset.target3d, axis=-1), axis=0)
+    label_error = np.median(np.linalg.norm(labelled.samples.pseudo3d - dataset.samples.target3d, axis=-1), axis=0)
     joint = dict(zip(dataset.skeleton.joint_names, label_error))
     assert joint["Thorax"] < 50 and joint["LShoulder"] < 50 and joint["RElbow"] < 60, joint
 
@@ -86,10 +86,10 @@ def test_missing_camera_file_keeps_the_other_views(tmp_path):
             (root / "S1" / "StackedHourglass" / path.name).symlink_to(path)
     with pytest.warns(UserWarning, match=r"S1 'Walking 1' \(no 2D for cameras \['54138969'\]\)"):
         dataset = load_h36m(root, detections="sh", subjects=("S1",), progress=False)
-    partial = dataset.labels["sequence"] == "Walking 1"
+    partial = dataset.samples.labels["sequence"] == "Walking 1"
     assert partial.any() and (~partial).any()
-    np.testing.assert_array_equal(dataset.confidence[partial, 0], 0.0)
-    np.testing.assert_array_equal(dataset.confidence[partial, 1:], 1.0)
+    np.testing.assert_array_equal(dataset.samples.confidence[partial, 0], 0.0)
+    np.testing.assert_array_equal(dataset.samples.confidence[partial, 1:], 1.0)
     assert (dataset.usable_view_count()[partial] == 3).all()
 
 
@@ -98,7 +98,7 @@ def test_development_split_trains_on_one_trial_and_tests_on_the_other():
         data_dir=S1_DIR, detections="sh", train_subjects=("S1",), test_subjects=(), split="trials", train_stride=25, test_stride=25
     )
     splits = h36m_experiment.load_splits(data)
-    train, test = set(splits.train.labels["sequence"]), set(splits.test.labels["sequence"])
+    train, test = set(splits.train.samples.labels["sequence"]), set(splits.test.samples.labels["sequence"])
     assert len(train) == len(test) == 15 and not train & test
     assert {"Walking", "Eating", "Sitting 1"} <= train and {"Walking 1", "Eating 2", "Sitting 2"} <= test
-    assert set(splits.train.labels["action"]) == set(splits.test.labels["action"])
+    assert set(splits.train.samples.labels["action"]) == set(splits.test.samples.labels["action"])

@@ -27,40 +27,40 @@ def _load(fixture, split, **kwargs):
 def _check(dataset, fixture, partition, stride):
     for (key, sequence), poses in fixture.poses.items():
         subject = key.split("/")[1]
-        if not key.startswith(partition) or sequence not in set(dataset.labels["sequence"]):
+        if not key.startswith(partition) or sequence not in set(dataset.samples.labels["sequence"]):
             continue
-        rows = np.flatnonzero((dataset.labels["subject"] == subject) & (dataset.labels["sequence"] == sequence))
+        rows = np.flatnonzero((dataset.samples.labels["subject"] == subject) & (dataset.samples.labels["sequence"] == sequence))
         expected_frames = [f for f in range(0, len(poses), stride) if f not in fixture.invalid[key, sequence]]
-        np.testing.assert_array_equal(dataset.labels["frame"][rows], expected_frames)
-        np.testing.assert_allclose(dataset.target3d[rows], poses[expected_frames], atol=2e-3)  # metres -> mm
+        np.testing.assert_array_equal(dataset.samples.labels["frame"][rows], expected_frames)
+        np.testing.assert_allclose(dataset.samples.target3d[rows], poses[expected_frames], atol=2e-3)  # metres -> mm
         for view, camera in enumerate(fixture.cameras[subject]):
             reference = opencv_project(camera, poses[expected_frames])
-            np.testing.assert_allclose(dataset.keypoints2d[rows, view], reference, atol=1e-3)
+            np.testing.assert_allclose(dataset.samples.keypoints2d[rows, view], reference, atol=1e-3)
     cameras = dataset.cameras_for(np.arange(len(dataset)))
-    np.testing.assert_allclose(np.asarray(project(cameras, dataset.target3d[:, None])), dataset.keypoints2d, atol=1e-3)
+    np.testing.assert_allclose(np.asarray(project(cameras, dataset.samples.target3d[:, None])), dataset.samples.keypoints2d, atol=1e-3)
 
 
 def test_train_split_all_actions_with_2d_file(files, caplog):
     with caplog.at_level(logging.INFO, logger="jaxpose.datasets.humaneva"):
         dataset = _load(files, "train", detections="detectron_pt_coco")
     assert dataset.skeleton == HUMANEVA_15 and dataset.num_views == 3
-    assert set(dataset.labels["action"]) == {"Walk", "Jog", "Box"}
-    assert set(dataset.labels["sequence"]) == set(HUMANEVA_SEQUENCES["Train"])
-    assert set(dataset.labels["subject"]) == {"S1", "S2"}
+    assert set(dataset.samples.labels["action"]) == {"Walk", "Jog", "Box"}
+    assert set(dataset.samples.labels["sequence"]) == set(HUMANEVA_SEQUENCES["Train"])
+    assert set(dataset.samples.labels["subject"]) == {"S1", "S2"}
     dropped = 2 * len(HUMANEVA_SEQUENCES["Train"]) * 2  # frames 2 and 5 of every sequence
     assert f"dropped {dropped} of" in caplog.text
-    assert np.isfinite(dataset.target3d).all() and not (dataset.target3d == 0).all(-1).any()
+    assert np.isfinite(dataset.samples.target3d).all() and not (dataset.samples.target3d == 0).all(-1).any()
     _check(dataset, files, "Train", 1)
 
 
 def test_test_split_walk_and_jog_only_ground_truth_2d(files):
     dataset = _load(files, "test", detections="gt", stride=2)
-    assert set(dataset.labels["action"]) == set(TEST_ACTIONS)
-    assert set(dataset.labels["sequence"]) == {"Walk 1 chunk0", "Jog 1 chunk0"}
+    assert set(dataset.samples.labels["action"]) == set(TEST_ACTIONS)
+    assert set(dataset.samples.labels["sequence"]) == {"Walk 1 chunk0", "Jog 1 chunk0"}
     _check(dataset, files, "Validate", 2)
     path = files.root / "data_2d_humaneva15_detectron_pt_coco.npz"
     from_file = _load(files, "test", detections=str(path), stride=2)
-    np.testing.assert_allclose(from_file.keypoints2d, dataset.keypoints2d, atol=1e-3)
+    np.testing.assert_allclose(from_file.samples.keypoints2d, dataset.samples.keypoints2d, atol=1e-3)
 
 
 def test_missing_views_get_confidence_zero_and_orphans_are_skipped(files, tmp_path):
@@ -75,11 +75,11 @@ def test_missing_views_get_confidence_zero_and_orphans_are_skipped(files, tmp_pa
     messages = [str(warning.message) for warning in record]
     assert any("1 sequences miss some views" in m and "Train/S1 'Walk 1 chunk0' (no 2D for cameras ['C3'])" in m for m in messages)
     assert any("skipped 1 sequences" in m and "Train/S1 'ThrowCatch 1 chunk0' (2D without 3D)" in m for m in messages)
-    walk = dataset.labels["sequence"] == "Walk 1 chunk0"
+    walk = dataset.samples.labels["sequence"] == "Walk 1 chunk0"
     assert walk.any()
-    np.testing.assert_array_equal(dataset.confidence[walk, 2], 0.0)
-    np.testing.assert_array_equal(dataset.confidence[walk, :2], 1.0)
-    np.testing.assert_array_equal(dataset.confidence[~walk], 1.0)
+    np.testing.assert_array_equal(dataset.samples.confidence[walk, 2], 0.0)
+    np.testing.assert_array_equal(dataset.samples.confidence[walk, :2], 1.0)
+    np.testing.assert_array_equal(dataset.samples.confidence[~walk], 1.0)
 
 
 def test_errors(files, tmp_path):

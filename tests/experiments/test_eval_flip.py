@@ -28,10 +28,10 @@ def test_a_finished_run_is_evaluated_again_with_flip(trained_run, tmp_path):
 
     lifter = inference.load(run_dir)
     undistorted = test.undistorted()
-    N, C, J, _ = test.keypoints2d.shape
-    keypoints, confidence = undistorted.keypoints2d.reshape(N * C, J, 2), undistorted.confidence.reshape(N * C, J)
-    Ks = np.asarray(test.rigs.K)[test.rig_index].reshape(N * C, 3, 3)
-    target = evaluation.poses_in_views(test, test.target3d).reshape(N * C, J, 3)
+    N, C, J, _ = test.samples.keypoints2d.shape
+    keypoints, confidence = undistorted.samples.keypoints2d.reshape(N * C, J, 2), undistorted.samples.confidence.reshape(N * C, J)
+    Ks = np.asarray(test.rigs.K)[test.samples.rig_index].reshape(N * C, 3, 3)
+    target = evaluation.poses_in_views(test, test.samples.target3d).reshape(N * C, J, 3)
     valid = confidence[:, 0] > 0
     for report, flip in ((plain, False), (flipped, True)):
         poses = lifter.predict(keypoints, Ks, confidence, flip=flip)

@@ -219,18 +219,18 @@ def test_humaneva_trains_on_another_calibration_and_tests_on_the_reference(tmp_p
     splits = humaneva.load_splits(data)
     order = [names.index(name) for name in HUMANEVA_CAMERA_NAMES]
     np.testing.assert_allclose(splits.train.cameras_for(np.arange(2)).t, np.broadcast_to(moved.t[order], (2, 3, 3)))
-    assert splits.train.target3d is None
+    assert splits.train.samples.target3d is None
     np.testing.assert_allclose(splits.test.cameras_for(np.arange(2)).t, np.broadcast_to(cameras.t[order], (2, 3, 3)))
-    assert splits.test.target3d is not None
+    assert splits.test.samples.target3d is not None
     assert "--data.reference-cameras-path):  " + str(files.cameras_path) in humaneva.expected_files(data)
     # The reference named explicitly is the same; the recovered file named as the reference is no recalibration.
     explicit = dataclasses.replace(data, reference_cameras_path=files.cameras_path)
-    assert humaneva.load_splits(explicit).train.target3d is None
-    assert humaneva.load_splits(dataclasses.replace(data, reference_cameras_path=recovered)).train.target3d is not None
+    assert humaneva.load_splits(explicit).train.samples.target3d is None
+    assert humaneva.load_splits(dataclasses.replace(data, reference_cameras_path=recovered)).train.samples.target3d is not None
     # Without <data-dir>/cameras.json, --data.cameras-path alone is the calibration of both halves.
     files.cameras_path.rename(tmp_path / "elsewhere.json")
     alone = humaneva.load_splits(data)
-    assert alone.train.target3d is not None
+    assert alone.train.samples.target3d is not None
     np.testing.assert_allclose(alone.test.cameras_for(np.arange(2)).t, np.broadcast_to(moved.t[order], (2, 3, 3)))
 
 
@@ -263,16 +263,16 @@ def test_h36m_trains_on_another_calibration_and_tests_on_the_reference(h36m_tree
     splits = h36m.load_splits(data)
     order = [names.index(name) for name in CAMERA_NAMES]
     np.testing.assert_allclose(splits.train.cameras_for(np.arange(2)).t, np.broadcast_to(moved.t[order], (2, 4, 3)))
-    assert splits.train.target3d is None  # the mocap frame's ground truth does not fit the new rig
+    assert splits.train.samples.target3d is None  # the mocap frame's ground truth does not fit the new rig
     test_names, test_cameras = reference["S9"]
     np.testing.assert_allclose(
         splits.test.cameras_for(np.arange(2)).t,
         np.broadcast_to(test_cameras.t[[test_names.index(name) for name in CAMERA_NAMES]], (2, 4, 3)),
     )
-    assert splits.test.target3d is not None
+    assert splits.test.samples.target3d is not None
     # The reference itself, however spelled, is no recalibration: the ground truth stays.
     same = dataclasses.replace(data, cameras_path=pathlib.Path(os.path.relpath(data_dir / "cameras.h5")))
-    assert h36m.load_splits(same).train.target3d is not None
+    assert h36m.load_splits(same).train.samples.target3d is not None
 
 
 def test_rig_from_h36m_never_writes_over_a_project_or_its_input(h36m_tree, tmp_path):

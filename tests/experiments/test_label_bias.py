@@ -1,7 +1,6 @@
 """experiments.label_bias: the body frame, the definition bias it measures, the relabelled training
 sets, and the study end to end on the tiny Human3.6M fixture tree."""
 
-import dataclasses
 import json
 
 import jax
@@ -16,6 +15,7 @@ from fixtures_real_data import H36M_SH_FILE_MOCAP, H36M_SUBJECTS, TINY_TRAINING,
 from geometry_helpers import random_poses, random_rig
 from help_text import assert_every_flag_documented
 from jaxpose.data.dataset import MultiViewDataset
+from jaxpose.data.samples import Samples
 from jaxpose.skeleton import H36M_16
 
 J = H36M_16.num_joints
@@ -93,16 +93,15 @@ def _labelled_set(truth: np.ndarray, labels: np.ndarray) -> MultiViewDataset:
     N = len(truth)
     rig = random_rig(np.random.default_rng(0), 2)
     rigs = jax.tree.map(lambda field: np.asarray(field)[None], rig)  # one rig of two views
-    return MultiViewDataset(
-        skeleton=H36M_16,
+    samples = Samples(
         keypoints2d=np.zeros((N, 2, J, 2), np.float32),
         confidence=np.ones((N, 2, J), np.float32),
-        rigs=rigs,
         rig_index=np.zeros(N, np.int32),
         target3d=truth.astype(np.float32),
         pseudo3d=labels.astype(np.float32),
         pseudo3d_weight=np.ones((N, J), np.float32),
     )
+    return MultiViewDataset(skeleton=H36M_16, rigs=rigs, samples=samples)
 
 
 def test_relabelled_training_sets():
@@ -117,14 +116,14 @@ def test_relabelled_training_sets():
     train = _labelled_set(truth, biased + noise)
     assert label_bias.relabelled("pseudo-labels", train) is train
     only_bias = label_bias.relabelled("definition bias only", train)
-    np.testing.assert_allclose(only_bias.pseudo3d, biased, atol=1e-2)
+    np.testing.assert_allclose(only_bias.samples.pseudo3d, biased, atol=1e-2)
     removed = label_bias.relabelled("bias removed", train)
-    np.testing.assert_allclose(removed.pseudo3d, truth + noise, atol=1e-2)
-    assert removed.pseudo3d.dtype == np.float32 and removed.pseudo3d_weight is train.pseudo3d_weight
+    np.testing.assert_allclose(removed.samples.pseudo3d, truth + noise, atol=1e-2)
+    assert removed.samples.pseudo3d.dtype == np.float32 and removed.samples.pseudo3d_weight is train.samples.pseudo3d_weight
     with pytest.raises(ValueError, match="unknown label kind"):
         label_bias.relabelled("mocap", train)
     with pytest.raises(ValueError, match="3D ground truth"):
-        label_bias.relabelled("bias removed", dataclasses.replace(train, target3d=None))
+        label_bias.relabelled("bias removed", train.with_samples(target3d=None))
 
 
 @pytest.mark.slow  # ~40 s: seven trainings; the study's parts are tested above, the whole with `pytest -m slow`

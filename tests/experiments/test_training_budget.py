@@ -172,6 +172,6 @@ def test_a_test_split_larger_than_the_evaluation_cap_is_thinned_evenly_and_said(
     thinned = bounded_test_split(splits, cap)
     kept = np.arange(0, len(labelled), 4)
     assert len(thinned.test) == len(kept) <= cap
-    np.testing.assert_array_equal(thinned.test.keypoints2d, labelled.keypoints2d[kept])
+    np.testing.assert_array_equal(thinned.test.samples.keypoints2d, labelled.samples.keypoints2d[kept])
     assert thinned.train is labelled and thinned.notes[0] == "loaded"
     assert f"evaluates one in 4 of them ({len(kept):,}" in thinned.notes[1]

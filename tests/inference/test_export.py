@@ -21,10 +21,10 @@ TOLERANCE_MM = 0.01
 def _poses(test, count: int):
     """`count` single-view test poses (keypoints, K, confidence), with a missing joint whose
     coordinates are NaN and a pose whose root is missing among them."""
-    N, C, J, _ = test.keypoints2d.shape
-    keypoints = test.keypoints2d.reshape(N * C, J, 2)[:count].copy()
-    confidence = test.confidence.reshape(N * C, J)[:count].copy()
-    K = np.asarray(test.rigs.K)[test.rig_index].reshape(N * C, 3, 3)[:count].astype(np.float32)
+    N, C, J, _ = test.samples.keypoints2d.shape
+    keypoints = test.samples.keypoints2d.reshape(N * C, J, 2)[:count].copy()
+    confidence = test.samples.confidence.reshape(N * C, J)[:count].copy()
+    K = np.asarray(test.rigs.K)[test.samples.rig_index].reshape(N * C, 3, 3)[:count].astype(np.float32)
     confidence[1, 5], keypoints[1, 5] = 0.0, np.nan
     confidence[2, 0] = 0.0
     confidence[0, 3] = 0.02  # below the run's score threshold (0.05, the default: the synthetic run records none)

@@ -156,10 +156,10 @@ def test_exported_forms_hold_the_flip(window, tmp_path):
 @pytest.mark.trains
 def test_cli_flip_lifts_as_predict_does(trained_run, lifter, tmp_path):
     run_dir, test = trained_run
-    N, C, J, _ = test.keypoints2d.shape
+    N, C, J, _ = test.samples.keypoints2d.shape
     undistorted = test.undistorted()
-    keypoints, confidence = undistorted.keypoints2d.reshape(N * C, J, 2)[:40], undistorted.confidence.reshape(N * C, J)[:40]
-    Ks = np.asarray(test.rigs.K)[test.rig_index].reshape(N * C, 3, 3)[:40]
+    keypoints, confidence = undistorted.samples.keypoints2d.reshape(N * C, J, 2)[:40], undistorted.samples.confidence.reshape(N * C, J)[:40]
+    Ks = np.asarray(test.rigs.K)[test.samples.rig_index].reshape(N * C, 3, 3)[:40]
     np.savez(tmp_path / "views.npz", keypoints=keypoints, confidence=confidence, K=Ks)
     outputs = {}
     for flag in ("--flip", "--no-flip"):

@@ -49,7 +49,7 @@ def test_cli_reproduces_experiment_p_mpjpe(trained_run, tmp_path):
     np.testing.assert_array_equal(valid, confidence[:, 0] > 0)
     assert (~valid).any() and np.isnan(poses[~valid]).all()
     np.testing.assert_array_equal(image_ids, np.arange(len(K)))
-    target = evaluation.poses_in_views(test, test.target3d).reshape(poses.shape)
+    target = evaluation.poses_in_views(test, test.samples.target3d).reshape(poses.shape)
     ours = evaluation.summarize(evaluation.compute_metrics(poses[valid], target[valid])[0])["overall"]["p_mpjpe"]
     report = json.loads((run_dir / "report.json").read_text())
     assert ours == pytest.approx(report["results"][METHOD]["overall"]["p_mpjpe"], abs=0.01)
@@ -110,7 +110,7 @@ def test_cli_npz_with_distortion_from_an_intrinsics_file(trained_run, lifter, tm
     K = np.asarray(test.rigs.K)[0, 0]
     camera = test.rigs[0, 0]
     dist = np.array([-0.25, 0.08, 0.001, -0.0015, 0.0], np.float32)
-    in_camera = world_to_camera(camera, test.target3d[:6])
+    in_camera = world_to_camera(camera, test.samples.target3d[:6])
     pinhole = np.asarray(project_from_camera(camera, in_camera))
     distorted = np.asarray(project_from_camera(camera.replace(dist=dist), in_camera))
     assert np.abs(distorted - pinhole).max() > 2.0  # pixels: the distortion matters

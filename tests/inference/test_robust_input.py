@@ -152,9 +152,9 @@ def median_lifter(lifter):
 
 
 def _test_poses(test, count):
-    N, C, J, _ = test.keypoints2d.shape
-    keypoints = test.keypoints2d.reshape(N * C, J, 2)[:count].copy()
-    K = np.asarray(test.rigs.K)[test.rig_index].reshape(N * C, 3, 3)[:count].astype(np.float32)
+    N, C, J, _ = test.samples.keypoints2d.shape
+    keypoints = test.samples.keypoints2d.reshape(N * C, J, 2)[:count].copy()
+    K = np.asarray(test.rigs.K)[test.samples.rig_index].reshape(N * C, 3, 3)[:count].astype(np.float32)
     return keypoints, K
 
 

@@ -270,16 +270,16 @@ def test_fusion_beats_its_alternatives_on_simulated_detections_and_lifts(capsys)
     same total variance) and with the lift's scale fixed at 1.
     """
     data = generate(SyntheticConfig(num_train_subjects=1, num_test_subjects=0, samples_per_subject=400, seed=3))
-    rows = np.arange(len(data.target3d))
+    rows = np.arange(len(data.samples.target3d))
     cameras = Cameras(*(np.asarray(getattr(data.cameras_for(rows), f), np.float64) for f in ("K", "R", "t")))
-    truth = data.target3d.astype(np.float64)
+    truth = data.samples.target3d.astype(np.float64)
     rng = np.random.default_rng(0)
     in_camera = np.einsum("ncab,njb->ncja", cameras.R, truth) + cameras.t[:, :, None]
     relative = in_camera - in_camera[..., :1, :]
     scale = rng.normal(1.0, 0.04, (*relative.shape[:2], 1, 1))
     lifted = scale * relative + rng.normal(size=relative.shape) * [15.0, 15.0, 45.0]
     lifted[..., 0, :] = 0.0
-    pixels, confidence = data.keypoints2d.astype(np.float64), data.confidence.astype(np.float64)
+    pixels, confidence = data.samples.keypoints2d.astype(np.float64), data.samples.confidence.astype(np.float64)
     confidence[rng.random(confidence.shape) < 0.5] = 0.0
     lifted[confidence[..., 0] == 0] = np.nan
     views = (confidence > 0).sum(1)

@@ -78,11 +78,9 @@ def test_the_prepared_project_is_cached_and_memory_mapped(small, tmp_path):
     cold = load_rig_project(config, progress=False)
     assert cold.prepared.startswith("prepared and written to the cache")
     warm = load_rig_project(config, progress=False)
-    assert warm.prepared.startswith("read from the cache") and isinstance(warm.train.keypoints2d, np.memmap)
-    for part in ("train", "validation"):
-        for name in ("keypoints2d", "confidence", "rig_index", "target3d"):
-            np.testing.assert_array_equal(getattr(getattr(cold, part), name), getattr(getattr(warm, part), name))
-        assert {k: v.tolist() for k, v in getattr(cold, part).labels.items()} == {k: v.tolist() for k, v in getattr(warm, part).labels.items()}
+    assert warm.prepared.startswith("read from the cache") and isinstance(warm.train.samples.keypoints2d, np.memmap)
+    for part in ("train", "validation"):  # every per-sample array, labels and context rows too
+        jax.tree.map(np.testing.assert_array_equal, getattr(cold, part).samples, getattr(warm, part).samples)
     assert cold.recordings == warm.recordings and cold.ground_truth_joints == warm.ground_truth_joints
     # The parsed JSON is cached in the project's cache, none inside the recording folders.
     assert (root / ".jaxpose_cache" / "parsed").is_dir() and not [p for p in root.glob("*/**/.jaxpose_cache")]
@@ -119,7 +117,7 @@ def test_a_split_is_a_selection_of_the_prepared_instants(small, tmp_path):
     names = tuple(p.name for p in sorted(root.iterdir()) if p.is_dir() and not p.name.startswith("."))
     every = load_rig_project(dataclasses.replace(base, validation_recordings=names), progress=False)
     assert len(every.train) == 0 and len(every.validation) == sum(r.instants for r in every.recordings)
-    assert isinstance(every.validation.keypoints2d, np.memmap)  # every instant: the prepared arrays themselves
+    assert isinstance(every.validation.samples.keypoints2d, np.memmap)  # every instant: the prepared arrays themselves
     whole = every.validation
     for config in (
         dataclasses.replace(base, train_stride=3, validation_stride=2),
@@ -130,7 +128,7 @@ def test_a_split_is_a_selection_of_the_prepared_instants(small, tmp_path):
         assert project.prepared.startswith("read from the cache")
         expected = {"train": [], "validation": []}
         for name in names:
-            rows = np.flatnonzero(whole.labels["recording"] == name)
+            rows = np.flatnonzero(whole.samples.labels["recording"] == name)
             n = len(rows)
             held = np.ones(n, bool) if name in config.validation_recordings else (
                 np.zeros(n, bool) if config.validation_recordings else np.arange(n) >= int(round(n * (1 - config.validation_fraction))))
@@ -139,18 +137,18 @@ def test_a_split_is_a_selection_of_the_prepared_instants(small, tmp_path):
             expected["validation"] += rows[held & (position % config.validation_stride == 0)].tolist()
         for part, rows in expected.items():
             dataset = getattr(project, part)
-            np.testing.assert_array_equal(dataset.keypoints2d, whole.keypoints2d[rows])
-            np.testing.assert_array_equal(dataset.confidence, whole.confidence[rows])
-            np.testing.assert_array_equal(dataset.labels["frame"], whole.labels["frame"][rows])
-            np.testing.assert_array_equal(dataset.target3d, whole.target3d[rows])
+            np.testing.assert_array_equal(dataset.samples.keypoints2d, whole.samples.keypoints2d[rows])
+            np.testing.assert_array_equal(dataset.samples.confidence, whole.samples.confidence[rows])
+            np.testing.assert_array_equal(dataset.samples.labels["frame"], whole.samples.labels["frame"][rows])
+            np.testing.assert_array_equal(dataset.samples.target3d, whole.samples.target3d[rows])
             # A window of 3 frames: the instant and its neighbours of the same recording, from every instant.
             if len(rows):
                 windows, _ = dataset.windows(np.arange(len(rows)), 3)
-                np.testing.assert_array_equal(windows[:, :, 1], whole.keypoints2d[rows])
+                np.testing.assert_array_equal(windows[:, :, 1], whole.samples.keypoints2d[rows])
                 for row, window in zip(rows, windows):
-                    same = np.flatnonzero(whole.labels["recording"] == whole.labels["recording"][row])
+                    same = np.flatnonzero(whole.samples.labels["recording"] == whole.samples.labels["recording"][row])
                     neighbours = np.clip(np.array([row - 1, row + 1]), same[0], same[-1])
-                    np.testing.assert_array_equal(window[:, [0, 2]], np.moveaxis(whole.keypoints2d[neighbours], 0, 1))
+                    np.testing.assert_array_equal(window[:, [0, 2]], np.moveaxis(whole.samples.keypoints2d[neighbours], 0, 1))
     assert len(_prepared_folders(root)) == 1
 
 
@@ -161,14 +159,13 @@ def test_the_pseudo_labels_of_a_prepared_project_are_cached_beside_it(small, tmp
     ransac = PseudoLabelConfig(method="ransac")
     computed = pseudo_labelling.label(train, ransac)
     cached = pseudo_labelling.label(train, ransac)
-    in_memory = pseudo_labelling.label(dataclasses.replace(train, keypoints2d=np.array(train.keypoints2d)), ransac)
-    assert isinstance(cached.pseudo3d, np.memmap) and not isinstance(in_memory.pseudo3d, np.memmap)
-    for name in ("pseudo3d", "pseudo3d_weight", "detection_weight"):
-        np.testing.assert_array_equal(getattr(computed, name), getattr(cached, name))
-        np.testing.assert_array_equal(getattr(in_memory, name), getattr(cached, name))
+    in_memory = pseudo_labelling.label(train.with_samples(keypoints2d=np.array(train.samples.keypoints2d)), ransac)
+    assert isinstance(cached.samples.pseudo3d, np.memmap) and not isinstance(in_memory.samples.pseudo3d, np.memmap)
+    jax.tree.map(np.testing.assert_array_equal, computed.samples, cached.samples)  # the labels, and every other array
+    jax.tree.map(np.testing.assert_array_equal, in_memory.samples, cached.samples)
     svd = pseudo_labelling.label(train, PseudoLabelConfig(method="svd"))  # another method: its own labels
-    assert svd.detection_weight is None and not np.array_equal(svd.pseudo3d, cached.pseudo3d)
-    assert len(list(pathlib.Path(train.keypoints2d.filename).parent.glob("pseudo_labels/train-*"))) == 2
+    assert svd.samples.detection_weight is None and not np.array_equal(svd.samples.pseudo3d, cached.samples.pseudo3d)
+    assert len(list(pathlib.Path(train.samples.keypoints2d.filename).parent.glob("pseudo_labels/train-*"))) == 2
 
 
 def test_projects_sharing_a_cache_folder_keep_their_parsed_recordings_apart(small, tmp_path, caplog):
@@ -209,7 +206,7 @@ def test_a_calibration_in_centimetres_without_its_unit_is_refused(small, tmp_pat
     # Said so, it is the example's rig: the same person chosen in every view and instant.
     data = load_rig_project(RigProjectConfig(root=root, frame_offsets=("cam03=3",), calibration_unit="cm"), progress=False)
     metres = load_rig_project(RigProjectConfig(root=small, frame_offsets=("cam03=3",)), progress=False)
-    np.testing.assert_array_equal(data.train.confidence, metres.train.confidence)
+    np.testing.assert_array_equal(data.train.samples.confidence, metres.train.samples.confidence)
 
 
 def test_a_folder_name_that_is_not_utf8_is_refused_in_one_line(small, tmp_path):

@@ -193,7 +193,7 @@ def test_ground_truth_free_measures_against_an_oracle(project):
 
     test = pseudo_labelling.label(data.validation, PseudoLabelConfig(method="ransac"))
     truth, _ = evaluation.ground_truth_in_views(test)
-    exact = self_consistency.self_consistency(truth, test, test.pseudo3d, test.pseudo3d_weight > 0)
+    exact = self_consistency.self_consistency(truth, test, test.samples.pseudo3d, test.samples.pseudo3d_weight > 0)
     assert exact["disagreement_mm"]["overall"] < 1e-2  # one pose seen from every camera
     # The reprojection of the true pose is the detector's error (a few px), that of the true pose
     # against the triangulation the triangulation's error.
@@ -201,7 +201,7 @@ def test_ground_truth_free_measures_against_an_oracle(project):
     # Depth guessed wrong in one view: that view disagrees and reprojects worse, the others less so.
     flattened = truth.copy()
     flattened[:, 1, :, 2] *= 0.2
-    worse = self_consistency.self_consistency(flattened, test, test.pseudo3d, test.pseudo3d_weight > 0)
+    worse = self_consistency.self_consistency(flattened, test, test.samples.pseudo3d, test.samples.pseudo3d_weight > 0)
     assert worse["disagreement_mm"]["per_camera"][1] > 50 > exact["disagreement_mm"]["per_camera"][1]
     assert worse["reprojection_px"]["per_camera"][1] > 2 * exact["reprojection_px"]["per_camera"][1]
     assert worse["reprojection_px"]["per_camera"][0] == pytest.approx(exact["reprojection_px"]["per_camera"][0])
@@ -285,8 +285,8 @@ def test_a_project_without_calibration_recovers_the_rig(tmp_path):
     from jaxpose.training import evaluation, pseudo_labelling
     test = pseudo_labelling.label(data.validation)
     truth, valid = evaluation.ground_truth_in_views(test)
-    triangulated = evaluation.poses_in_views(test, test.pseudo3d)
-    labelled = valid & (test.pseudo3d_weight > 0).all(-1)[:, None]
+    triangulated = evaluation.poses_in_views(test, test.samples.pseudo3d)
+    labelled = valid & (test.samples.pseudo3d_weight > 0).all(-1)[:, None]
     assert labelled.sum() > 100 and reference.camera_names == data.camera_names
     scale = (triangulated * truth).sum((-2, -1), keepdims=True) / (triangulated**2).sum((-2, -1), keepdims=True)
     assert np.median(np.linalg.norm(truth - scale * triangulated, axis=-1).mean(-1)[labelled]) < 30
@@ -316,9 +316,9 @@ def test_ground_truth_for_some_recordings_serves_evaluation_only(project_copy):
     recordings = sorted(p for p in project_copy.iterdir() if p.is_dir() and not p.name.startswith("."))
     (recordings[0] / "ground_truth.npz").unlink()
     data = load_rig_project(RigProjectConfig(root=project_copy, frame_offsets=("cam03=3",)), progress=False)
-    assert data.train.target3d is None  # no supervised twin on partial ground truth
+    assert data.train.samples.target3d is None  # no supervised twin on partial ground truth
     _, valid = evaluation.ground_truth_in_views(data.validation)
-    with_truth = data.validation.labels["recording"] != recordings[0].name
+    with_truth = data.validation.samples.labels["recording"] != recordings[0].name
     assert valid[with_truth].any() and not valid[~with_truth].any()
 
 
@@ -345,9 +345,9 @@ def test_the_real_pose2sim_demo_as_a_rig_project(tmp_path):
     trc = read_trc(SHARED_FORMATS / "trc" / "pose2sim_demo_BalancingTrial_0-100.trc")
     names = [name for name in trc.marker_names if name in labelled.skeleton.joint_names]
     joints = [labelled.skeleton.index(name) for name in names]
-    rows = trc.markers[labelled.labels["frame"]][:, [trc.marker_names.index(name) for name in names]]  # row f: frame f
+    rows = trc.markers[labelled.samples.labels["frame"]][:, [trc.marker_names.index(name) for name in names]]  # row f: frame f
     theirs = 1000.0 * np.stack([rows[..., 2], rows[..., 0], rows[..., 1]], axis=-1)  # OpenSim's (Y, Z, X) -> z-up mm
-    error = np.linalg.norm(labelled.pseudo3d[:, joints] - theirs, axis=-1)[labelled.pseudo3d_weight[:, joints] > 0]
+    error = np.linalg.norm(labelled.samples.pseudo3d[:, joints] - theirs, axis=-1)[labelled.samples.pseudo3d_weight[:, joints] > 0]
     assert len(names) == 20 and len(error) > 150 and np.median(error) < 40, np.median(error)
 
 
@@ -372,10 +372,10 @@ def test_messy_projects_load(project_copy):
     assert data.camera_names == ("cam01", "cam02", "cam03", "cam04")
     by_name = {r.name: r for r in data.recordings}
     assert by_name[first.name].cameras == ("cam01", "cam02", "cam03") and by_name[first.name].calibration.endswith("cameras.json")
-    in_first = data.train.labels["recording"] == first.name
-    assert not (data.train.confidence[in_first][:, 1:2] > 0).any()  # cam02 never saw anybody
-    assert not (data.train.confidence[in_first][:, 3] > 0).any()  # no cam04 in this recording
-    assert (data.train.confidence[~in_first] > 0).any((0, 2)).all()
+    in_first = data.train.samples.labels["recording"] == first.name
+    assert not (data.train.samples.confidence[in_first][:, 1:2] > 0).any()  # cam02 never saw anybody
+    assert not (data.train.samples.confidence[in_first][:, 3] > 0).any()  # no cam04 in this recording
+    assert (data.train.samples.confidence[~in_first] > 0).any((0, 2)).all()
 
 
 def test_a_lost_marker_costs_its_instant_not_the_report(project):
@@ -384,11 +384,11 @@ def test_a_lost_marker_costs_its_instant_not_the_report(project):
 
     data = load_rig_project(RigProjectConfig(root=project, frame_offsets=("cam03=3",)), progress=False)
     test = data.validation
-    target = test.target3d.copy()
+    target = test.samples.target3d.copy()
     target[0, 0] = np.nan  # the root lost in one instant
     target[1, 5] = np.nan  # another joint lost in another
     _, valid_before = evaluation.ground_truth_in_views(test)
-    test = dataclasses.replace(test, target3d=target)
+    test = test.with_samples(target3d=target)
     joints = ground_truth_joints(test)
     assert len(joints) == test.skeleton.num_joints  # both still evaluated where known
     truth, valid = evaluation.ground_truth_in_views(test)

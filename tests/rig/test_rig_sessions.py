@@ -47,8 +47,8 @@ def write_project(root, plan=PLAN, frames: int = 160, seed: int = 3):
 
 def rig_of(project, recording: str):
     """The cameras (R, t) the loader gave `recording`."""
-    rows = np.flatnonzero(project.train.labels["recording"] == recording)
-    index = int(project.train.rig_index[rows[0]])
+    rows = np.flatnonzero(project.train.samples.labels["recording"] == recording)
+    index = int(project.train.samples.rig_index[rows[0]])
     return np.asarray(project.train.rigs.R[index], np.float64), np.asarray(project.train.rigs.t[index], np.float64)
 
 
@@ -80,7 +80,7 @@ def test_sessions_are_found_and_each_gets_its_own_rig(tmp_path):
         assert comparison.rotation_deg.max() < 0.5 and comparison.centre_mm.max() < 40.0, (recording, comparison)
     np.testing.assert_array_equal(*(rig_of(project, name)[0] for name in ("a1", "a2")))
     # The ground truth moved into each recording's own rig's world: the triangulation agrees with it.
-    assert project.validation.target3d is not None
+    assert project.validation.samples.target3d is not None
     # Read back from the cache: the same sessions and rigs.
     again = load_rig_project(config, progress=False)
     assert again.prepared.startswith("read from the cache")

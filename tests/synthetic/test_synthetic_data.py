@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import time
 
+import jax
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -65,26 +66,23 @@ def bone_lengths_of(poses: np.ndarray) -> np.ndarray:
 
 def test_deterministic_for_a_seed(dataset):
     again = generate(CONFIG)
-    for field in ("keypoints2d", "confidence", "target3d", "rig_index"):
-        np.testing.assert_array_equal(getattr(dataset, field), getattr(again, field))
+    jax.tree.map(np.testing.assert_array_equal, dataset.samples, again.samples)  # every per-sample array, labels too
     for field in ("K", "R", "t"):
         np.testing.assert_array_equal(getattr(dataset.rigs, field), getattr(again.rigs, field))
-    for name in dataset.labels:
-        np.testing.assert_array_equal(dataset.labels[name], again.labels[name])
     other = generate(dataclasses.replace(CONFIG, seed=1))
-    assert not np.allclose(other.target3d, dataset.target3d)
+    assert not np.allclose(other.samples.target3d, dataset.samples.target3d)
 
 
 def test_shapes_dtypes_and_labels(dataset):
     N = CONFIG.num_subjects * CONFIG.samples_per_subject
     C = CONFIG.num_views
     assert dataset.skeleton == H36M_17
-    assert dataset.keypoints2d.shape == (N, C, J, 2) and dataset.keypoints2d.dtype == np.float32
-    assert dataset.confidence.shape == (N, C, J) and dataset.confidence.dtype == np.float32
-    assert dataset.target3d.shape == (N, J, 3) and dataset.target3d.dtype == np.float32
+    assert dataset.samples.keypoints2d.shape == (N, C, J, 2) and dataset.samples.keypoints2d.dtype == np.float32
+    assert dataset.samples.confidence.shape == (N, C, J) and dataset.samples.confidence.dtype == np.float32
+    assert dataset.samples.target3d.shape == (N, J, 3) and dataset.samples.target3d.dtype == np.float32
     assert dataset.rigs.K.shape == (CONFIG.num_subjects, C, 3, 3) and dataset.rigs.dist is None
-    assert all(np.isfinite(a).all() for a in (dataset.keypoints2d, dataset.confidence, dataset.target3d))
-    labels = dataset.labels
+    assert all(np.isfinite(a).all() for a in (dataset.samples.keypoints2d, dataset.samples.confidence, dataset.samples.target3d))
+    labels = dataset.samples.labels
     assert set(labels) >= {"subject", "split", "motion", "sequence", "frame"}
     train = set(labels["subject"][labels["split"] == "train"])
     test = set(labels["subject"][labels["split"] == "test"])
@@ -93,7 +91,7 @@ def test_shapes_dtypes_and_labels(dataset):
     for subject in train | test:
         rows = labels["subject"] == subject
         assert set(labels["motion"][rows]) == set(MOTION_FAMILIES)
-        assert len(np.unique(dataset.rig_index[rows])) == 1
+        assert len(np.unique(dataset.samples.rig_index[rows])) == 1
     # Sequence ids are unique over the data set; frames count up within each sequence.
     for sequence in np.unique(labels["sequence"]):
         rows = np.flatnonzero(labels["sequence"] == sequence)
@@ -103,17 +101,17 @@ def test_shapes_dtypes_and_labels(dataset):
 
 def test_target_matches_subject_simulation(dataset, subjects):
     for s, motion in enumerate(subjects):
-        np.testing.assert_array_equal(dataset.target3d[dataset.rig_index == s], motion.poses)
+        np.testing.assert_array_equal(dataset.samples.target3d[dataset.samples.rig_index == s], motion.poses)
 
 
 def test_passes_the_batch_validation(dataset):
     rows = np.arange(0, len(dataset), 7)
     batch = MultiViewBatch(
-        keypoints2d=dataset.keypoints2d[rows],
-        confidence=dataset.confidence[rows],
+        keypoints2d=dataset.samples.keypoints2d[rows],
+        confidence=dataset.samples.confidence[rows],
         cameras=dataset.cameras_for(rows),
-        pseudo3d=dataset.target3d[rows],
-        target3d=dataset.target3d[rows],
+        pseudo3d=dataset.samples.target3d[rows],
+        target3d=dataset.samples.target3d[rows],
     )
     validate_batch(batch)
 
@@ -276,17 +274,17 @@ def test_joints_in_front_of_every_camera_inside_the_image_and_upright(dataset):
     width, height = CONFIG.image_size
     head, foot = H36M_17.index("Head"), H36M_17.index("LFoot")
     for s in range(CONFIG.num_subjects):
-        rows = dataset.rig_index == s
+        rows = dataset.samples.rig_index == s
         rig = rig_of(dataset, s)
-        pixels, depth = project_points(rig, dataset.target3d[rows])
+        pixels, depth = project_points(rig, dataset.samples.target3d[rows])
         assert depth.min() > 0.0
         inside = (pixels[..., 0] >= 0) & (pixels[..., 0] < width) & (pixels[..., 1] >= 0) & (pixels[..., 1] < height)
         assert inside.mean() > 0.99
         # Image y points down: a walking person's head is above (smaller y than) the feet in every view.
-        walking = dataset.labels["motion"][rows] == "walking"
+        walking = dataset.samples.labels["motion"][rows] == "walking"
         assert np.all(pixels[walking, :, head, 1] < pixels[walking, :, foot, 1])
         # Same projection as the library's (pinhole, x_cam = R x + t).
-        library = np.asarray(project(rig, dataset.target3d[rows][:, None]))  # [N, C, J, 2]
+        library = np.asarray(project(rig, dataset.samples.target3d[rows][:, None]))  # [N, C, J, 2]
         np.testing.assert_allclose(library, pixels, atol=0.05)
 
 
@@ -305,8 +303,8 @@ def test_config_validation():
 @pytest.fixture(scope="module")
 def clean2d(dataset):
     """Exact projections of the first subject, repeated to 24k samples for tight statistics."""
-    rows = dataset.rig_index == 0
-    pixels, _ = project_points(rig_of(dataset, 0), dataset.target3d[rows])
+    rows = dataset.samples.rig_index == 0
+    pixels, _ = project_points(rig_of(dataset, 0), dataset.samples.target3d[rows])
     return np.tile(pixels, (20, 1, 1, 1))
 
 
@@ -368,13 +366,13 @@ def test_confidence_falls_with_error(clean2d):
 def test_generated_detections_have_configured_noise_and_missing_rate(dataset):
     """On the assembled data set: robust per-joint error scale and the missing fraction."""
     sigma = detector_sigma(CONFIG)
-    missing = dataset.confidence == 0.0
+    missing = dataset.samples.confidence == 0.0
     assert abs(missing.mean() - CONFIG.missing_rate) < 0.003
-    assert np.all(dataset.keypoints2d[missing] == 0.0)
+    assert np.all(dataset.samples.keypoints2d[missing] == 0.0)
     for s in range(CONFIG.num_subjects):
-        rows = dataset.rig_index == s
-        pixels, _ = project_points(rig_of(dataset, s), dataset.target3d[rows])
-        error = np.abs(dataset.keypoints2d[rows] - pixels)  # [N, C, J, 2]
+        rows = dataset.samples.rig_index == s
+        pixels, _ = project_points(rig_of(dataset, s), dataset.samples.target3d[rows])
+        error = np.abs(dataset.samples.keypoints2d[rows] - pixels)  # [N, C, J, 2]
         for j in range(J):
             seen = ~missing[rows][..., j]
             # The median absolute error of a Gaussian is 0.6745 sigma; outliers and swaps barely move it.

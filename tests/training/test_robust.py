@@ -14,6 +14,7 @@ from jaxpose.training.config import PseudoLabelConfig
 from jaxpose.camera import Cameras, normalize_keypoints, project, projection_matrices
 from jaxpose.data.batch import MultiViewBatch, validate_batch
 from jaxpose.data.dataset import MultiViewDataset
+from jaxpose.data.samples import Samples
 from jaxpose import losses
 from jaxpose.losses import LossWeights, total_loss
 from jaxpose.skeleton import H36M_17
@@ -187,14 +188,13 @@ def test_unknown_method_is_named():
 
 def _dataset(batch) -> MultiViewDataset:
     """One rig per sample, so that the data set reproduces the batch exactly."""
-    return MultiViewDataset(
-        skeleton=H36M_17,
+    samples = Samples(
         keypoints2d=np.asarray(batch.keypoints2d),
         confidence=np.asarray(batch.confidence),
-        rigs=jax.tree.map(np.asarray, batch.cameras),
         rig_index=np.arange(len(batch.keypoints2d), dtype=np.int32),
         target3d=np.asarray(batch.target3d),
     )
+    return MultiViewDataset(skeleton=H36M_17, rigs=jax.tree.map(np.asarray, batch.cameras), samples=samples)
 
 
 def test_labelling_dispatches_and_a_bad_root_voids_its_sample(scene):
@@ -204,14 +204,14 @@ def test_labelling_dispatches_and_a_bad_root_voids_its_sample(scene):
     confidence = batch.confidence.at[:, 2:, 0].set(0.0)
     data = _dataset(batch.replace(keypoints2d=keypoints, confidence=confidence))
     plain = pseudo_labelling.label(data, PseudoLabelConfig("svd"), chunk_size=4)  # chunks of 4 rows, the last one padded
-    np.testing.assert_array_equal(plain.pseudo3d_weight, 1.0)
+    np.testing.assert_array_equal(plain.samples.pseudo3d_weight, 1.0)
     for method in ROBUST:
         labelled = pseudo_labelling.label(data, PseudoLabelConfig(method, threshold_px=25.0), chunk_size=4)
-        np.testing.assert_array_equal(labelled.pseudo3d_weight, 0.0)  # root rejected -> whole sample
+        np.testing.assert_array_equal(labelled.samples.pseudo3d_weight, 0.0)  # root rejected -> whole sample
         validate_batch(labelled.batch(np.arange(B)))  # rejected labels need not lie in front of cameras
     good = pseudo_labelling.label(_dataset(batch), PseudoLabelConfig("ransac"), chunk_size=4)
-    np.testing.assert_array_equal(good.pseudo3d_weight, 1.0)
-    assert _error(good.pseudo3d, batch.target3d).max() < 1.0
+    np.testing.assert_array_equal(good.samples.pseudo3d_weight, 1.0)
+    assert _error(good.samples.pseudo3d, batch.target3d).max() < 1.0
 
 
 def test_zero_weight_labels_teach_nothing_through_any_loss(scene):
@@ -241,13 +241,13 @@ def test_robust_labels_mark_the_outlying_detections_and_the_batch_carries_them(s
     batch, _ = scene
     keypoints = batch.keypoints2d.at[:, 1, 5].add(jnp.array([80.0, -60.0]))  # one gross outlier per sample
     data = _dataset(batch.replace(keypoints2d=keypoints))
-    assert pseudo_labelling.label(data).detection_weight is None  # the plain DLT rejects nothing
+    assert pseudo_labelling.label(data).samples.detection_weight is None  # the plain DLT rejects nothing
     for method in ROBUST:
         labelled = pseudo_labelling.label(data, PseudoLabelConfig(method, threshold_px=25.0))
         expected = np.ones((B, C, J), np.float32)
         expected[:, 1, 5] = 0.0
-        np.testing.assert_array_equal(labelled.detection_weight, expected, err_msg=method)
-        np.testing.assert_array_equal(labelled.subset(np.array([2, 0])).detection_weight, expected[[2, 0]])
+        np.testing.assert_array_equal(labelled.samples.detection_weight, expected, err_msg=method)
+        np.testing.assert_array_equal(labelled.subset(np.array([2, 0])).samples.detection_weight, expected[[2, 0]])
         labelled_batch = labelled.batch(np.arange(B))
         np.testing.assert_array_equal(labelled_batch.detection_weight, expected)
         validate_batch(labelled_batch)
@@ -305,11 +305,11 @@ def test_labelling_passes_every_config_field_to_the_solver(scene):
     points, weight = robust.pseudo_labels(
         P, keypoints, batch.confidence, "irls", min_views=3, threshold_px=10.0, irls_iterations=2, irls_scale_px=8.0
     )
-    np.testing.assert_allclose(labelled.pseudo3d, points, rtol=1e-6, atol=1e-3)
-    np.testing.assert_array_equal(labelled.pseudo3d_weight, weight * weight[:, :1])
-    np.testing.assert_array_equal(labelled.detection_weight[:, 1, 5], 0.0)  # rejected at 10 px ...
+    np.testing.assert_allclose(labelled.samples.pseudo3d, points, rtol=1e-6, atol=1e-3)
+    np.testing.assert_array_equal(labelled.samples.pseudo3d_weight, weight * weight[:, :1])
+    np.testing.assert_array_equal(labelled.samples.detection_weight[:, 1, 5], 0.0)  # rejected at 10 px ...
     default = pseudo_labelling.label(data, PseudoLabelConfig(method="irls"))
-    np.testing.assert_array_equal(default.detection_weight[:, 1, 5], 1.0)  # ... kept at the default 25 px
+    np.testing.assert_array_equal(default.samples.detection_weight[:, 1, 5], 1.0)  # ... kept at the default 25 px
 
 
 @pytest.mark.trains

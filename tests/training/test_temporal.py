@@ -3,6 +3,7 @@ prediction through `Lifter3D.predict`, `jaxpose.predict` and the exported forms.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import jax
@@ -20,6 +21,7 @@ from jaxpose.serving import inference
 from jaxpose.camera import Cameras
 from jaxpose.training.config import ModelConfig
 from jaxpose.data.dataset import MultiViewDataset, concatenate, consecutive_spans, window_rows
+from jaxpose.data.samples import Samples
 from jaxpose.layouts import to_skeleton
 from jaxpose.model import LifterNetwork
 from jaxpose.skeleton import H36M_17
@@ -84,47 +86,46 @@ def _recording_dataset(lengths=(7, 12), views=2, distorted=False) -> MultiViewDa
     if distorted:
         dist = np.zeros((len(lengths), views, 5), np.float32)
         dist[..., 0] = np.array([-0.2, 0.1])[: len(lengths), None]
+    labels = {
+        "subject": np.array([f"S{r}" for r, _ in rows]),
+        "sequence": np.array(["walk"] * N),
+        "frame": np.array([f for _, f in rows], np.int32),
+    }
     return MultiViewDataset(
         skeleton=H36M_17,
-        keypoints2d=keypoints,
-        confidence=confidence,
         rigs=Cameras(K=K, R=R, t=t.astype(np.float32), dist=dist),
-        rig_index=np.array([r for r, _ in rows], np.int32),
-        labels={
-            "subject": np.array([f"S{r}" for r, _ in rows]),
-            "sequence": np.array(["walk"] * N),
-            "frame": np.array([f for _, f in rows], np.int32),
-        },
+        samples=Samples(keypoints2d=keypoints, confidence=confidence, rig_index=np.array([r for r, _ in rows], np.int32), labels=labels),
     ).with_own_context()
 
 
 def test_windows_of_a_thinned_split_are_the_full_rate_frames():
     every_frame = _recording_dataset()
     stride = 3
-    kept = np.flatnonzero(every_frame.labels["frame"] % stride == 0)
+    kept = np.flatnonzero(every_frame.samples.labels["frame"] % stride == 0)
     thinned = every_frame.subset(kept)
     keypoints, confidence = thinned.windows(np.arange(len(thinned)), 9)
     assert keypoints.shape == (len(kept), 2, 9, H36M_17.num_joints, 2) and confidence.shape == keypoints.shape[:-1]
-    np.testing.assert_array_equal(keypoints[:, :, 4], thinned.keypoints2d)  # the centre is the sample itself
+    np.testing.assert_array_equal(keypoints[:, :, 4], thinned.samples.keypoints2d)  # the centre is the sample itself
     for sample, row in enumerate(kept):
-        recording = every_frame.rig_index[row]
-        same = np.flatnonzero(every_frame.rig_index == recording)
+        recording = every_frame.samples.rig_index[row]
+        same = np.flatnonzero(every_frame.samples.rig_index == recording)
         expected = np.clip(np.arange(row - 4, row + 5), same.min(), same.max())  # never another recording's frame
-        np.testing.assert_array_equal(keypoints[sample], np.moveaxis(every_frame.keypoints2d[expected], 0, 1))
+        np.testing.assert_array_equal(keypoints[sample], np.moveaxis(every_frame.samples.keypoints2d[expected], 0, 1))
     # Two parts with the same context, joined: the windows do not change.
     joined = concatenate([thinned.subset(np.arange(2)), thinned.subset(np.arange(2, len(thinned)))])
     np.testing.assert_array_equal(joined.windows(np.arange(len(joined)), 9)[0], keypoints)
     with pytest.raises(ValueError, match="temporal window of 3 frames needs"):
-        MultiViewDataset(every_frame.skeleton, every_frame.keypoints2d, every_frame.confidence, every_frame.rigs, every_frame.rig_index).windows(np.arange(2), 3)
+        without_context = dataclasses.replace(every_frame.samples, context_row=None, context_span=None)
+        MultiViewDataset(every_frame.skeleton, every_frame.rigs, without_context).windows(np.arange(2), 3)
 
 
 def test_undistorting_a_thinned_split_undistorts_its_windows_with_each_recording_rig():
     every_frame = _recording_dataset(distorted=True)
-    kept = np.flatnonzero(every_frame.labels["frame"] % 4 == 1)
+    kept = np.flatnonzero(every_frame.samples.labels["frame"] % 4 == 1)
     windows = every_frame.subset(kept).undistorted().windows(np.arange(len(kept)), 3)[0]
     oracle = every_frame.undistorted()  # every frame undistorted as a sample, through its own rig
-    rows = window_rows(every_frame.context_row[kept], every_frame.context_span[kept], 3)
-    np.testing.assert_allclose(windows, np.moveaxis(oracle.keypoints2d[rows], 1, 2), atol=1e-3)
+    rows = window_rows(every_frame.samples.context_row[kept], every_frame.samples.context_span[kept], 3)
+    np.testing.assert_allclose(windows, np.moveaxis(oracle.samples.keypoints2d[rows], 1, 2), atol=1e-3)
 
 
 def test_a_window_of_one_frame_is_the_frame_network():
