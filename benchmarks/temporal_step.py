@@ -24,7 +24,8 @@ import numpy as np
 import tyro
 
 from jaxpose.training import pseudo_labelling
-from jaxpose.training.config import RESCALED_LOSS, ModelConfig, OptimizerConfig, PseudoLabelConfig
+from jaxpose.training.config import RESCALED_LOSS, OptimizerConfig, PseudoLabelConfig
+from jaxpose.model import ModelConfig
 from jaxpose.synthetic import SyntheticConfig, generate
 from jaxpose.training.step import init_train_state, jit_train_step, make_train_step
 

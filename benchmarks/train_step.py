@@ -49,7 +49,8 @@ import numpy as np
 import tyro
 
 from jaxpose.training import pseudo_labelling
-from jaxpose.training.config import LossConfig, ModelConfig, OptimizerConfig
+from jaxpose.training.config import LossConfig, OptimizerConfig
+from jaxpose.model import ModelConfig
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.synthetic import SyntheticConfig, generate
 from jaxpose.losses import total_loss

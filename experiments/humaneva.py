@@ -23,7 +23,8 @@ from experiments import cli, paper_tables
 from jaxpose.training.experiment import ExperimentConfig, RunConfig, TrainConfig, paper_preset
 from jaxpose.training.experiment import calibration_lines, mocap_calibration, on_training_calibration
 from jaxpose.training.splits import Splits
-from jaxpose.training.config import ModelConfig, OptimizerConfig
+from jaxpose.training.config import OptimizerConfig
+from jaxpose.model import ModelConfig
 from jaxpose.datasets.humaneva import POSES_3D_FILE, TEST_SUBJECTS, TRAIN_SUBJECTS, load_humaneva, subject_rigs
 
 GROUP_LABEL = "action_subject"

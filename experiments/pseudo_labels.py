@@ -31,7 +31,8 @@ from jaxpose.training.runner import run
 from jaxpose.training.splits import Splits
 from experiments.synthetic import DEFAULT, SyntheticData, load_splits
 from jaxpose.training import pseudo_labelling
-from jaxpose.training.config import ModelConfig, PseudoLabelConfig
+from jaxpose.training.config import PseudoLabelConfig
+from jaxpose.model import ModelConfig
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.synthetic import SyntheticConfig
 from jaxpose.robust import PseudoLabelMethod

@@ -15,7 +15,8 @@ import pathlib
 from experiments import cli
 from jaxpose.training.experiment import ExperimentConfig, RunConfig, TrainConfig
 from jaxpose.training.splits import Splits
-from jaxpose.training.config import ModelConfig, OptimizerConfig
+from jaxpose.training.config import OptimizerConfig
+from jaxpose.model import ModelConfig
 from jaxpose.synthetic import SyntheticConfig, generate
 
 

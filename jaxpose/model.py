@@ -21,18 +21,15 @@ from __future__ import annotations
 
 import functools
 import math
+import dataclasses
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import Literal
 
 import jax
 import jax.numpy as jnp
 from flax import linen as nn
 
 from jaxpose.camera import MM_PER_M, normalize_keypoints
-
-if TYPE_CHECKING:  # the config builds the network (`ModelConfig.build`); here only its input_normalization is read
-    from jaxpose.training.config import ModelConfig
-
 
 def dropout_keep_mask(key: jax.Array, shape: tuple[int, ...], rate: float) -> jax.Array:
     """bool mask of the elements that dropout at `rate` keeps, a pure function of the key.
@@ -271,6 +268,47 @@ def normalize_views(keypoints2d: jax.Array, K: jax.Array, confidence: jax.Array,
     are K [N..., 3, 3]: every frame of a window is normalized on its own, as the frame lifter's input."""
     K = K.reshape(K.shape[:-2] + (1,) * (confidence.ndim - 1 - (K.ndim - 2)) + K.shape[-2:])
     return normalize_keypoints(keypoints2d, K, confidence, mode)
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelConfig:
+    """The lifter (see `LifterNetwork`) and how a 2D pose is turned into its input."""
+
+    width: int = 1024
+    """Hidden width of every layer."""
+    stages: int = 2
+    """1 = Martinez et al.'s network; 2 = the authors' encoder + decoder."""
+    blocks_per_stage: int = 2
+    """Residual blocks (two Linear-BatchNorm-ReLU-Dropout layers each) per stage."""
+    dropout_rate: float = 0.5
+    """Dropout probability after every hidden layer (0 disables it)."""
+    use_batchnorm: bool = True
+    """BatchNorm after every hidden Linear layer."""
+    input_normalization: Literal["intrinsics", "intrinsics_scale", "intrinsics_median"] = "intrinsics_median"
+    """2D input: through K^-1 and root-relative ("intrinsics"), then scaled to unit MEDIAN distance to the root
+    with far joints pulled in ("intrinsics_median": one wild joint cannot shrink the others), or to unit RMS
+    distance ("intrinsics_scale", the default before; same accuracy on Human3.6M: docs/robust_input.md)."""
+    temporal_window: int = 1
+    """Frames of one view the lifter sees per prediction (1, 3, 9, 27, 81 or 243): 1 = one frame (the paper);
+    T > 1 = the T frames centred on the predicted one, through dilated temporal convolutions (see
+    `LifterNetwork`).  Training, evaluation and prediction then need each recording's frames
+    in order (docs/temporal.md)."""
+
+    def __post_init__(self):
+        temporal_levels(self.temporal_window)  # a clear error for a window that is not a power of 3
+
+    def build(self, num_joints: int) -> LifterNetwork:
+        """The network for a skeleton of `num_joints` joints."""
+        return LifterNetwork(
+            num_joints=num_joints,
+            width=self.width,
+            stages=self.stages,
+            blocks_per_stage=self.blocks_per_stage,
+            dropout_rate=self.dropout_rate,
+            use_batchnorm=self.use_batchnorm,
+            temporal_window=self.temporal_window,
+        )
+
 
 
 def make_eval_step(model: LifterNetwork, model_config: ModelConfig) -> Callable[..., jax.Array]:

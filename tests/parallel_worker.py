@@ -28,7 +28,8 @@ from jaxpose.training.experiment import ExperimentConfig, ParallelConfig, RunCon
 from jaxpose.training.run_directory import prepare_run_dir
 from jaxpose.training.loop import train
 from jaxpose.training import parallel, pseudo_labelling
-from jaxpose.training.config import LossConfig, ModelConfig, OptimizerConfig
+from jaxpose.training.config import LossConfig, OptimizerConfig
+from jaxpose.model import ModelConfig
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.synthetic import SyntheticConfig
 from jaxpose.model import LifterNetwork

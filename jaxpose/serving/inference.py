@@ -31,9 +31,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpose.training import checkpoint
-from jaxpose.training.run_directory import RECORD_FILE, RunDirectory, RunRecord, read_record
+from jaxpose.training.run_directory import RunDirectory, RunRecord, read_record
 from jaxpose.camera import Cameras, masked_median, normalize_keypoints, undistort_points
-from jaxpose.training.config import ModelConfig
+from jaxpose.model import ModelConfig
 from jaxpose.chunks import map_in_chunks
 from jaxpose.data.dataset import window_rows
 from jaxpose.flip import flip_averaged
@@ -63,8 +63,7 @@ def score_threshold(lifter: "Lifter3D", given: float | None) -> float:
     if given is None:
         return DEFAULT_MIN_CONFIDENCE if trained is None else trained
     if trained is not None and given != trained:
-        print(f"--min-confidence {given:g} differs from the run's {trained:g} ({lifter.source.parent}/{RECORD_FILE}): using {given:g}",
-              file=sys.stderr)  # fmt: skip
+        print(f"--min-confidence {given:g} differs from the run's {trained:g} ({RunDirectory.of(lifter.source).record}): using {given:g}", file=sys.stderr)
     return given
 
 
@@ -415,20 +414,6 @@ def _check_intrinsics(intrinsics, image_size, count: int) -> np.ndarray:
     return K
 
 
-def _checkpoints_directory(path: pathlib.Path) -> pathlib.Path:
-    """The checkpoints directory of a run directory, or `path` itself when it is one."""
-    if not path.exists():
-        raise FileNotFoundError(f"{path} does not exist; expected a run directory (with checkpoints/) or its checkpoints/")
-    if RunDirectory(path).checkpoints.is_dir():
-        return RunDirectory(path).checkpoints
-    if path.name == "checkpoints" and path.is_dir():
-        return path
-    raise FileNotFoundError(
-        f"{path} has no checkpoints/ directory: expected a run directory written by the experiments, or its"
-        " checkpoints/ directory (a run saves its first checkpoint after `train.checkpoint-every` steps)"
-    )
-
-
 def load(path: str | pathlib.Path, batch_size: int = DEFAULT_BATCH_SIZE) -> Lifter3D:
     """The lifter of a run: `path` is the run directory or its checkpoints/ directory.
 
@@ -436,7 +421,14 @@ def load(path: str | pathlib.Path, batch_size: int = DEFAULT_BATCH_SIZE) -> Lift
     missing run directory or checkpoints/, and `jaxpose.training.checkpoint.CheckpointError` when no step
     can be read.
     """
-    checkpoints = _checkpoints_directory(pathlib.Path(path))
+    run = RunDirectory.of(path)
+    if not run.checkpoints.is_dir():
+        raise FileNotFoundError(
+            f"{path} does not exist; expected a run directory (with checkpoints/) or its checkpoints/" if not pathlib.Path(path).exists()
+            else f"{path} has no checkpoints/ directory: expected a run directory written by the experiments, or its checkpoints/"
+            " directory (a run saves its first checkpoint after `train.checkpoint-every` steps)"
+        )
+    checkpoints = run.checkpoints
     restored = checkpoint.restore_lifter(checkpoints, jax.sharding.SingleDeviceSharding(jax.devices()[0]))
     if restored is None:
         raise checkpoint.CheckpointError(f"{checkpoints} holds no checkpoint (the run saves its first one later)")
@@ -450,5 +442,5 @@ def load(path: str | pathlib.Path, batch_size: int = DEFAULT_BATCH_SIZE) -> Lift
         source=checkpoints,
         eval_step=make_eval_step(model, network.model),
         batch_size=batch_size,
-        record=read_record(checkpoints.parent),
+        record=read_record(run.path),
     )

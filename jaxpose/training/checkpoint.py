@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import orbax.checkpoint as ocp
 
-from jaxpose.training.config import ModelConfig
+from jaxpose.model import ModelConfig
 from jaxpose.skeleton import Skeleton, get_skeleton
 from jaxpose.training.step import TrainState
 

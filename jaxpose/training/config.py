@@ -1,6 +1,7 @@
-"""The library's configuration dataclasses: model, losses, optimizer, pseudo-labels.
+"""The library's training configuration dataclasses: losses, optimizer, pseudo-labels, input augmentation
+(the lifter's own, `ModelConfig`, sits beside the network it builds in `jaxpose.model`).
 
-Each builds what it describes (`ModelConfig.build`, `OptimizerConfig.build`, `LossConfig.weights`;
+Each builds what it describes (`OptimizerConfig.build`, `LossConfig.weights`;
 `jaxpose.training.pseudo_labelling.label` takes a `PseudoLabelConfig`), so there is one place that turns
 settings into objects.  They live in the library, not in `experiments/`, because a checkpoint must
 be loadable (the model rebuilt from its saved config) by code that knows nothing of the
@@ -20,48 +21,7 @@ import tyro
 
 from jaxpose import robust
 from jaxpose.losses import LossWeights
-from jaxpose.model import LifterNetwork, temporal_levels
 from jaxpose.robust import PseudoLabelMethod
-
-
-@dataclasses.dataclass(frozen=True)
-class ModelConfig:
-    """The lifter (see `jaxpose.model.LifterNetwork`) and how a 2D pose is turned into its input."""
-
-    width: int = 1024
-    """Hidden width of every layer."""
-    stages: int = 2
-    """1 = Martinez et al.'s network; 2 = the authors' encoder + decoder."""
-    blocks_per_stage: int = 2
-    """Residual blocks (two Linear-BatchNorm-ReLU-Dropout layers each) per stage."""
-    dropout_rate: float = 0.5
-    """Dropout probability after every hidden layer (0 disables it)."""
-    use_batchnorm: bool = True
-    """BatchNorm after every hidden Linear layer."""
-    input_normalization: Literal["intrinsics", "intrinsics_scale", "intrinsics_median"] = "intrinsics_median"
-    """2D input: through K^-1 and root-relative ("intrinsics"), then scaled to unit MEDIAN distance to the root
-    with far joints pulled in ("intrinsics_median": one wild joint cannot shrink the others), or to unit RMS
-    distance ("intrinsics_scale", the default before; same accuracy on Human3.6M: docs/robust_input.md)."""
-    temporal_window: int = 1
-    """Frames of one view the lifter sees per prediction (1, 3, 9, 27, 81 or 243): 1 = one frame (the paper);
-    T > 1 = the T frames centred on the predicted one, through dilated temporal convolutions (see
-    jaxpose.model.LifterNetwork).  Training, evaluation and prediction then need each recording's frames
-    in order (docs/temporal.md)."""
-
-    def __post_init__(self):
-        temporal_levels(self.temporal_window)  # a clear error for a window that is not a power of 3
-
-    def build(self, num_joints: int) -> LifterNetwork:
-        """The network for a skeleton of `num_joints` joints."""
-        return LifterNetwork(
-            num_joints=num_joints,
-            width=self.width,
-            stages=self.stages,
-            blocks_per_stage=self.blocks_per_stage,
-            dropout_rate=self.dropout_rate,
-            use_batchnorm=self.use_batchnorm,
-            temporal_window=self.temporal_window,
-        )
 
 
 @dataclasses.dataclass(frozen=True)

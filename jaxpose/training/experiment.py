@@ -15,7 +15,8 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Generic, TypeVar
 
 from jaxpose.camera import Cameras
-from jaxpose.training.config import RESCALED_LOSS, InputAugmentation, LossConfig, ModelConfig, OptimizerConfig, PseudoLabelConfig
+from jaxpose.training.config import RESCALED_LOSS, InputAugmentation, LossConfig, OptimizerConfig, PseudoLabelConfig
+from jaxpose.model import ModelConfig
 from jaxpose.data.dataset import MultiViewDataset
 
 DataT = TypeVar("DataT")

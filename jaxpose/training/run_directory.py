@@ -44,6 +44,12 @@ class RunDirectory:
 
     path: pathlib.Path
 
+    @classmethod
+    def of(cls, path: pathlib.Path) -> "RunDirectory":
+        """The run whose folder, or whose checkpoints/ folder, `path` names (as the commands that use a run take it)."""
+        path = pathlib.Path(path)
+        return cls(path.parent if path.name == "checkpoints" and not (path / "checkpoints").is_dir() else path)
+
     @property
     def record(self) -> pathlib.Path:
         """run.json: the marker written at creation (`mark`)."""
@@ -127,8 +133,7 @@ def write_record(run_dir: pathlib.Path, record: RunRecord) -> None:
 def read_record(run_dir: pathlib.Path) -> RunRecord | None:
     """The record of the run `run_dir` (or of its checkpoints/ folder), or None for a run written before
     records existed."""
-    run_dir = run_dir.parent if run_dir.name == "checkpoints" else run_dir
-    path = RunDirectory(run_dir).record
+    path = RunDirectory.of(run_dir).record
     if not path.is_file():
         return None
     try:

@@ -21,7 +21,8 @@ from jax.sharding import Mesh
 
 from jaxpose.training import parallel
 from jaxpose.camera import masked_median
-from jaxpose.training.config import InputAugmentation, LossConfig, ModelConfig
+from jaxpose.training.config import InputAugmentation, LossConfig
+from jaxpose.model import ModelConfig
 from jaxpose.data.batch import MultiViewBatch
 from jaxpose.flip import mirror_input, mirror_pose3d
 from jaxpose.losses import TERMS, gradient_shares, input_triangulation_loss, total_loss

@@ -12,7 +12,7 @@ from jaxpose.training.experiment import TrainConfig
 from jaxpose.training.run_directory import prepare_run_dir
 from jaxpose.training.loop import train
 from jaxpose.training import pseudo_labelling
-from jaxpose.training.config import ModelConfig
+from jaxpose.model import ModelConfig
 
 pytestmark = [pytest.mark.trains]
 

@@ -200,7 +200,7 @@ def test_killed_and_corrupted_runs_end_bit_identical_to_an_uninterrupted_one(tmp
 def test_restore_latest_reports_an_unreadable_step_and_can_discard_it(tmp_path):
     """In-process and fast: the fallback itself, and that a resuming run can save the step again."""
     from jaxpose.training import checkpoint
-    from jaxpose.training.config import ModelConfig
+    from jaxpose.model import ModelConfig
     from jaxpose.skeleton import H36M_17
     from jaxpose.training.step import TrainState
 

@@ -12,7 +12,7 @@ import pytest
 
 from jaxpose import export, predict
 from jaxpose.camera import INPUT_NORMALIZATIONS, normalize_keypoints
-from jaxpose.training.config import ModelConfig
+from jaxpose.model import ModelConfig
 from jaxpose.flip import flip_averaged, mirror_input, mirror_pose3d
 from jaxpose.serving.inference import Lifter3D
 from jaxpose.skeleton import H36M_17

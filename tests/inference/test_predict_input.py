@@ -18,7 +18,7 @@ import pytest
 from jaxpose import predict
 
 from jaxpose.training import checkpoint
-from jaxpose.training.config import ModelConfig
+from jaxpose.model import ModelConfig
 from jaxpose.formats import detection_file, intrinsics
 from jaxpose.layouts import layout_joint_names, lifting_skeleton
 from jaxpose.training.step import init_train_state

@@ -22,7 +22,8 @@ from jaxpose import export, predict
 
 from jaxpose.serving import inference
 from jaxpose.camera import MEDIAN_RADIUS_LIMIT, masked_median, normalize_keypoints, project
-from jaxpose.training.config import InputAugmentation, LossConfig, ModelConfig, OptimizerConfig
+from jaxpose.training.config import InputAugmentation, LossConfig, OptimizerConfig
+from jaxpose.model import ModelConfig
 from jaxpose.skeleton import H36M_17
 from jaxpose.model import make_eval_step
 from jaxpose.training.step import augment_inputs, init_train_state, make_train_step

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from geometry_helpers import exact_batch
 
-from jaxpose.training.config import InputAugmentation, LossConfig, ModelConfig, OptimizerConfig
+from jaxpose.training.config import InputAugmentation, LossConfig, OptimizerConfig
+from jaxpose.model import ModelConfig
 from jaxpose.flip import mirror_input
 from jaxpose.skeleton import H36M_17
 from jaxpose.training.step import init_train_state, make_loss_fn, make_train_step, mirror_views

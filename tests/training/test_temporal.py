@@ -19,7 +19,7 @@ from experiments import synthetic as synthetic_job
 from jaxpose import export, predict
 from jaxpose.serving import inference
 from jaxpose.camera import Cameras
-from jaxpose.training.config import ModelConfig
+from jaxpose.model import ModelConfig
 from jaxpose.data.dataset import MultiViewDataset, concatenate, consecutive_spans, window_rows
 from jaxpose.data.samples import Samples
 from jaxpose.layouts import to_skeleton

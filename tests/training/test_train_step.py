@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from geometry_helpers import exact_batch
 
-from jaxpose.training.config import LossConfig, ModelConfig, OptimizerConfig
+from jaxpose.training.config import LossConfig, OptimizerConfig
+from jaxpose.model import ModelConfig
 from jaxpose.model import make_eval_step
 from jaxpose.training.step import (
     init_train_state,
