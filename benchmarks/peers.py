@@ -59,7 +59,8 @@ from jaxpose.formats.outputs import check_report, write_report
 from jaxpose.formats.calibration_files import find_calibration, read_rig_calibration
 from jaxpose.reconstruction.recording import RecordingInput, lift_and_reconstruct, recording_inputs
 from jaxpose.reconstruction.trajectory import TrajectoryConfig
-from jaxpose.rig.project import RigProjectConfig, load_rig_project
+from jaxpose.rig.project import load_rig_project
+from jaxpose.rig.config import RigProjectConfig
 from jaxpose.skeleton import H36M_17, Skeleton
 from jaxpose.synthetic import SyntheticConfig, make_rig, project_points, sample_bone_lengths, sample_motion, simulate_detector
 from jaxpose.synthetic.config import Stream, stream_rng

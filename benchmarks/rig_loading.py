@@ -87,7 +87,8 @@ def measure_rig(rig_dir: str, stride: int, pseudo_labels: bool) -> dict:
     """In a child process: one `load_rig_project` (and the training part's pseudo-labels), its compilations and peak RSS."""
     import jax
 
-    from jaxpose.rig.project import RigProjectConfig, load_rig_project
+    from jaxpose.rig.project import load_rig_project
+    from jaxpose.rig.config import RigProjectConfig
 
     counted = {"/jax/core/compile/jaxpr_to_mlir_module_duration": "lowered", "/jax/core/compile/backend_compile_duration": "compiled"}
     counts = dict.fromkeys(counted.values(), 0)

@@ -56,7 +56,8 @@ from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, fill_gaps
 from jaxpose.reconstruction.motion_quality import acceleration_error, limb_length_spread
 from jaxpose.reconstruction.recording import RecordingInput, lift_and_reconstruct, placed_lifts, recording_inputs, smooth_recording
 from jaxpose.reconstruction.trajectory import TrajectoryConfig
-from jaxpose.rig.project import RigProjectConfig, load_rig_project
+from jaxpose.rig.project import load_rig_project
+from jaxpose.rig.config import RigProjectConfig
 from jaxpose.triangulation import triangulate
 
 METHODS = ("fused", "trajectory", "triangulation", "triangulation, gaps filled", "RANSAC pseudo-labels", "most confident view")

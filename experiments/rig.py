@@ -28,7 +28,8 @@ from jaxpose.training.experiment import ExperimentConfig, cpu_recipe, paper_pres
 from jaxpose.training.run_directory import RECOVERED_CAMERAS_FILE, RECOVERED_SESSIONS_DIR, RunDirectory, RunRecord
 from jaxpose.training.splits import Splits
 from jaxpose.formats.camera_file import save_cameras
-from jaxpose.rig.project import RigProjectConfig, load_rig_project, recorded_settings
+from jaxpose.rig.project import load_rig_project
+from jaxpose.rig.config import RigProjectConfig, recorded_settings
 from jaxpose.rig.split import RigProject
 
 log = logging.getLogger("jaxpose")

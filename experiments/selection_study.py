@@ -33,7 +33,7 @@ from jaxpose.training.run_directory import RunDirectory
 from jaxpose.training.runner import run
 from jaxpose.training import self_consistency
 from jaxpose.training.config import LossConfig, PseudoLabelConfig
-from jaxpose.rig.project import RigProjectConfig
+from jaxpose.rig.config import RigProjectConfig
 
 Recipe = Literal["cpu", "dropout_0.5", "plain_dlt_labels", "input_triangulation_only", "paper_loss_weights"]
 

@@ -29,7 +29,8 @@ from jaxpose.datasets.h36m import sequence_action
 from jaxpose.formats.calibration_files import read_rig_calibration
 from jaxpose.formats.rig_folder import DETECTIONS_NPZ, GROUND_TRUTH_NPZ
 from jaxpose.rig.geometry import triangulate_rows
-from jaxpose.rig.project import RigProjectConfig, load_rig_project
+from jaxpose.rig.project import load_rig_project
+from jaxpose.rig.config import RigProjectConfig
 from jaxpose.rig.recordings import recording_folders
 from jaxpose.rotations import similarity
 

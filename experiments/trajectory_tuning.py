@@ -29,7 +29,8 @@ from jaxpose.logs import show_logs
 from jaxpose.reconstruction.motion_quality import acceleration_error, limb_length_spread
 from jaxpose.reconstruction.recording import lift_and_reconstruct, recording_inputs, smooth_recording
 from jaxpose.reconstruction.trajectory import TrajectoryConfig
-from jaxpose.rig.project import RigProjectConfig, load_rig_project
+from jaxpose.rig.project import load_rig_project
+from jaxpose.rig.config import RigProjectConfig
 
 
 @dataclasses.dataclass(frozen=True)

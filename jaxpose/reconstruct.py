@@ -51,7 +51,7 @@ from jaxpose.reconstruction.fusion import FusionConfig, Provenance
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP
 from jaxpose.reconstruction.motion_quality import motion_summary
 from jaxpose.reconstruction.trajectory import TrajectoryConfig
-from jaxpose.rig.project import RigProjectConfig, with_recorded_settings
+from jaxpose.rig.config import RigProjectConfig, with_recorded_settings
 from jaxpose.training.run_directory import RECORD_FILE, RunRecord, read_record
 from jaxpose.rig.recordings import find_project
 
@@ -112,7 +112,7 @@ def run(args: ReconstructArgs) -> dict:
     earlier = check_outputs(args, found.names)
     lifter = inference.load(args.checkpoint)
     project = recording.load_every_instant(args.data, args.checkpoint, args.progress, found)
-    dataset = project.validation
+    dataset = project.instants
     if tuple(dataset.skeleton.joint_names) != tuple(lifter.joint_names):
         raise ValueError(
             f"the lifter of {lifter.source} lifts the joints {lifter.joint_names}, the project {args.data.root} has"

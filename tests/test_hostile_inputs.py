@@ -45,7 +45,8 @@ from jaxpose.calibration.lens import LensEstimate
 from jaxpose.calibration.scale import MetricScale
 from jaxpose.camera import Cameras
 from jaxpose.rig import cache
-from jaxpose.rig.project import RigProjectConfig, load_rig_project
+from jaxpose.rig.project import load_rig_project
+from jaxpose.rig.config import RigProjectConfig
 from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
 
 TINY = ExampleProjectConfig(recordings=1, frames_per_recording=40)
@@ -302,7 +303,7 @@ def test_the_run_record_carries_the_project_settings_to_the_commands_that_use_th
     metres and a score threshold of 0.2 is read back so by reconstruct (flags left at their defaults), and
     predict takes its threshold; a flag given that differs is said in one line and used."""
     from jaxpose.serving.inference import score_threshold
-    from jaxpose.rig.project import recorded_settings, with_recorded_settings
+    from jaxpose.rig.config import recorded_settings, with_recorded_settings
     from jaxpose.training.run_directory import RunRecord, prepare_run_dir, read_record, write_record
 
     trained = RigProjectConfig(

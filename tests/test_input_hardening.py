@@ -45,11 +45,13 @@ from jaxpose.datasets.h36m import load_h36m
 from jaxpose.datasets.humaneva import load_humaneva
 from jaxpose.datasets.mpi_inf_3dhp import load_mpi_inf_3dhp_test
 from jaxpose.formats import file_cache, intrinsics
+from jaxpose.rig.config import CACHE_DIR
 from jaxpose.formats.rig_cameras import RigCalibration, check_intrinsics
 from jaxpose.formats.camera_file import save_cameras
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.calibration_files import read_rig_calibration
-from jaxpose.rig.project import RigProjectConfig, load_rig_project
+from jaxpose.rig.project import load_rig_project
+from jaxpose.rig.config import RigProjectConfig
 from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
 
 # Few examples keep the suite fast; HARDEN_EXAMPLES=500 explores more (it passed so when written).
@@ -417,7 +419,7 @@ def _every_file(root) -> dict:
     return {
         os.path.relpath(os.path.join(folder, name), root): open(os.path.join(folder, name), "rb").read()
         for folder, folders, names in os.walk(root)
-        if file_cache.CACHE_DIR not in os.path.relpath(folder, root).split(os.sep)
+        if CACHE_DIR not in os.path.relpath(folder, root).split(os.sep)
         for name in names
     }
 

@@ -1,5 +1,5 @@
-"""Parsed input files kept as arrays in a file the caller names (a rig project's cache, `CACHE_DIR`: never
-beside the input, which is only read), reused while unchanged.
+"""Parsed input files kept as arrays in a file the caller names (in a rig project's cache,
+`jaxpose.rig.config.CACHE_DIR`: never beside the input, which is only read), reused while unchanged.
 
 The key digests what was cached (a label that carries its version) and the input files' names and
 contents (`content_digest`, BLAKE2b of every byte): a file added, removed, renamed or with other bytes, or
@@ -24,8 +24,6 @@ from typing import TypeVar
 import numpy as np
 
 logger = logging.getLogger(__name__)
-
-CACHE_DIR = ".jaxpose_cache"  # a rig project's cache folder, PROJECT/.jaxpose_cache (jaxpose.rig.project)
 
 _Parsed = TypeVar("_Parsed")
 

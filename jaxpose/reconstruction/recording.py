@@ -4,7 +4,7 @@
     from jaxpose.reconstruction import recording
     project = recording.load_every_instant(RigProjectConfig(root=PROJECT), run_dir=RUN)
     lifter = inference.load(RUN)
-    for inputs in recording.recording_inputs(project.validation):
+    for inputs in recording.recording_inputs(project.instants):
         motion, lifted = recording.lift_and_reconstruct(lifter, inputs)
 
 The project is loaded as `experiments.rig` loads it (`jaxpose.rig.project`), with every recording in
@@ -39,9 +39,10 @@ from jaxpose.reconstruction.fusion import MIN_DEPTH_MM, Fusion, FusionConfig, Pr
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, complete_segments, fill_gaps
 from jaxpose.reconstruction.trajectory import TrajectoryConfig, limb_lengths, solve_trajectory
 from jaxpose.rig.cameras import in_view_order
-from jaxpose.rig.project import RigProjectConfig, load_rig_project, prepared_project
+from jaxpose.rig.project import prepared_project
 from jaxpose.rig.cache import PreparedProject
-from jaxpose.rig.split import SPLIT_FIELDS, RigProject, split
+from jaxpose.rig.config import SPLIT_FIELDS, RigProjectConfig
+from jaxpose.rig.split import ProjectInstants, every_instant
 from jaxpose.training.run_directory import RECOVERED_SESSIONS_DIR, RunDirectory
 from jaxpose.rig.recordings import FoundProject, find_project
 from jaxpose.skeleton import ROOT, Skeleton
@@ -49,9 +50,9 @@ from jaxpose.skeleton import ROOT, Skeleton
 log = logging.getLogger(__name__)
 
 
-def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: bool = True, found: FoundProject | None = None) -> RigProject:
-    """The project with every instant of every recording (of --data.recordings) in its `validation` part;
-    `found`: its files as found already (`jaxpose.rig.recordings.find_project`), else found now.
+def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: bool = True, found: FoundProject | None = None) -> ProjectInstants:
+    """Every instant of every recording (of --data.recordings) of the project; `found`: its files as found
+    already (`jaxpose.rig.recordings.find_project`), else found now.
 
     The calibration: --data.calibration where given; else RUN/recovered_cameras.json where the run was
     trained on a recovered rig (read from the prepared project the run was trained on where the cache still
@@ -64,15 +65,14 @@ def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: 
         flags = ", ".join("--data." + field.replace("_", "-") for field in changed)
         raise ValueError(f"{flags}: a reconstruction takes every instant of every recording; leave the split flags out")
     found = found or find_project(data.root, data.recordings, data.calibration)
-    config = dataclasses.replace(data, validation_recordings=found.names)  # every instant: the cache's arrays themselves
     recovered = RunDirectory(pathlib.Path(run_dir)).recovered_cameras
     if data.calibration is None and recovered.is_file():
-        prepared = prepared_project(config, found, progress, prepare=False)  # the run's own, where the cache holds it
+        prepared = prepared_project(data, found, progress, cached_only=True)  # the run's own, where the cache holds it
         if prepared is not None and _holds_rig(prepared, recovered):
             log.info("the run was trained on the rig recovered from the recordings, %s: the prepared project it was trained on", recovered)
-            return split(prepared, config)
+            return every_instant(prepared)
         log.info("the run was trained on the rig recovered from the recordings: its world frame, %s", recovered)
-        config = dataclasses.replace(config, calibration=recovered)
+        data = dataclasses.replace(data, calibration=recovered)
         found = dataclasses.replace(found, calibration=recovered)
     elif not found.calibrated:
         sessions = recovered.parent / RECOVERED_SESSIONS_DIR
@@ -85,7 +85,7 @@ def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: 
             f"{data.root}: no calibration file, and the run {run_dir} has no {recovered.name} (it was trained on"
             " a calibrated project): pass --data.calibration; a rig recovered again would have another world frame"
         )
-    return load_rig_project(config, progress, found)
+    return every_instant(prepared_project(data, found, progress))
 
 
 def _holds_rig(prepared: PreparedProject, recovered: pathlib.Path) -> bool:
@@ -127,8 +127,7 @@ class RecordingInput:
 
 
 def recording_inputs(dataset: MultiViewDataset) -> Iterator[RecordingInput]:
-    """The recordings of a data set (labels "recording" and "frame", e.g. `load_every_instant`'s
-    validation part), each undistorted and on its whole frame axis, in the order they appear."""
+    """The recordings of a data set (labels "recording" and "frame", e.g. `load_every_instant`'s instants), each undistorted and on its whole frame axis, in the order they appear."""
     dataset = dataset.undistorted()
     names = dataset.samples.labels["recording"]
     _, first = np.unique(names, return_index=True)

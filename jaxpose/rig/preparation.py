@@ -1,10 +1,13 @@
-"""Preparing a rig project's recordings one at a time, in bounded memory and a fixed number of compilations.
+"""Preparing a rig project's recordings (`prepare`): found -> read -> aligned -> prepared, one recording at a
+time, in bounded memory and a fixed number of compilations.
 
-Each recording is read, its cameras put on one time axis at every instant (a split and its strides are
-row selections of the result, made after it: `jaxpose.rig.project.split`), then undistorted and searched
-for the person the views agree on in chunks of `geometry.CHUNK` instants that run across recordings
-(`jaxpose.chunks`), so that a short recording does not pay for a chunk of its own and the compiled
-functions see one shape.  Each recording's result is appended to the prepared arrays
+The calibration files found are read (`jaxpose.rig.cameras`).  Each recording is then read and its cameras put
+on one time axis at every instant (`_aligned`, an `Aligned` each; the split and its strides are row
+selections of the result, made after it: `jaxpose.rig.split`).  Without any calibration the rigs are
+recovered from the aligned recordings, one per session (`jaxpose.rig.recovered`).  Each recording is
+undistorted and searched for the person the views agree on (`Preparation`) in chunks of `geometry.CHUNK`
+instants that run across recordings (`jaxpose.chunks`), so that a short recording does not pay for a chunk
+of its own and the compiled functions see one shape; its result is appended to the prepared arrays
 (`jaxpose.rig.cache.Assembly`) as soon as it is chosen, and let go.
 """
 
@@ -13,21 +16,27 @@ from __future__ import annotations
 import collections
 import contextlib
 import dataclasses
+import hashlib
 import logging
+import os
+import shutil
 import time
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 from tqdm.auto import tqdm
 
 from jaxpose.chunks import ChunkedMap
+from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_cameras import RigCalibration
-from jaxpose.rig import geometry, people
-from jaxpose.rig.cameras import check_unit_against_people
-from jaxpose.rig.cache import PART, Assembly
-from jaxpose.rig.recordings import Recording, ground_truth_on_instants
-from jaxpose.rig.recovered import ground_truth_into_recovered_world
-from jaxpose.rig.timeline import SyncEstimate
+from jaxpose.layouts import lifting_skeleton
+from jaxpose.rig import cache, geometry, people
+from jaxpose.rig.cache import PART, Assembly, PreparedProject
+from jaxpose.rig.cameras import check_unit_against_people, distinct_rigs, in_view_order, read_calibrations
+from jaxpose.rig.config import RigProjectConfig
+from jaxpose.rig.recordings import FoundProject, Recording, ground_truth_on_instants, lifting_views, read_detections
+from jaxpose.rig.recovered import RecoveredSession, ground_truth_into_recovered_world, recover_sessions
+from jaxpose.rig.timeline import SyncEstimate, align, estimate_recording_offsets, instants_of, lone_cameras, parse_frame_offsets
 from jaxpose.skeleton import Skeleton
 
 log = logging.getLogger(__name__)
@@ -96,6 +105,135 @@ class Phases:
             log.info("%s: %s in %.1f s", name, counted, seconds)
 
 
+def prepare(config: RigProjectConfig, found: FoundProject, progress: bool, cache_key: str, inputs: dict[str, str]) -> PreparedProject:
+    """Every instant of the project prepared from its recordings (found -> read -> aligned -> prepared, one
+    recording at a time), and committed to the cache under `cache_key` (`inputs`: its input files' digests)."""
+    started = time.perf_counter()
+    recordings = found.recordings
+    project_calibration, calibrations = read_calibrations(found, config.calibration_unit)
+    present = set().union(*(recording.cameras for recording in recordings))
+    if project_calibration is not None:
+        camera_order = [name for name in project_calibration.camera_names if name in present]
+    else:
+        camera_order = sorted(present)
+    for recording in recordings:
+        if calibrations[recording.name] is not None:  # every detection folder needs its camera
+            calibrations[recording.name].select(sorted(recording.cameras), f"detection folders of recording {recording.name}")
+    phases = Phases(len(recordings), progress)
+    given_offsets = parse_frame_offsets(config.frame_offsets, recordings)
+    parts = _aligned(config, recordings, calibrations, camera_order, given_offsets, phases)
+    sessions: tuple[RecoveredSession, ...] = ()
+    if all(rig is None for rig in calibrations.values()):
+        parts = list(parts)
+        with phases("rig recovered"):
+            sessions, calibrations = recover_sessions(
+                [part.recording.name for part in parts], [part.known_cameras for part in parts],
+                [(part.keypoints, part.confidence) for part in parts], camera_order,
+                lifting_skeleton(parts[0].layout), sessions=config.sessions, find=config.find_sessions,
+                image_size=config.image_size, max_frames=config.recovery_frames, root=config.root,
+                height_mm=config.subject_height_mm,
+            )  # fmt: skip
+        parts = [dataclasses.replace(part, calibration=calibrations[part.recording.name]) for part in parts]
+    elif config.sessions:
+        log.warning("--data.sessions is for projects without a calibration: ignored (the calibration files give each recording's rig)")
+    distinct, rig_index = distinct_rigs(calibrations)
+    rigs = geometry.Rigs.of([in_view_order(rig, camera_order) for rig in distinct])
+    temporary = cache.start(config.cache, cache_key)
+    preparation = Preparation(
+        rigs, rig_index, cache.Assembly(temporary), phases, threshold_px=config.person_threshold_px, recovered=bool(sessions),
+        check_unit=config.calibration_unit == "auto" and not sessions,
+        labels={"subject": np.dtype(f"<U{len(f'rig{len(rig_index) - 1}')}"),
+                "recording": np.dtype(f"<U{max(len(recording.name) for recording in recordings)}")},
+    )  # fmt: skip
+    try:
+        preparation.run(parts)
+    except BaseException:
+        if temporary is not None:
+            shutil.rmtree(temporary, ignore_errors=True)
+        raise
+    finally:
+        phases.close()
+    for summary, recording in zip(preparation.summaries, recordings):
+        summary["cameras"] = [camera for camera in camera_order if camera in recording.cameras]
+    meta = {
+        "camera_names": camera_order,
+        "layout": preparation.layout,
+        "recordings": preparation.summaries,
+        "ground_truth_seen": preparation.ground_truth_seen,
+        "warnings": preparation.warnings,
+        "sessions": [session.summary() for session in sessions],
+        "rigs": {field: np.stack([np.asarray(getattr(c.cameras, field), np.float32) for c in rigs.calibrations]).tolist() for field in ("K", "R", "t")},
+        "inputs": inputs,
+    }
+    prepared = cache.finish(config.cache, temporary, cache_key, preparation.assembly, meta, sessions)
+    note = "" if prepared.folder is None else f"; {cache.size_note(config.cache)}"
+    log.info("%d recordings (%d instants) %s in %.1f s%s", len(recordings), len(prepared.arrays["frame"]), prepared.how, time.perf_counter() - started, note)
+    return prepared
+
+
+def _aligned(
+    config: RigProjectConfig,
+    recordings: Sequence[Recording],
+    calibrations: Mapping[str, RigCalibration | None],
+    camera_order: Sequence[str],
+    given: dict[tuple[str, str], int],
+    phases: Phases,
+) -> Iterator[Aligned]:
+    """Each recording read, on one time axis at every instant, one at a time, with its rig (`calibrations`) and
+    its offsets (`given` by --data.frame-offsets, or estimated with --data.sync auto); every recording in one
+    keypoint layout."""
+    parsed = config.cache / PARSED
+    layouts: dict[str, str] = {}
+    for recording in recordings:
+        with phases("recordings read"):
+            read = read_detections(recording, config.skeleton, phases.progress, parsed / _parsed_name(recording))
+            views = lifting_views(read, config.min_confidence)
+        layouts[recording.name] = read.layout
+        if len(set(layouts.values())) > 1:
+            raise DataFormatError(config.root, "one keypoint layout in every recording", f"layouts {layouts}")
+        cameras = [camera for camera in camera_order if camera in views]
+        warnings: list[str] = []
+        sync = None
+        if config.sync == "auto":
+            with phases("offsets"):
+                sync = estimate_recording_offsets(recording, calibrations[recording.name], views, cameras, config.max_sync_offset)
+            offsets = dict(zip(cameras, sync.offsets.tolist()))
+            state = "" if sync.reliable else f" (UNRELIABLE: {sync.doubt})"
+            log.info("recording %s: estimated frame offsets %s%s", recording.name, offsets, state)
+            if not sync.reliable:
+                warnings.append(f"frame offsets UNRELIABLE: {sync.doubt}")
+            phases.advance("offsets")
+        else:
+            offsets = {camera: given.get((recording.name, camera), 0) for camera in cameras}
+        for camera in lone_cameras(views, offsets):
+            warnings.append(
+                f"camera {camera} (frame offset {offsets.get(camera, 0):+d}) shares no instant with the other cameras:"
+                " are --data.frame-offsets right?"
+            )
+            log.warning("recording %s: %s", recording.name, warnings[-1])
+        with phases("recordings read"):
+            instants = instants_of(views, offsets)
+            if not len(instants):
+                raise DataFormatError(recording.folder, "detections in at least one frame", "no frame")
+            keypoints, confidence = align(views, camera_order, offsets, instants)
+        phases.advance("recordings read", len(instants))
+        yield Aligned(
+            recording, read.layout, read.known_cameras, calibrations[recording.name], offsets, sync, instants, keypoints, confidence,
+            tuple(warnings),
+        )
+
+
+PARSED = "parsed"
+"""The cache's folder of parsed JSON detections, one sub-folder per recording (`_parsed_name`)."""
+
+
+def _parsed_name(recording: Recording) -> str:
+    """The name of a recording's folder of parsed JSON in the cache: its name and a digest of its folder's
+    absolute path, so that projects sharing one --data.cache-dir never take each other's recordings of the
+    same name (never stale, as each file's key checks the content; but parsed again and again)."""
+    return f"{recording.name}-{hashlib.blake2b(os.fsencode(recording.folder.resolve()), digest_size=8).hexdigest()}"
+
+
 @dataclasses.dataclass
 class Preparation:
     """Undistort every recording, choose its person, attach its ground truth, check the calibrations'
@@ -107,7 +245,6 @@ class Preparation:
     rigs: geometry.Rigs
     rig_of: Mapping[str, int]
     """Recording name -> its rig's index in `rigs`."""
-    skeleton: Callable[[], Skeleton]
     assembly: Assembly
     phases: Phases
     threshold_px: float
@@ -119,9 +256,11 @@ class Preparation:
     ground_truth_seen: bool = False
     warnings: list[str] = dataclasses.field(default_factory=list)
     """What the checks of the calibrations found suspect (people of an unlikely size), for the report."""
+    layout: str | None = None
+    """The recordings' keypoint layout (every `Aligned` carries it; one for all)."""
 
     def run(self, parts: Iterable[Aligned]) -> None:
-        units = _UnitCheck(self.rigs, self.skeleton) if self.check_unit else None
+        units = _UnitCheck(self.rigs) if self.check_unit else None
         mappers: dict[int, ChunkedMap] = {}
         waiting: dict[int, tuple[Aligned, tuple | None]] = {}  # by index: the part, its proposals once through
         group_of: dict[int, int] = {}
@@ -146,6 +285,7 @@ class Preparation:
                 drain()
 
         for index, part in enumerate(parts):
+            self.layout = part.layout
             group = part.keypoints.shape[2]  # people per view: one compiled shape per count
             mapper = mappers.setdefault(group, ChunkedMap(self._propose, geometry.CHUNK))
             group_of[index] = group
@@ -179,12 +319,12 @@ class Preparation:
         recording, rig_index = part.recording, self.rig_of[part.recording.name]
         choice = people.choose(found, undistorted, part.confidence)
         instants = part.instants
-        target, truth_instants = ground_truth_on_instants(recording.folder, self.skeleton(), part.layout, instants)
+        target, truth_instants = ground_truth_on_instants(recording.folder, lifting_skeleton(part.layout), part.layout, instants)
         if target is not None and self.recovered:
             target = ground_truth_into_recovered_world(target, choice.keypoints, choice.confidence, self.rigs.calibrations[rig_index])
         self.ground_truth_seen |= target is not None
         if units is not None:
-            units.add(rig_index, choice.keypoints, choice.confidence)
+            units.add(rig_index, choice.keypoints, choice.confidence, lifting_skeleton(part.layout))
         self.assembly.add(PART, {
             "keypoints2d": choice.keypoints,
             "confidence": choice.confidence,
@@ -215,13 +355,14 @@ class _UnitCheck:
     (`jaxpose.rig.cameras.check_unit_against_people`): checked once a rig has
     `UNIT_CHECK_INSTANTS` instants, so a wrong unit stops the load early."""
 
-    def __init__(self, rigs: geometry.Rigs, skeleton: Callable[[], Skeleton]):
-        self.rigs, self.skeleton = rigs, skeleton
+    def __init__(self, rigs: geometry.Rigs):
+        self.rigs, self.skeleton = rigs, None
         self.samples: dict[int, list[tuple[np.ndarray, np.ndarray]]] = collections.defaultdict(list)
         self.checked: set[int] = set()
         self.warnings: list[str] = []
 
-    def add(self, rig: int, keypoints: np.ndarray, confidence: np.ndarray) -> None:
+    def add(self, rig: int, keypoints: np.ndarray, confidence: np.ndarray, skeleton: Skeleton) -> None:
+        self.skeleton = skeleton  # every recording's: one layout for all
         if rig in self.checked:
             return
         seen = np.flatnonzero(((confidence > 0).any(-1)).sum(-1) >= 2)
@@ -240,5 +381,5 @@ class _UnitCheck:
         self.checked.add(rig)
         if len(keypoints):
             points = geometry.triangulate_rows(self.rigs.P[rig], keypoints, confidence, method="normal")
-            warning = check_unit_against_people(self.rigs.calibrations[rig], points, (confidence > 0).sum(1) >= 2, self.skeleton())
+            warning = check_unit_against_people(self.rigs.calibrations[rig], points, (confidence > 0).sum(1) >= 2, self.skeleton)
             self.warnings += [warning] if warning else []

@@ -1,4 +1,5 @@
-"""A prepared rig project split into training and validation parts: row selections of its instants.
+"""A prepared rig project split into training and validation parts, row selections of its instants (`split`),
+or taken whole (`every_instant`, what a reconstruction reads).
 
 The prepared project (`jaxpose.rig.cache.PreparedProject`, `jaxpose.rig.project.prepared_project`) holds every instant of
 every recording, one recording after the other; a split takes, per recording, the whole recording as
@@ -12,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from typing import Protocol
 
 import numpy as np
 
@@ -23,23 +23,10 @@ from jaxpose.data.samples import Samples
 from jaxpose.layouts import lifting_skeleton
 from jaxpose.rig import cache
 from jaxpose.rig.cache import PreparedProject
+from jaxpose.rig.config import RigProjectConfig
 from jaxpose.rig.recovered import RecoveredSession
 
 log = logging.getLogger(__name__)
-
-SPLIT_FIELDS = ("validation_recordings", "validation_fraction", "train_stride", "validation_stride")
-"""RigProjectConfig's fields of a training split: row selections of the prepared instants (`split`), not
-part of the cache's key (a reconstruction takes every instant of every recording)."""
-
-
-class SplitConfig(Protocol):
-    """The split's fields (`SPLIT_FIELDS`) of a `jaxpose.rig.project.RigProjectConfig`."""
-
-    validation_recordings: tuple[str, ...]
-    validation_fraction: float
-    train_stride: int
-    validation_stride: int
-
 
 @dataclasses.dataclass(frozen=True)
 class RecordingSummary:
@@ -83,7 +70,26 @@ class RigProject:
         return self.sessions[0].calibration if len(self.sessions) == 1 else None
 
 
-def split(prepared: PreparedProject, config: SplitConfig) -> RigProject:
+@dataclasses.dataclass(frozen=True)
+class ProjectInstants:
+    """Every prepared instant of a project, recording after recording (what a reconstruction takes: no split),
+    and what loading did to each recording."""
+
+    instants: MultiViewDataset
+    recordings: tuple[RecordingSummary, ...]
+    prepared: str
+    """How the prepared arrays were had (as `RigProject.prepared`)."""
+
+
+def every_instant(prepared: PreparedProject) -> ProjectInstants:
+    """The prepared instants themselves as one data set (memory-mapped where the cache holds them)."""
+    arrays = prepared.arrays
+    spans = consecutive_spans({"frame": arrays["frame"], "sequence": arrays["recording"]})
+    instants = _dataset(prepared, spans, "every", np.arange(len(arrays["frame"])))
+    return ProjectInstants(instants, _summaries(prepared.meta), prepared.how)
+
+
+def split(prepared: PreparedProject, config: RigProjectConfig) -> RigProject:
     """The training and validation parts of the prepared instants: per recording, the validation part is
     the whole recording where --data.validation-recordings names it, else its final
     --data.validation-fraction; then every --data.train-stride-th / --data.validation-stride-th instant of
@@ -108,13 +114,17 @@ def split(prepared: PreparedProject, config: SplitConfig) -> RigProject:
         validation=validation,
         camera_names=tuple(meta["camera_names"]),
         layout=meta["layout"],
-        recordings=tuple(
-            RecordingSummary(**summary | {"cameras": tuple(summary["cameras"]), "warnings": tuple(summary["warnings"])}) for summary in meta["recordings"]
-        ),
+        recordings=_summaries(meta),
         warnings=tuple(meta["warnings"]),
         ground_truth_joints=ground_truth.ground_truth_joint_names(validation),
         sessions=prepared.sessions,
         prepared=prepared.how,
+    )
+
+
+def _summaries(meta) -> tuple[RecordingSummary, ...]:
+    return tuple(
+        RecordingSummary(**summary | {"cameras": tuple(summary["cameras"]), "warnings": tuple(summary["warnings"])}) for summary in meta["recordings"]
     )
 
 
@@ -133,7 +143,7 @@ def _dataset(prepared: PreparedProject, spans: np.ndarray, part: str, rows: np.n
     return MultiViewDataset(skeleton, rigs, samples, context=FrameContext(arrays["keypoints2d"], arrays["confidence"]))
 
 
-def _held_out(config: SplitConfig, recording: str, instants: int) -> np.ndarray:
+def _held_out(config: RigProjectConfig, recording: str, instants: int) -> np.ndarray:
     """bool[instants]: which of a recording's instants validate (--data.validation-recordings, else the
     final --data.validation-fraction of each recording)."""
     if recording in config.validation_recordings:

@@ -22,7 +22,7 @@ from jaxpose.reconstruction.motion_files import (
     opensim_rotation,
 )
 from jaxpose.reconstruction import recording
-from jaxpose.rig.project import RigProjectConfig
+from jaxpose.rig.config import RigProjectConfig
 from jaxpose.training.run_directory import RECOVERED_CAMERAS_FILE, RECOVERED_SESSIONS_DIR
 
 FPS = 50.0
@@ -105,7 +105,7 @@ def test_no_smoothing_gives_each_instants_own_estimate(project, run_dir, tmp_pat
     plain = _reconstruct(run_dir, project, tmp_path / "plain", "--no-smoothing")
     assert plain["trajectory"] is None and "each instant alone" in (tmp_path / "plain" / "report.md").read_text()
     lifter = inference.load(run_dir)
-    dataset = recording.load_every_instant(RigProjectConfig(root=project), run_dir, progress=False).validation
+    dataset = recording.load_every_instant(RigProjectConfig(root=project), run_dir, progress=False).instants
     for inputs, row, smoothed in zip(recording.recording_inputs(dataset), plain["recordings"], smooth["recordings"]):
         motion, _ = recording.lift_and_reconstruct(lifter, inputs)
         saved = np.load(tmp_path / "plain" / f"{inputs.name}.npz")

@@ -17,7 +17,8 @@ import pytest
 from jaxpose.training import pseudo_labelling
 from jaxpose.training.config import PseudoLabelConfig
 from jaxpose.formats.errors import DataFormatError
-from jaxpose.rig.project import RigProjectConfig, load_rig_project
+from jaxpose.rig.project import load_rig_project
+from jaxpose.rig.config import RigProjectConfig
 from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
 
 TINY = ExampleProjectConfig(recordings=2, frames_per_recording=60)

@@ -18,7 +18,8 @@ from jaxpose.camera import Cameras, projection_matrices
 from jaxpose.formats.calibration_files import read_rig_calibration
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.rig.people import choose_person
-from jaxpose.rig.project import RigProjectConfig, load_rig_project
+from jaxpose.rig.project import load_rig_project
+from jaxpose.rig.config import RigProjectConfig
 from jaxpose.rig.timeline import estimate_offsets
 from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
 from jaxpose.formats.trc import read_trc
@@ -302,8 +303,8 @@ def test_a_project_without_calibration_recovers_the_rig(tmp_path):
     config = RigProjectConfig(root=root, image_size=(1920, 1080), recovery_frames=120)
     every = recording.load_every_instant(config, run.path, progress=False)
     assert every.prepared == data.prepared.replace("prepared and written to", "read from")
-    assert len(every.validation) == len(data.train) + len(data.validation)
-    np.testing.assert_array_equal(every.validation.rigs.R, data.validation.rigs.R)
+    assert len(every.instants) == len(data.train) + len(data.validation)
+    np.testing.assert_array_equal(every.instants.rigs.R, data.validation.rigs.R)
     # Another rig in the run's file (not the one the cache holds): prepared in that rig's world instead.
     moved = dataclasses.replace(recovered.cameras, t=np.asarray(recovered.cameras.t) + 100.0)
     save_cameras(run.recovered_cameras, {"rig": (list(recovered.camera_names), moved)})

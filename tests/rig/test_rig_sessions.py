@@ -15,7 +15,8 @@ import pytest
 from jaxpose.calibration import compare_rigs
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_folder import DETECTIONS_NPZ, GROUND_TRUTH_NPZ, write_ground_truth
-from jaxpose.rig.project import RigProjectConfig, load_rig_project
+from jaxpose.rig.project import load_rig_project
+from jaxpose.rig.config import RigProjectConfig
 from jaxpose.rig.recovered import parse_sessions
 from jaxpose.skeleton import H36M_17
 from jaxpose.synthetic import SyntheticConfig, make_rig, sample_bone_lengths, sample_motion
