@@ -84,6 +84,11 @@ def _run_holding_the_directory(
         where = "" if groups is None else " (" + ", ".join(f"{name}: {count}" for name, count in zip(*np.unique(groups[~usable], return_counts=True))) + ")"
         log.warning("leaving out %d training samples with fewer than %d usable views%s", int((~usable).sum()), config.pseudo_labels.min_views, where)
         samples = np.flatnonzero(usable)
+    if not usable.any():  # which of the two: the budget below sees only the count
+        why = "every instant was held out (--data.validation-*)" if not len(usable) else (
+            f"all {len(usable)} training instants have fewer usable views than --pseudo-labels.min-views {config.pseudo_labels.min_views}"
+            " (scores below the data's score threshold, e.g. --data.min-confidence)")  # fmt: skip
+        raise SystemExit(f"error: no training sample is left: {why}")
     training_budget(len(usable) if samples is None else len(samples), config.train)  # a batch larger than the data stops here, before the run directory is written
     train_set = pseudo_labelling.label(splits.train, config.pseudo_labels, progress=config.run.progress)
     if replace_labels is not None:
