@@ -51,7 +51,8 @@ DEFAULT = ExperimentConfig(
 # Preset "tiny": every stage of the job in seconds, to try an installation; the test suite's recipe
 # (tests add what they exercise: the epochs, batch and checkpoints of a resume, a temporal window, ...).
 # The main job's recipe on a width-64 lifter of ModelConfig's two stages (the tests that read its lifter's
-# behaviour were written against it) and 200 instants per subject: 1,000 training samples, one epoch of 3 steps.  No progress bars, no skeleton plots.
+# behaviour were written against it) and 200 instants per subject: 1,000 training samples, one epoch of 3
+# steps.  No progress bars, no skeleton plots.
 TINY = dataclasses.replace(
     DEFAULT,
     data=SyntheticData(SyntheticConfig(samples_per_subject=200)),
