@@ -149,15 +149,15 @@ class _PeakMemory:
         return {f"peak_{name}_gib": round(value / 2**30, 3) for name, value in self.peak.items()}
 
 
-def measure_training(rig_dir: str, steps: str, run_dir: str, *flags: str) -> dict:
+def measure_training(rig_dir: str, steps: str, run_dir: str) -> dict:
     """In a child process: `experiments.rig` on the project for `steps` steps (loading from the
     prepared cache, pseudo-labels, training, the report), its time and peak memory by kind."""
     from experiments import rig
 
     memory = _PeakMemory()
     start = time.perf_counter()
-    rig.main(["--data.root", rig_dir, "--train.max-steps", steps, "--run.run-dir", run_dir, "--run.no-progress", *flags])
-    return {"seconds": round(time.perf_counter() - start, 1), "steps": int(steps), "flags": list(flags)} | memory.stop() | {
+    rig.main(["--data.root", rig_dir, "--train.max-steps", steps, "--run.run-dir", run_dir, "--run.no-progress"])
+    return {"seconds": round(time.perf_counter() - start, 1), "steps": int(steps)} | memory.stop() | {
         "peak_rss_gib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20, 3)
     }
 
