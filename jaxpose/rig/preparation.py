@@ -45,7 +45,7 @@ UNIT_CHECK_INSTANTS = 256  # instants of a rig's people triangulated to check it
 BACKLOG = 8  # recordings done but waiting for an earlier one before that one's chunk is run part-full
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class Aligned:
     """One recording on one time axis, at every instant, and what reading it found."""
 
@@ -146,21 +146,21 @@ def prepare(config: RigProjectConfig, found: FoundProject, progress: bool, cache
                 "recording": np.dtype(f"<U{max(len(recording.name) for recording in recordings)}")},
     )  # fmt: skip
     try:
-        preparation.run(parts)
+        outcome = preparation.run(parts)
     except BaseException:
         if temporary is not None:
             shutil.rmtree(temporary, ignore_errors=True)
         raise
     finally:
         phases.close()
-    for summary, recording in zip(preparation.summaries, recordings):
-        summary["cameras"] = [camera for camera in camera_order if camera in recording.cameras]
+    summaries = [summary | {"cameras": [camera for camera in camera_order if camera in recording.cameras]}
+                 for summary, recording in zip(outcome.summaries, recordings)]  # fmt: skip
     meta = {
         "camera_names": camera_order,
-        "layout": preparation.layout,
-        "recordings": preparation.summaries,
-        "ground_truth_seen": preparation.ground_truth_seen,
-        "warnings": preparation.warnings,
+        "layout": outcome.layout,
+        "recordings": summaries,
+        "ground_truth_seen": outcome.ground_truth_seen,
+        "warnings": list(outcome.warnings),
         "sessions": [session.summary() for session in sessions],
         "rigs": {field: np.stack([np.asarray(getattr(c.cameras, field), np.float32) for c in rigs.calibrations]).tolist() for field in ("K", "R", "t")},
         "inputs": inputs,
@@ -234,13 +234,26 @@ def _parsed_name(recording: Recording) -> str:
     return f"{recording.name}-{hashlib.blake2b(os.fsencode(recording.folder.resolve()), digest_size=8).hexdigest()}"
 
 
+@dataclasses.dataclass(frozen=True)
+class Outcome:
+    """What preparing the recordings did besides the arrays (`Preparation.run`)."""
+
+    summaries: tuple[dict, ...]
+    """Per recording, in order, what loading did, for `jaxpose.rig.split.RecordingSummary`."""
+    ground_truth_seen: bool
+    warnings: tuple[str, ...]
+    """What the checks of the calibrations found suspect (people of an unlikely size), for the report."""
+    layout: str
+    """The recordings' keypoint layout (every `Aligned` carries it; one for all)."""
+
+
 @dataclasses.dataclass
 class Preparation:
     """Undistort every recording, choose its person, attach its ground truth, check the calibrations'
     unit (`check_unit`) and append every instant to `assembly` (its part `jaxpose.rig.cache.PART`).
-    `labels`: the string dtypes of the
-    "subject" and "recording" labels (one width for every recording).  `run` takes the recordings as
-    they come; the attributes then say what loading did besides the arrays."""
+    `labels`: the string dtypes of the "subject" and "recording" labels (one width for every recording).
+    `run` takes the recordings as they come and returns its `Outcome`; the fields after `labels` are its
+    tally while it runs."""
 
     rigs: geometry.Rigs
     rig_of: Mapping[str, int]
@@ -252,14 +265,11 @@ class Preparation:
     check_unit: bool
     labels: dict[str, np.dtype]
     summaries: list[dict] = dataclasses.field(default_factory=list)
-    """Per recording (in order) what loading did, for `jaxpose.rig.split.RecordingSummary`."""
     ground_truth_seen: bool = False
     warnings: list[str] = dataclasses.field(default_factory=list)
-    """What the checks of the calibrations found suspect (people of an unlikely size), for the report."""
     layout: str | None = None
-    """The recordings' keypoint layout (every `Aligned` carries it; one for all)."""
 
-    def run(self, parts: Iterable[Aligned]) -> None:
+    def run(self, parts: Iterable[Aligned]) -> Outcome:
         units = _UnitCheck(self.rigs) if self.check_unit else None
         mappers: dict[int, ChunkedMap] = {}
         waiting: dict[int, tuple[Aligned, tuple | None]] = {}  # by index: the part, its proposals once through
@@ -301,6 +311,7 @@ class Preparation:
         if units is not None:
             units.finish()
             self.warnings += units.warnings
+        return Outcome(tuple(self.summaries), self.ground_truth_seen, tuple(self.warnings), self.layout)
 
     def _propose(self, rig_rows, keypoints, confidence):
         """One chunk: undistorted keypoints, their confidence, and the person's proposals
