@@ -9,7 +9,7 @@
 PROJECT holds one folder per recording, each with the detections of every camera (OpenPose JSON
 folders, COCO results per camera, or a detections.npz), and optionally a calibration (Anipose /
 Pose2Sim / FreeMoCap TOML, EasyMocap intri.yml + extri.yml, or a jaxpose camera file); without one
-the rig is recovered from the recordings.  The layout and every option: `jaxpose.rig.project`
+the rig is recovered from the recordings.  The layout: `jaxpose.rig.project`; every option: `jaxpose.rig.config`
 and docs/rig.md ("Train on your own rig").
 
 The lifter is trained on the detector's own joints (root first: its mid-hip, derived from the hips
