@@ -1,4 +1,5 @@
-"""Checked readers for the file kinds of the real data sets: HDF5, npz, MATLAB .mat and JSON.
+"""Checked readers for the file kinds of the real data sets: HDF5, npz, MATLAB .mat and JSON; and typed JSON,
+what jaxpose keeps of its own dataclasses in a cache instead of a pickle (`typed_json`, `from_typed_json`).
 
 Each reader turns a missing, empty, truncated or foreign file into a `DataFormatError` that names
 the file and what was expected in it, instead of an h5py / zipfile / pickle traceback.
@@ -7,8 +8,10 @@ the file and what was expected in it, instead of an h5py / zipfile / pickle trac
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import pickle
+import typing
 import zipfile
 import zlib
 from collections.abc import Iterator, Sequence
@@ -133,3 +136,42 @@ def read_json(path: Path, what: str) -> Any:
         return json.loads(path.read_text())
     except (UnicodeDecodeError, json.JSONDecodeError) as error:
         raise DataFormatError(path, f"{what} (a JSON file)", f"invalid JSON ({error})") from None
+
+
+def typed_json(value: Any) -> Any:
+    """A frozen dataclass of numpy arrays, numbers, strings, tuples and dicts (a recovered calibration) as JSON,
+    each array with its dtype (`from_typed_json` reads it back; nothing in the file names code to run, unlike a pickle)."""
+    if dataclasses.is_dataclass(value):
+        return {field.name: typed_json(getattr(value, field.name)) for field in dataclasses.fields(value)}
+    if isinstance(value, np.ndarray) or hasattr(value, "__array__") and not isinstance(value, (int, float, bool)):
+        array = np.asarray(value)
+        return {"ndarray": array.tolist(), "dtype": array.dtype.str}
+    if isinstance(value, (tuple, list)):
+        return [typed_json(item) for item in value]
+    if isinstance(value, dict):
+        return {key: typed_json(item) for key, item in value.items()}
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def from_typed_json(kind: Any, value: Any) -> Any:
+    """The inverse of `typed_json`, guided by the dataclass's type hints (no code named by the file runs)."""
+    if isinstance(value, dict) and set(value) == {"ndarray", "dtype"}:
+        dtype = np.dtype(value["dtype"])
+        if dtype.hasobject:
+            raise ValueError(f"an array of {dtype}")
+        return np.asarray(value["ndarray"], dtype)
+    if isinstance(kind, type) and dataclasses.is_dataclass(kind):
+        if not isinstance(value, dict):
+            raise ValueError(f"{kind.__name__}: expected an object")
+        hints = typing.get_type_hints(kind)
+        return kind(**{field.name: from_typed_json(hints[field.name], value[field.name]) for field in dataclasses.fields(kind) if field.name in value})
+    if typing.get_origin(kind) is tuple and isinstance(value, list):
+        return tuple(value)
+    if typing.get_origin(kind) is dict:
+        if not isinstance(value, dict):
+            raise ValueError(f"{kind}: expected an object")
+        item = typing.get_args(kind)[1]
+        return {name: from_typed_json(item, entry) for name, entry in value.items()}
+    return value

@@ -12,7 +12,7 @@ only the rows of each batch read from disk.  A split (held-out recordings or fra
 selection of these rows, made after reading (`selected_rows`): training, evaluation, reconstruction and
 searches of every split read the same prepared folder.
 
-The key (`key`) digests every option that changes the arrays (not the split), the code's `VERSION`, and
+The key (`entry`, `key`) digests every option that changes the arrays (not the split), the code's `VERSION`, and
 each input file's path, size, modification and status-change times (``st_ctime``) and inode, in groups
 (the project's own files, a calibration's, each recording's: `input_digests`): a file edited, replaced,
 touched or renamed is a miss.  The status-change time is what makes this safe without reading the
@@ -42,15 +42,17 @@ import os
 import shutil
 import struct
 import time
-import typing
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from jaxpose.formats import keypoint_files
 from jaxpose.formats.errors import DataFormatError
-from jaxpose.rig.recordings import printable
+from jaxpose.formats.files import from_typed_json, typed_json
+from jaxpose.rig.config import NOT_PREPARED, RigProjectConfig
+from jaxpose.rig.recordings import FoundProject, printable
 from jaxpose.rig.recovered import RecoveredSession
 
 log = logging.getLogger(__name__)
@@ -81,10 +83,65 @@ class PreparedProject:
     """How the arrays were had: read from the cache, prepared and cached, or prepared in memory."""
 
 
-def lookup(cache: Path, cache_key: str, layout: str | None = None) -> PreparedProject | None:
+@dataclasses.dataclass(frozen=True)
+class Entry:
+    """Where one project's prepared arrays are kept in its cache (`entry`), and what they are keyed by."""
+
+    cache: Path
+    """The cache folder (`jaxpose.rig.config.RigProjectConfig.cache`)."""
+    key: str
+    inputs: Mapping[str, str]
+    """The digest of each group of input files (`input_digests`), kept in project.json (`_prune` reads them)."""
+    auto_key: str | None
+    """With a layout named (as a run records the one --data.skeleton auto resolved): the key of the same
+    project prepared with auto, which serves where it resolved to that layout (`lookup`)."""
+    layout: str
+
+
+def entry(config: RigProjectConfig, found: FoundProject) -> Entry:
+    """The cache entry of a project's settings and files as found."""
+    inputs = input_digests(_input_files(config, found))
+    auto = None if config.skeleton == "auto" else key(_options(dataclasses.replace(config, skeleton="auto")), inputs)
+    return Entry(config.cache, key(_options(config), inputs), inputs, auto, config.skeleton)
+
+
+def _options(config: RigProjectConfig) -> dict:
+    """Every option that changes the prepared arrays (not where the project and its cache are, not the
+    split), and the version of the JSON parsing whose results they hold."""
+    options = {field.name: getattr(config, field.name) for field in dataclasses.fields(config) if field.name not in NOT_PREPARED}
+    options["calibration"] = None if config.calibration is None else str(config.calibration.resolve())
+    return options | {"parsed_frames": keypoint_files.CACHE_VERSION}
+
+
+def _input_files(config: RigProjectConfig, found: FoundProject) -> dict[str, list[Path]]:
+    """Every file loading may read, by group (`input_digests`): the project folder's files, --data.calibration
+    with its siblings of the same kind (EasyMocap's extri.yml), and each recording's (its folder's files and
+    every camera's detections), named by their absolute folders."""
+
+    def plain_files(folder: Path, suffix: str = "") -> list[Path]:
+        return [entry for entry in folder.iterdir() if not entry.name.startswith(".") and entry.suffix.endswith(suffix) and not entry.is_dir()]
+
+    groups = {f"project {config.root.resolve()}": plain_files(config.root)}
+    if config.calibration is not None:
+        groups[f"calibration {config.calibration.resolve()}"] = [config.calibration, *plain_files(config.calibration.parent, config.calibration.suffix)]
+    for recording in found.recordings:
+        files = plain_files(recording.folder)
+        for source in recording.sources.values():
+            files += plain_files(source, ".json") if source.is_dir() else [source]
+        groups[f"recording {recording.folder.resolve()}"] = files
+    return groups
+
+
+def lookup(entry: Entry) -> PreparedProject | None:
+    """The prepared project of `entry`, memory-mapped (or, with a layout named, what auto prepared where it
+    resolved to that layout); None where the cache holds neither."""
+    return _read(entry.cache, entry.key) or (None if entry.auto_key is None else _read(entry.cache, entry.auto_key, entry.layout))
+
+
+def _read(cache: Path, cache_key: str, layout: str | None = None) -> PreparedProject | None:
     """The prepared project of `cache_key` in the cache folder `cache` (of the keypoint layout `layout`, where
-    given), memory-mapped; None where there is none.  An unreadable one is removed with a warning (it is
-    jaxpose's own folder, and only a missed shortcut)."""
+    given); None where there is none.  An unreadable one is removed with a warning (it is jaxpose's own
+    folder, and only a missed shortcut)."""
     started = time.perf_counter()
     prepared = folder(cache, cache_key)
     if not prepared.is_dir():
@@ -222,8 +279,9 @@ def read_arrays(directory: Path) -> dict[str, dict[str, np.ndarray]]:
     return arrays
 
 
-def start(cache: Path, cache_key: str) -> Path | None:
-    """A fresh temporary folder to prepare into (None, with a warning, where `cache` cannot be written)."""
+def start(entry: Entry) -> Path | None:
+    """A fresh temporary folder to prepare `entry` into (None, with a warning, where its cache cannot be written)."""
+    cache, cache_key = entry.cache, entry.key
     try:
         cache.mkdir(parents=True, exist_ok=True)
         _remove_interrupted(cache, PREFIX)
@@ -255,14 +313,15 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def finish(cache: Path, temporary: Path | None, cache_key: str, assembly: Assembly, meta: Mapping[str, Any],
+def finish(entry: Entry, temporary: Path | None, assembly: Assembly, meta: Mapping[str, Any],
            sessions: tuple[RecoveredSession, ...]) -> PreparedProject:  # fmt: skip
-    """The prepared project whose arrays `assembly` holds: committed to the cache and memory-mapped from it,
-    or in memory where the cache cannot be written (`temporary` None)."""
+    """The prepared project whose arrays `assembly` holds: committed to the cache as `entry` (with its inputs'
+    digests in `meta`) and memory-mapped from it, or in memory where the cache cannot be written (`temporary` None)."""
     in_memory = assembly.close()
+    meta = dict(meta) | {"inputs": dict(entry.inputs)}
     if temporary is None:
-        return PreparedProject(meta, in_memory[PART], sessions, None, f"prepared in memory ({cache} cannot be written: not cached)")
-    final = commit(temporary, cache_key, meta, {session.name: session.calibration for session in sessions} or None)
+        return PreparedProject(meta, in_memory[PART], sessions, None, f"prepared in memory ({entry.cache} cannot be written: not cached)")
+    final = commit(temporary, entry.key, meta, {session.name: session.calibration for session in sessions} or None)
     return PreparedProject(meta, read_arrays(final)[PART], sessions, final, f"prepared and written to the cache {final}")
 
 
@@ -271,7 +330,7 @@ def commit(temporary: Path, cache_key: str, meta: Mapping[str, Any], recovered: 
     of the same key wins); prepared folders made from inputs that have changed since are removed."""
     (temporary / "project.json").write_text(json.dumps(meta, indent=1))
     if recovered is not None:
-        (temporary / RECOVERED_JSON).write_text(json.dumps(_to_json(recovered)))
+        (temporary / RECOVERED_JSON).write_text(json.dumps(typed_json(recovered)))
     final = temporary.parent / f"{PREFIX}{cache_key}"
     try:
         os.rename(temporary, final)
@@ -356,50 +415,7 @@ def read_meta(directory: Path, recovered_type: type | None = None) -> tuple[dict
     path = directory / RECOVERED_JSON
     if recovered_type is not None and path.exists():
         try:
-            recovered = _from_json(recovered_type, json.loads(path.read_text()))
+            recovered = from_typed_json(recovered_type, json.loads(path.read_text()))
         except (ValueError, TypeError, KeyError) as error:
             raise DataFormatError(printable(path), f"a recovered rig written by jaxpose (delete the folder {directory} to prepare again)", str(error)) from None
     return meta, recovered
-
-
-def _to_json(value: Any) -> Any:
-    """A frozen dataclass of numpy arrays, numbers, strings, tuples and dicts (a recovered calibration) as JSON."""
-    if dataclasses.is_dataclass(value):
-        return {field.name: _to_json(getattr(value, field.name)) for field in dataclasses.fields(value)}
-    if isinstance(value, np.ndarray) or hasattr(value, "__array__") and not isinstance(value, (int, float, bool)):
-        array = np.asarray(value)
-        return {"ndarray": array.tolist(), "dtype": array.dtype.str}
-    if isinstance(value, (tuple, list)):
-        return [_to_json(item) for item in value]
-    if isinstance(value, dict):
-        return {key: _to_json(item) for key, item in value.items()}
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
-
-
-def _from_json(kind: Any, value: Any) -> Any:
-    """The inverse of `_to_json`, guided by the dataclass's type hints (no code named by the file runs)."""
-    if isinstance(value, dict) and set(value) == {"ndarray", "dtype"}:
-        dtype = np.dtype(value["dtype"])
-        if dtype.hasobject:
-            raise ValueError(f"an array of {dtype}")
-        return np.asarray(value["ndarray"], dtype)
-    if isinstance(kind, type) and dataclasses.is_dataclass(kind):
-        if not isinstance(value, dict):
-            raise ValueError(f"{kind.__name__}: expected an object")
-        hints = typing.get_type_hints(kind)
-        return kind(**{field.name: _from_json(hints[field.name], value[field.name]) for field in dataclasses.fields(kind) if field.name in value})
-    if typing.get_origin(kind) is tuple and isinstance(value, list):
-        return tuple(value)
-    if typing.get_origin(kind) is dict:
-        if not isinstance(value, dict):
-            raise ValueError(f"{kind}: expected an object")
-        item = typing.get_args(kind)[1]
-        return {name: _from_json(item, entry) for name, entry in value.items()}
-    return value
-
-
-def as_json(value: Any) -> Any:
-    """A dataclass (a recording's summary) as JSON-ready values."""
-    return dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value

@@ -105,9 +105,9 @@ class Phases:
             log.info("%s: %s in %.1f s", name, counted, seconds)
 
 
-def prepare(config: RigProjectConfig, found: FoundProject, progress: bool, cache_key: str, inputs: dict[str, str]) -> PreparedProject:
+def prepare(config: RigProjectConfig, found: FoundProject, progress: bool, entry: cache.Entry) -> PreparedProject:
     """Every instant of the project prepared from its recordings (found -> read -> aligned -> prepared, one
-    recording at a time), and committed to the cache under `cache_key` (`inputs`: its input files' digests)."""
+    recording at a time), and committed to the cache as `entry`."""
     started = time.perf_counter()
     recordings = found.recordings
     project_calibration, calibrations = read_calibrations(found, config.calibration_unit)
@@ -138,7 +138,7 @@ def prepare(config: RigProjectConfig, found: FoundProject, progress: bool, cache
         log.warning("--data.sessions is for projects without a calibration: ignored (the calibration files give each recording's rig)")
     distinct, rig_index = distinct_rigs(calibrations)
     rigs = geometry.Rigs.of([in_view_order(rig, camera_order) for rig in distinct])
-    temporary = cache.start(config.cache, cache_key)
+    temporary = cache.start(entry)
     preparation = Preparation(
         rigs, rig_index, cache.Assembly(temporary), phases, threshold_px=config.person_threshold_px, recovered=bool(sessions),
         check_unit=config.calibration_unit == "auto" and not sessions,
@@ -163,9 +163,8 @@ def prepare(config: RigProjectConfig, found: FoundProject, progress: bool, cache
         "warnings": list(outcome.warnings),
         "sessions": [session.summary() for session in sessions],
         "rigs": {field: np.stack([np.asarray(getattr(c.cameras, field), np.float32) for c in rigs.calibrations]).tolist() for field in ("K", "R", "t")},
-        "inputs": inputs,
     }
-    prepared = cache.finish(config.cache, temporary, cache_key, preparation.assembly, meta, sessions)
+    prepared = cache.finish(entry, temporary, preparation.assembly, meta, sessions)
     note = "" if prepared.folder is None else f"; {cache.size_note(config.cache)}"
     log.info("%d recordings (%d instants) %s in %.1f s%s", len(recordings), len(prepared.arrays["frame"]), prepared.how, time.perf_counter() - started, note)
     return prepared

@@ -52,13 +52,9 @@ not grow with the number or the lengths of the recordings.
 
 from __future__ import annotations
 
-import dataclasses
-import pathlib
-
-from jaxpose.formats import keypoint_files
 from jaxpose.rig import cache
 from jaxpose.rig.cache import PreparedProject
-from jaxpose.rig.config import NOT_PREPARED, RigProjectConfig
+from jaxpose.rig.config import RigProjectConfig
 from jaxpose.rig.preparation import prepare
 from jaxpose.rig.recordings import FoundProject, find_project
 from jaxpose.rig.split import RigProject, split
@@ -78,41 +74,8 @@ def load_rig_project(config: RigProjectConfig, progress: bool = True, found: Fou
 def prepared_project(config: RigProjectConfig, found: FoundProject, progress: bool = True, cached_only: bool = False) -> PreparedProject | None:
     """Every instant of the project from the cache, else prepared (and cached where the cache can be
     written); with `cached_only`, None where the cache does not hold it."""
-    inputs = cache.input_digests(_input_files(config, found))
-    cache_key = cache.key(_options(config), inputs)
-    prepared = cache.lookup(config.cache, cache_key)
-    if prepared is None and config.skeleton != "auto":  # a layout named (as a run records the one it resolved) reads what auto prepared as it
-        auto = cache.key(_options(dataclasses.replace(config, skeleton="auto")), inputs)
-        prepared = cache.lookup(config.cache, auto, layout=config.skeleton)
+    entry = cache.entry(config, found)
+    prepared = cache.lookup(entry)
     if prepared is not None or cached_only:
         return prepared
-    return prepare(config, found, progress, cache_key, inputs)
-
-
-def _options(config: RigProjectConfig) -> dict:
-    """Every option that changes the prepared arrays (not where the project and its cache are, not the
-    split), and the version of the JSON parsing whose results they hold."""
-    options = {field.name: getattr(config, field.name) for field in dataclasses.fields(config) if field.name not in NOT_PREPARED}
-    options["calibration"] = None if config.calibration is None else str(config.calibration.resolve())
-    return options | {"parsed_frames": keypoint_files.CACHE_VERSION}
-
-
-def _input_files(config: RigProjectConfig, found: FoundProject) -> dict[str, list[pathlib.Path]]:
-    """Every file loading may read, by group (`jaxpose.rig.cache.input_digests`): the project folder's
-    files, --data.calibration with its siblings of the same kind (EasyMocap's extri.yml), and each
-    recording's (its folder's files and every camera's detections), named by their absolute folders."""
-
-    def plain_files(folder: pathlib.Path, suffix: str = "") -> list[pathlib.Path]:
-        return [entry for entry in folder.iterdir() if not entry.name.startswith(".") and entry.suffix.endswith(suffix) and not entry.is_dir()]
-
-    groups = {f"project {config.root.resolve()}": plain_files(config.root)}
-    if config.calibration is not None:
-        groups[f"calibration {config.calibration.resolve()}"] = [config.calibration, *plain_files(config.calibration.parent, config.calibration.suffix)]
-    for recording in found.recordings:
-        files = plain_files(recording.folder)
-        for source in recording.sources.values():
-            files += plain_files(source, ".json") if source.is_dir() else [source]
-        groups[f"recording {recording.folder.resolve()}"] = files
-    return groups
-
-
+    return prepare(config, found, progress, entry)
