@@ -30,6 +30,38 @@ def lifter(trained_run):
     return inference.load(trained_run[0])
 
 
+SHARED_RUN_GROUP = "trained_run"
+
+
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups into the node ids
+def pytest_collection_modifyitems(items):
+    """The suite runs on every core (pytest-xdist, `--dist loadgroup` in pyproject.toml): a test goes to
+    whichever worker is free, except that the tests sharing a fixture made once per module or session
+    stay on one worker, so that it is still made once.  Every module that uses the shared tiny run
+    (`trained_run`, directly or through another fixture) is one group; every other module that uses a
+    module-scoped fixture is a group of its own; a test marked `xdist_group` keeps its group."""
+    modules: dict[str, list[pytest.Item]] = {}
+    for item in items:
+        modules.setdefault(item.nodeid.split("::")[0], []).append(item)
+    for module, members in modules.items():
+        if any(SHARED_RUN_GROUP in item.fixturenames for item in members):
+            group = SHARED_RUN_GROUP
+        elif any(_uses_a_module_fixture(item) for item in members):
+            group = module
+        else:
+            continue
+        for item in members:
+            if item.get_closest_marker("xdist_group") is None:
+                item.add_marker(pytest.mark.xdist_group(group))
+
+
+def _uses_a_module_fixture(item: pytest.Item) -> bool:
+    definitions = getattr(item, "_fixtureinfo", None)
+    if definitions is None:
+        return False
+    return any(defs and defs[-1].scope == "module" for defs in definitions.name2fixturedefs.values())
+
+
 @pytest.fixture(autouse=True)
 def _loggers_as_pytest_sees_them():
     """A command run in-process gives jaxpose's loggers their own terminal handler and stops them
