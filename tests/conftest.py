@@ -2,6 +2,7 @@ import logging
 import os
 
 import hypothesis
+import jax
 import pytest
 
 from experiments import synthetic as synthetic_job
@@ -17,17 +18,49 @@ hypothesis.settings.register_profile("jaxpose", max_examples=25, deadline=None, 
 hypothesis.settings.load_profile("jaxpose")
 
 
+# The shared run: the tiny preset for 2 epochs (6 steps: the output triangulation term is on in the last),
+# every step logged, evaluated every 4 steps and at the end, with the figures of 4 samples.
+TRAINED_RUN_ARGS = ["--preset", "tiny", "--train.epochs", "2", "--train.log-every", "1", "--train.eval-every", "4", "--run.plot-samples", "4"]
+
+
 @pytest.fixture(scope="session")
 def trained_run(tmp_path_factory):
-    """The synthetic job's tiny preset, shared by the inference and export tests: (run directory, its test split)."""
+    """The synthetic job's tiny preset (`TRAINED_RUN_ARGS`), shared by the inference and export tests and by
+    those of the run directory it writes (tests/experiments/test_end_to_end.py): (run directory, its test split)."""
     run_dir = tmp_path_factory.mktemp("run") / "synthetic"
-    synthetic_job.main(["--preset", "tiny", "--run.run-dir", str(run_dir)])
+    synthetic_job.main([*TRAINED_RUN_ARGS, "--run.run-dir", str(run_dir)])
     return run_dir, synthetic_job.load_splits(synthetic_job.TINY.data).test
 
 
 @pytest.fixture(scope="session")
 def lifter(trained_run):
     return inference.load(trained_run[0])
+
+
+@pytest.fixture
+def compilation_cache_folder(tmp_path_factory):
+    """JAX's persistent compilation cache on for one test, in a folder of its own (returned): a test that
+    compiles the same programs again (a run and its resumption) reads them back, as the command lines
+    do with their cache.  A cached program is the one compiled, so results do not change.  JAX's settings
+    and its record of whether the cache is on are put back after the test."""
+    from jax.experimental.compilation_cache import compilation_cache as jax_cache
+
+    folder = tmp_path_factory.mktemp("xla_cache")
+    settings = {
+        "jax_compilation_cache_dir": str(folder),
+        "jax_persistent_cache_min_compile_time_secs": 0.0,
+        "jax_persistent_cache_min_entry_size_bytes": 0,
+    }
+    before = {name: getattr(jax.config, name) for name in settings}
+    jax_cache.reset_cache()  # JAX decides once per process whether the cache is on: ask it again
+    for name, value in settings.items():
+        jax.config.update(name, value)
+    try:
+        yield folder
+    finally:
+        for name, value in before.items():
+            jax.config.update(name, value)
+        jax_cache.reset_cache()
 
 
 SHARED_RUN_GROUP = "trained_run"
