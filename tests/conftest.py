@@ -6,6 +6,7 @@ import os
 import pathlib
 
 import hypothesis
+import jax
 import pytest
 
 from experiments import rig as rig_job
@@ -13,8 +14,9 @@ from experiments import synthetic as synthetic_job
 from jaxpose import compilation_cache, logs
 from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
 
-# Hermetic: the command lines run in-process (and the processes the tests start) write no
 from jaxpose.serving import inference
+
+# Hermetic: the command lines run in-process (and the processes the tests start) write no
 # compilation cache to the user's home; a test that wants one names its own folder.
 os.environ[compilation_cache.ENVIRONMENT] = compilation_cache.OFF
 
@@ -23,11 +25,17 @@ hypothesis.settings.register_profile("jaxpose", max_examples=25, deadline=None, 
 hypothesis.settings.load_profile("jaxpose")
 
 
+# The shared run: the tiny preset for 2 epochs (6 steps: the output triangulation term is on in the last),
+# every step logged, evaluated every 4 steps and at the end, with the figures of 4 samples.
+TRAINED_RUN_ARGS = ["--preset", "tiny", "--train.epochs", "2", "--train.log-every", "1", "--train.eval-every", "4", "--run.plot-samples", "4"]
+
+
 @pytest.fixture(scope="session")
 def trained_run(tmp_path_factory):
-    """The synthetic job's tiny preset, shared by the inference and export tests: (run directory, its test split)."""
+    """The synthetic job's tiny preset (`TRAINED_RUN_ARGS`), shared by the inference and export tests and by
+    those of the run directory it writes (tests/experiments/test_end_to_end.py): (run directory, its test split)."""
     run_dir = tmp_path_factory.mktemp("run") / "synthetic"
-    synthetic_job.main(["--preset", "tiny", "--run.run-dir", str(run_dir)])
+    synthetic_job.main([*TRAINED_RUN_ARGS, "--run.run-dir", str(run_dir)])
     return run_dir, synthetic_job.load_splits(synthetic_job.TINY.data).test
 
 
@@ -66,6 +74,66 @@ def rig_run(tmp_path_factory) -> RigRun:
             "--run.no-progress", "--run.plot-samples", "0", "--run.no-tensorboard",
         ])  # fmt: skip
     return RigRun(project, gap, run_dir, log.getvalue())
+
+
+@pytest.fixture
+def compilation_cache_folder(tmp_path_factory):
+    """JAX's persistent compilation cache on for one test, in a folder of its own (returned): a test that
+    compiles the same programs again (a run and its resumption) reads them back, as the command lines
+    do with their cache.  A cached program is the one compiled, so results do not change.  JAX's settings
+    and its record of whether the cache is on are put back after the test."""
+    from jax.experimental.compilation_cache import compilation_cache as jax_cache
+
+    folder = tmp_path_factory.mktemp("xla_cache")
+    settings = {
+        "jax_compilation_cache_dir": str(folder),
+        "jax_persistent_cache_min_compile_time_secs": 0.0,
+        "jax_persistent_cache_min_entry_size_bytes": 0,
+    }
+    before = {name: getattr(jax.config, name) for name in settings}
+    jax_cache.reset_cache()  # JAX decides once per process whether the cache is on: ask it again
+    for name, value in settings.items():
+        jax.config.update(name, value)
+    try:
+        yield folder
+    finally:
+        for name, value in before.items():
+            jax.config.update(name, value)
+        jax_cache.reset_cache()
+
+
+# The session fixtures that train: every module using one of them is one xdist group, so each trains once.
+SHARED_RUNS = ("trained_run", "rig_run")
+
+
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups into the node ids
+def pytest_collection_modifyitems(items):
+    """The suite runs on every core (pytest-xdist, `--dist loadgroup` in pyproject.toml): a test goes to
+    whichever worker is free, except that the tests sharing a fixture made once per module or session
+    stay on one worker, so that it is still made once.  The modules that use one shared run
+    (`SHARED_RUNS`, directly or through another fixture) are one group, named after it; every other module
+    that uses a module-scoped fixture is a group of its own; a test marked `xdist_group` keeps its group."""
+    modules: dict[str, list[pytest.Item]] = {}
+    for item in items:
+        modules.setdefault(item.nodeid.split("::")[0], []).append(item)
+    for module, members in modules.items():
+        shared = [run for run in SHARED_RUNS if any(run in item.fixturenames for item in members)]
+        if shared:
+            group = shared[0]
+        elif any(_uses_a_module_fixture(item) for item in members):
+            group = module
+        else:
+            continue
+        for item in members:
+            if item.get_closest_marker("xdist_group") is None:
+                item.add_marker(pytest.mark.xdist_group(group))
+
+
+def _uses_a_module_fixture(item: pytest.Item) -> bool:
+    definitions = getattr(item, "_fixtureinfo", None)
+    if definitions is None:
+        return False
+    return any(defs and defs[-1].scope == "module" for defs in definitions.name2fixturedefs.values())
 
 
 @pytest.fixture(autouse=True)

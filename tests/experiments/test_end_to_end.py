@@ -47,8 +47,9 @@ def _train(config):
 
 # A temporal lifter fed windows of 9 frames: the frame lifter's resume is checked bit for bit, killed at
 # any point, by tests/experiments/test_fault_tolerance.py, and the step is the same with windows in the batch.
+# The second and third runs read the first one's programs from a compilation cache, as a resumed command does.
 @pytest.mark.parametrize("window", [9])
-def test_resumed_training_matches_uninterrupted_training(tmp_path, window):
+def test_resumed_training_matches_uninterrupted_training(tmp_path, window, compilation_cache_folder):
     full = _train(_tiny_config(tmp_path / "full", window=window))
     total = int(full.step)
     assert total == 2 * (400 // 32)
@@ -64,9 +65,10 @@ def test_resumed_training_matches_uninterrupted_training(tmp_path, window):
     assert steps == sorted(steps) and steps[-1] == total
 
 
-def test_main_job_writes_the_run_directory(tmp_path):
-    run_dir = tmp_path / "run"
-    report = synthetic.main([*TINY_ARGS, "--run.run-dir", str(run_dir), "--run.plot-samples", "4"])
+def test_main_job_writes_the_run_directory(trained_run):
+    """The shared tiny run (tests/conftest.py: the main job's tiny preset, 6 steps)."""
+    run_dir = trained_run[0]
+    report = json.loads((run_dir / "report.json").read_text())
     plots = ("plots/loss_curves.png", "plots/gradient_shares.png", "plots/gt_vs_prediction.png")
     for name in ("config.json", "metrics.jsonl", "report.json", "report.md", *plots):
         assert (run_dir / name).exists(), name
@@ -75,7 +77,8 @@ def test_main_job_writes_the_run_directory(tmp_path):
     records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
     for line in (record for record in records if "loss" in record):
         assert abs(sum(line[key] for key in line if key.startswith("grad_share_")) - 1.0) < 1e-4, line["step"]
-    record = records[-1]
+    record = [record for record in records if "loss" in record][-1]  # the last training step's line
+    assert record["step"] == report["train_steps"]
     shares = [record[f"grad_share_{term}"] for term in ("input_triangulation", "reprojection", "consistency", "output_triangulation")]
     assert abs(sum(shares) - 1.0) < 1e-4 and all(share > 0 for share in shares)
     assert report["final_gradient_shares"] == pytest.approx(dict(zip(("input_triangulation", "reprojection", "consistency", "output_triangulation"), shares)))
@@ -153,12 +156,13 @@ def _tensorboard_scalars(directory) -> dict[str, list[tuple[int, float]]]:
     return scalars
 
 
-def test_periodic_evaluation_and_tensorboard_curves(tmp_path):
+def test_periodic_evaluation_and_tensorboard_curves(trained_run):
     """--train.eval-every logs the current model's test errors while training, to metrics.jsonl and
-    TensorBoard; over the whole test split, its last value is the report's (the final checkpoint)."""
-    run_dir = tmp_path / "run"
-    args = [*TINY_ARGS, "--run.run-dir", str(run_dir), "--train.eval-every", "4", "--train.eval-samples", "100000"]
-    report = synthetic.main(args)
+    TensorBoard; over the whole test split, its last value is the report's (the final checkpoint).  The
+    shared tiny run (tests/conftest.py) is evaluated every 4 of its 6 steps, on its whole test split."""
+    run_dir = trained_run[0]
+    report = json.loads((run_dir / "report.json").read_text())
+    assert len(trained_run[1]) <= TrainConfig().eval_samples  # the whole test split: not thinned
     records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
     evaluations = [r for r in records if "eval_p_mpjpe" in r]
     total = report["train_steps"]

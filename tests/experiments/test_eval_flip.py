@@ -12,6 +12,8 @@ import pytest
 from experiments import synthetic as synthetic_job
 from jaxpose.training import evaluation
 from jaxpose.serving import inference
+from conftest import TRAINED_RUN_ARGS
+
 pytestmark = [pytest.mark.trains]
 METHOD = "Lifter, self-supervised (ours)"
 
@@ -21,7 +23,7 @@ def test_a_finished_run_is_evaluated_again_with_flip(trained_run, tmp_path):
     run_dir = tmp_path / "synthetic"
     shutil.copytree(source, run_dir)
     plain = json.loads((run_dir / "report.json").read_text())
-    synthetic_job.main(["--preset", "tiny", "--run.run-dir", str(run_dir), "--train.eval-flip"])
+    synthetic_job.main([*TRAINED_RUN_ARGS, "--run.run-dir", str(run_dir), "--train.eval-flip"])  # the run's own command
     flipped = json.loads((run_dir / "report.json").read_text())
     assert flipped["test_time_flip"] and not plain["test_time_flip"] and flipped["train_steps"] == plain["train_steps"]
     assert "Test-time flip" in (run_dir / "report.md").read_text()

@@ -143,6 +143,7 @@ def _corrupt_newest_in(checkpoints: pathlib.Path) -> tuple[int, int]:
     return steps[-1], steps[-2]
 
 
+@pytest.mark.xdist_group("several_processes")  # one at a time with tests/training/test_parallel.py's
 def test_killed_and_corrupted_runs_end_bit_identical_to_an_uninterrupted_one(tmp_path):
     cache = tmp_path / "jax_cache"
     reference = Job(tmp_path / "reference", cache)

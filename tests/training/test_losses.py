@@ -33,7 +33,7 @@ def test_loss_vanishes_at_truth_and_grows_under_perturbation(name):
 def test_output_triangulation_of_consistent_predictions_is_the_truth():
     rng = np.random.default_rng(1)
     batch, truth = exact_batch(rng, 4, 3, 16)
-    np.testing.assert_allclose(losses.output_triangulation(truth, batch), batch.pseudo3d, atol=0.1)
+    np.testing.assert_allclose(jax.jit(losses.output_triangulation)(truth, batch), batch.pseudo3d, atol=0.1)
 
 
 def test_consistency_gradient_flows_only_into_the_transformed_view():
@@ -42,7 +42,7 @@ def test_consistency_gradient_flows_only_into_the_transformed_view():
     rng = np.random.default_rng(2)
     batch, truth = exact_batch(rng, 2, 2, 15)
     pred = truth + _perturbation(rng, truth.shape, 20.0)
-    gradient = jax.grad(losses.consistency_loss)(pred, batch)
+    gradient = jax.jit(jax.grad(losses.consistency_loss))(pred, batch)
     assert float(jnp.abs(gradient[:, 0]).sum()) > 0 and float(jnp.abs(gradient[:, 1]).sum()) > 0
 
 
@@ -51,13 +51,14 @@ def test_total_loss_is_the_weighted_sum_of_terms():
     batch, truth = exact_batch(rng, 4, 4, 17)
     pred = truth + _perturbation(rng, truth.shape, 25.0)
     weights = LossWeights(2.0, 0.5, 0.3, 0.7)
-    loss, terms = total_loss(pred, batch, weights)
+    loss, terms = jax.jit(total_loss)(pred, batch, weights)
     assert set(terms) == {"input_triangulation", "reprojection", "consistency", "output_triangulation"}
     expected = 2.0 * terms["input_triangulation"] + 0.5 * terms["reprojection"] + 0.3 * terms["consistency"]
     expected += 0.7 * terms["output_triangulation"]
     np.testing.assert_allclose(loss, expected, rtol=1e-6)
-    for name, fn in LOSS_TERMS.items():
-        np.testing.assert_allclose(terms[name], fn(pred, batch), rtol=1e-5)
+    each = jax.jit(lambda pred, batch: {name: fn(pred, batch) for name, fn in LOSS_TERMS.items()})(pred, batch)
+    for name in LOSS_TERMS:
+        np.testing.assert_allclose(terms[name], each[name], rtol=1e-5)
 
 
 def test_input_triangulation_loss_matches_numpy_oracle():
@@ -68,7 +69,7 @@ def test_input_triangulation_loss_matches_numpy_oracle():
     camera = np.einsum("bcij,bnj->bcni", R, np.asarray(batch.pseudo3d, np.float64)) + t[:, :, None]
     target = camera - camera[:, :, :1]
     squared = (((target - np.asarray(pred, np.float64)) / 1000.0) ** 2).sum(-1)[..., 1:]
-    np.testing.assert_allclose(losses.input_triangulation_loss(pred, batch), squared.mean(), rtol=1e-4)
+    np.testing.assert_allclose(jax.jit(losses.input_triangulation_loss)(pred, batch), squared.mean(), rtol=1e-4)
 
 
 @pytest.mark.parametrize("num_views", [2, 3, 4, 8])
@@ -88,12 +89,12 @@ def test_missing_joints_and_views_give_no_nan_and_are_ignored():
     # Garbage (NaN) where the detector reported nothing must not leak into any term or gradient.
     keypoints = jnp.where(confidence[..., None] > 0, batch.keypoints2d, jnp.nan)
     masked = batch.replace(confidence=confidence, keypoints2d=keypoints)
-    value, grads = jax.value_and_grad(lambda p: total_loss(p, masked)[0])(pred)
+    value, grads = jax.jit(jax.value_and_grad(lambda p: total_loss(p, masked)[0]))(pred)
     assert np.isfinite(float(value)) and np.isfinite(np.asarray(grads)).all()
     # A joint whose pseudo-label weight is 0 teaches nothing through L_in.
     weight = jnp.ones(batch.pseudo3d.shape[:-1]).at[:, 7].set(0.0)
     untrusted = batch.replace(pseudo3d_weight=weight, pseudo3d=batch.pseudo3d.at[:, 7].add(1e4))
-    gradient = jax.grad(losses.input_triangulation_loss)(pred, untrusted)
+    gradient = jax.jit(jax.grad(losses.input_triangulation_loss))(pred, untrusted)
     assert float(jnp.abs(gradient[..., 7, :]).max()) == 0.0
 
 
@@ -102,7 +103,7 @@ def test_an_untrusted_root_silences_its_sample_in_the_input_triangulation_loss()
     batch, truth = exact_batch(rng, 3, 4, 17)
     pred = truth + _perturbation(rng, truth.shape, 15.0)
     weight = jnp.ones(batch.pseudo3d.shape[:-1]).at[1, 0].set(0.0)
-    gradient = jax.grad(losses.input_triangulation_loss)(pred, batch.replace(pseudo3d_weight=weight))
+    gradient = jax.jit(jax.grad(losses.input_triangulation_loss))(pred, batch.replace(pseudo3d_weight=weight))
     assert float(jnp.abs(gradient[1]).max()) == 0.0 and float(jnp.abs(gradient[0]).max()) > 0.0
 
 
@@ -123,7 +124,7 @@ def test_gradient_shares_match_the_norms_of_each_weighted_terms_gradient():
     # Oracle: one jax.grad per term, then the norms normalised to sum to one.
     norms = {}
     for name in losses.TERMS:
-        gradient = jax.grad(lambda p, n=name: getattr(weights, n) * losses.loss_terms(p, batch)[n])(pred)
+        gradient = jax.jit(jax.grad(lambda p, n=name: getattr(weights, n) * losses.loss_terms(p, batch)[n]))(pred)
         norms[name] = float(jnp.linalg.norm(gradient))
     total = sum(norms.values())
     for name in losses.TERMS:

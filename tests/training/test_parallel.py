@@ -32,6 +32,9 @@ from jaxpose.training.step import init_train_state
 import paths
 
 WORKER = paths.TESTS / "parallel_worker.py"
+# The tests that start several JAX processes of their own run one after another on one pytest-xdist
+# worker (with the fault-tolerance test), so that no two of them share the cores at once.
+PROCESSES = "several_processes"
 REPO = WORKER.parent.parent
 
 
@@ -65,6 +68,7 @@ def _relative_error(a: np.ndarray, b: np.ndarray) -> float:
 
 
 @pytest.mark.processes
+@pytest.mark.xdist_group(PROCESSES)
 def test_eight_devices_train_as_one(tmp_path):
     out, log = tmp_path / "sharded.npz", tmp_path / "sharded.log"
     worker = _start_worker(["sharded", str(out)], devices=8, log=log)
@@ -92,6 +96,7 @@ def test_eight_devices_train_as_one(tmp_path):
 
 
 @pytest.mark.processes
+@pytest.mark.xdist_group(PROCESSES)
 def test_two_processes_train_resume_and_agree(tmp_path):
     count, port, run_dir = 2, _free_port(), tmp_path / "run"
     outs = [tmp_path / f"process{i}.npz" for i in range(count)]
