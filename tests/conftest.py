@@ -17,7 +17,7 @@ from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
 from jaxpose.serving import inference
 
 # Hermetic: the command lines run in-process (and the processes the tests start) write no
-# compilation cache to the user's home; a test that wants one names its own folder.
+# compilation cache to the user's home (this run's own: compilation_cache_of_the_run).
 os.environ[compilation_cache.ENVIRONMENT] = compilation_cache.OFF
 
 # Property tests jit per example shape; keep them deterministic and within the CI budget.
@@ -76,30 +76,22 @@ def rig_run(tmp_path_factory) -> RigRun:
     return RigRun(project, gap, run_dir, log.getvalue())
 
 
-@pytest.fixture
-def compilation_cache_folder(tmp_path_factory):
-    """JAX's persistent compilation cache on for one test, in a folder of its own (returned): a test that
-    compiles the same programs again (a run and its resumption) reads them back, as the command lines
-    do with their cache.  A cached program is the one compiled, so results do not change.  JAX's settings
-    and its record of whether the cache is on are put back after the test."""
+@pytest.fixture(scope="session", autouse=True)
+def compilation_cache_of_the_run(tmp_path_factory):
+    """JAX's persistent compilation cache on in every test process, in one folder of this pytest run (the
+    xdist workers' shared base folder): the many tests that compile the same train step, evaluation and
+    loading programs read them back instead of compiling them again, as the command lines do with their
+    cache.  A cached program is the one compiled, so no result changes.  The command lines run in-process
+    keep the cache JAX was given (jaxpose.compilation_cache); the processes the tests start have none."""
     from jax.experimental.compilation_cache import compilation_cache as jax_cache
 
-    folder = tmp_path_factory.mktemp("xla_cache")
-    settings = {
-        "jax_compilation_cache_dir": str(folder),
-        "jax_persistent_cache_min_compile_time_secs": 0.0,
-        "jax_persistent_cache_min_entry_size_bytes": 0,
-    }
-    before = {name: getattr(jax.config, name) for name in settings}
-    jax_cache.reset_cache()  # JAX decides once per process whether the cache is on: ask it again
-    for name, value in settings.items():
-        jax.config.update(name, value)
-    try:
-        yield folder
-    finally:
-        for name, value in before.items():
-            jax.config.update(name, value)
-        jax_cache.reset_cache()
+    base = tmp_path_factory.getbasetemp()
+    folder = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "xla"
+    folder.mkdir(exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", str(folder))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", compilation_cache.MIN_COMPILE_TIME_S)
+    jax_cache.reset_cache()  # JAX decides at its first compilation whether the cache is on: ask it again
+    yield folder
 
 
 # The session fixtures that train: every module using one of them is one xdist group, so each trains once.

@@ -47,9 +47,9 @@ def _train(config):
 
 # A temporal lifter fed windows of 9 frames: the frame lifter's resume is checked bit for bit, killed at
 # any point, by tests/experiments/test_fault_tolerance.py, and the step is the same with windows in the batch.
-# The second and third runs read the first one's programs from a compilation cache, as a resumed command does.
+# The second and third runs read the first one's programs from the tests' compilation cache, as a resumed command does.
 @pytest.mark.parametrize("window", [9])
-def test_resumed_training_matches_uninterrupted_training(tmp_path, window, compilation_cache_folder):
+def test_resumed_training_matches_uninterrupted_training(tmp_path, window):
     full = _train(_tiny_config(tmp_path / "full", window=window))
     total = int(full.step)
     assert total == 2 * (400 // 32)
