@@ -94,24 +94,24 @@ def compilation_cache_of_the_run(tmp_path_factory):
     yield folder
 
 
-# The session fixtures that train: every module using one of them is one xdist group, so each trains once.
-SHARED_RUNS = ("trained_run", "rig_run")
+# The session fixtures that train: the modules using any of them are one xdist group, so each trains once
+# (a module may use several: the hostile-input tests use both).
+SHARED_RUNS, SHARED_RUNS_GROUP = ("trained_run", "rig_run"), "shared_runs"
 
 
 @pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups into the node ids
 def pytest_collection_modifyitems(items):
     """The suite runs on every core (pytest-xdist, `--dist loadgroup` in pyproject.toml): a test goes to
     whichever worker is free, except that the tests sharing a fixture made once per module or session
-    stay on one worker, so that it is still made once.  The modules that use one shared run
-    (`SHARED_RUNS`, directly or through another fixture) are one group, named after it; every other module
-    that uses a module-scoped fixture is a group of its own; a test marked `xdist_group` keeps its group."""
+    stay on one worker, so that it is still made once.  The modules that use a shared run (`SHARED_RUNS`,
+    directly or through another fixture) are one group; every other module that uses a module-scoped
+    fixture is a group of its own; a test marked `xdist_group` keeps its group."""
     modules: dict[str, list[pytest.Item]] = {}
     for item in items:
         modules.setdefault(item.nodeid.split("::")[0], []).append(item)
     for module, members in modules.items():
-        shared = [run for run in SHARED_RUNS if any(run in item.fixturenames for item in members)]
-        if shared:
-            group = shared[0]
+        if any(run in item.fixturenames for item in members for run in SHARED_RUNS):
+            group = SHARED_RUNS_GROUP
         elif any(_uses_a_module_fixture(item) for item in members):
             group = module
         else:

@@ -39,7 +39,10 @@ REPO = WORKER.parent.parent
 
 
 def _start_worker(args: list[str], devices: int, log: pathlib.Path) -> subprocess.Popen:
-    env = dict(os.environ, JAX_NUM_CPU_DEVICES=str(devices), JAX_PLATFORMS="cpu", PYTHONPATH=str(REPO))
+    # A persistent compilation cache of the test's own, shared by its processes: a resumed run reads the
+    # programs its first run compiled (the cached program is the one compiled: results are unaffected).
+    cache = {"JAX_COMPILATION_CACHE_DIR": str(log.parent / "jax_cache"), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
+    env = dict(os.environ, JAX_NUM_CPU_DEVICES=str(devices), JAX_PLATFORMS="cpu", PYTHONPATH=str(REPO), **cache)
     with log.open("w") as output:  # the child keeps its own handle
         return subprocess.Popen([sys.executable, str(WORKER), *args], env=env, cwd=REPO, stdout=output, stderr=subprocess.STDOUT)
 
