@@ -67,10 +67,10 @@ def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: 
     found = found or find_project(data.root, data.recordings, data.calibration)
     recovered = RunDirectory(pathlib.Path(run_dir)).recovered_cameras
     if data.calibration is None and recovered.is_file():
-        prepared = prepared_project(data, found, progress, cached_only=True)  # the run's own, where the cache holds it
+        prepared = _cached(data, found, progress)  # the run's own, where the cache holds it
         if prepared is not None and _holds_rig(prepared, recovered):
             log.info("the run was trained on the rig recovered from the recordings, %s: the prepared project it was trained on", recovered)
-            return every_instant(prepared)
+            return every_instant(prepared, data.recordings)
         log.info("the run was trained on the rig recovered from the recordings: its world frame, %s", recovered)
         data = dataclasses.replace(data, calibration=recovered)
         found = dataclasses.replace(found, calibration=recovered)
@@ -85,7 +85,24 @@ def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: 
             f"{data.root}: no calibration file, and the run {run_dir} has no {recovered.name} (it was trained on"
             " a calibrated project): pass --data.calibration; a rig recovered again would have another world frame"
         )
-    return every_instant(prepared_project(data, found, progress))
+    prepared = _cached(data, found, progress) or prepared_project(data, found, progress)
+    return every_instant(prepared, data.recordings)
+
+
+def _cached(data: RigProjectConfig, found: FoundProject, progress: bool) -> PreparedProject | None:
+    """The prepared project the cache holds for these recordings: their own, or with --data.recordings the
+    whole project's (as training prepared it; each recording is prepared on its own, so its rows are the
+    same), of which `every_instant` takes their rows."""
+    prepared = prepared_project(data, found, progress, cached_only=True)
+    if prepared is None and data.recordings:
+        try:
+            whole = find_project(data.root, (), found.calibration)
+            prepared = prepared_project(dataclasses.replace(data, recordings=()), whole, progress, cached_only=True)
+        except ValueError:  # a recording left out may be one that cannot be read: then only the named ones are
+            return None
+        if prepared is not None:
+            log.info("--data.recordings: their instants taken from the whole project's prepared folder")
+    return prepared
 
 
 def _holds_rig(prepared: PreparedProject, recovered: pathlib.Path) -> bool:

@@ -81,12 +81,18 @@ class ProjectInstants:
     """How the prepared arrays were had (as `RigProject.prepared`)."""
 
 
-def every_instant(prepared: PreparedProject) -> ProjectInstants:
-    """The prepared instants themselves as one data set (memory-mapped where the cache holds them)."""
+def every_instant(prepared: PreparedProject, recordings: tuple[str, ...] = ()) -> ProjectInstants:
+    """The prepared instants themselves as one data set (memory-mapped where the cache holds them): every
+    recording's, or those of `recordings` (names the prepared project holds)."""
     arrays = prepared.arrays
     spans = consecutive_spans({"frame": arrays["frame"], "sequence": arrays["recording"]})
-    instants = _dataset(prepared, spans, "every", np.arange(len(arrays["frame"])))
-    return ProjectInstants(instants, _summaries(prepared.meta), prepared.how)
+    summaries = _summaries(prepared.meta)
+    rows = np.arange(len(arrays["frame"]))
+    if recordings:
+        summaries = tuple(summary for summary in summaries if summary.name in recordings)
+        rows = np.flatnonzero(np.isin(arrays["recording"], np.asarray(recordings)))
+    instants = _dataset(prepared, spans, "every", rows)
+    return ProjectInstants(instants, summaries, prepared.how)
 
 
 def split(prepared: PreparedProject, config: RigProjectConfig) -> RigProject:

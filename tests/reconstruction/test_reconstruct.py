@@ -98,6 +98,25 @@ def test_every_seen_instant_is_reconstructed_and_the_files_agree(project, run_di
 
 
 @pytest.mark.trains
+def test_some_recordings_are_read_from_the_whole_projects_prepared_folder(project, run_dir, tmp_path):
+    """--data.recordings after training: the named recording's rows of the project training prepared, no
+    folder of its own; the same motion as from the recording prepared alone (a copy without the cache)."""
+    name = sorted(p.name for p in project.iterdir() if p.is_dir() and not p.name.startswith("."))[-1]
+    folders = sorted((project / ".jaxpose_cache").glob("prepared-*"))
+    report = _reconstruct(run_dir, project, tmp_path / "from_whole", "--data.recordings", name)
+    assert [row["recording"] for row in report["recordings"]] == [name]
+    assert sorted((project / ".jaxpose_cache").glob("prepared-*")) == folders
+    alone = tmp_path / "alone"
+    shutil.copytree(project, alone, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    _reconstruct(run_dir, alone, tmp_path / "from_alone", "--data.recordings", name)
+    assert len(list((alone / ".jaxpose_cache").glob("prepared-*"))) == 1
+    whole, single = (np.load(tmp_path / folder / f"{name}.npz") for folder in ("from_whole", "from_alone"))
+    assert whole.files == single.files
+    for array in whole.files:
+        np.testing.assert_array_equal(whole[array], single[array], err_msg=array)
+
+
+@pytest.mark.trains
 def test_no_smoothing_gives_each_instants_own_estimate(project, run_dir, tmp_path):
     """--no-smoothing writes the per-instant motion (`lift_and_reconstruct` without a trajectory) as it is;
     the trajectory's motion accelerates less and its limbs keep their length better."""
