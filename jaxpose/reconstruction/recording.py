@@ -67,7 +67,8 @@ def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: 
     found = found or find_project(data.root, data.recordings, data.calibration)
     recovered = RunDirectory(pathlib.Path(run_dir)).recovered_cameras
     if data.calibration is None and recovered.is_file():
-        prepared = _cached(data, found, progress)  # the run's own, where the cache holds it
+        # the run's own, where the cache holds it
+        prepared = _whole_project(data, found, progress) or prepared_project(data, found, progress, cached_only=True)
         if prepared is not None and _holds_rig(prepared, recovered):
             log.info("the run was trained on the rig recovered from the recordings, %s: the prepared project it was trained on", recovered)
             return every_instant(prepared, data.recordings)
@@ -85,23 +86,22 @@ def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: 
             f"{data.root}: no calibration file, and the run {run_dir} has no {recovered.name} (it was trained on"
             " a calibrated project): pass --data.calibration; a rig recovered again would have another world frame"
         )
-    prepared = _cached(data, found, progress) or prepared_project(data, found, progress)
+    prepared = _whole_project(data, found, progress) or prepared_project(data, found, progress)
     return every_instant(prepared, data.recordings)
 
 
-def _cached(data: RigProjectConfig, found: FoundProject, progress: bool) -> PreparedProject | None:
-    """The prepared project the cache holds for these recordings: their own, or with --data.recordings the
-    whole project's (as training prepared it; each recording is prepared on its own, so its rows are the
-    same), of which `every_instant` takes their rows."""
-    prepared = prepared_project(data, found, progress, cached_only=True)
-    if prepared is None and data.recordings:
-        try:
-            whole = find_project(data.root, (), found.calibration)
-            prepared = prepared_project(dataclasses.replace(data, recordings=()), whole, progress, cached_only=True)
-        except ValueError:  # a recording left out may be one that cannot be read: then only the named ones are
-            return None
-        if prepared is not None:
-            log.info("--data.recordings: their instants taken from the whole project's prepared folder")
+def _whole_project(data: RigProjectConfig, found: FoundProject, progress: bool) -> PreparedProject | None:
+    """With --data.recordings, the whole project where the cache holds it (as training prepared it; each
+    recording is prepared on its own, so their rows, which `every_instant` takes, are the same); else None."""
+    if not data.recordings:
+        return None
+    try:
+        whole = find_project(data.root, (), found.calibration)
+        prepared = prepared_project(dataclasses.replace(data, recordings=()), whole, progress, cached_only=True)
+    except ValueError:  # a recording left out may be one that cannot be read: then only the named ones are
+        return None
+    if prepared is not None:
+        log.info("--data.recordings: their instants taken from the whole project's prepared folder")
     return prepared
 
 
@@ -144,7 +144,8 @@ class RecordingInput:
 
 
 def recording_inputs(dataset: MultiViewDataset) -> Iterator[RecordingInput]:
-    """The recordings of a data set (labels "recording" and "frame", e.g. `load_every_instant`'s instants), each undistorted and on its whole frame axis, in the order they appear."""
+    """The recordings of a data set (labels "recording" and "frame", e.g. `load_every_instant`'s instants),
+    each undistorted and on its whole frame axis, in the order they appear."""
     dataset = dataset.undistorted()
     names = dataset.samples.labels["recording"]
     _, first = np.unique(names, return_index=True)
