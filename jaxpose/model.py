@@ -19,9 +19,9 @@ want; train/eval mode is an explicit argument, never hidden module state.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
-import dataclasses
 from collections.abc import Callable
 from typing import Literal
 
@@ -30,6 +30,7 @@ import jax.numpy as jnp
 from flax import linen as nn
 
 from jaxpose.camera import MM_PER_M, normalize_keypoints
+
 
 def dropout_keep_mask(key: jax.Array, shape: tuple[int, ...], rate: float) -> jax.Array:
     """bool mask of the elements that dropout at `rate` keeps, a pure function of the key.
@@ -308,7 +309,6 @@ class ModelConfig:
             use_batchnorm=self.use_batchnorm,
             temporal_window=self.temporal_window,
         )
-
 
 
 def make_eval_step(model: LifterNetwork, model_config: ModelConfig) -> Callable[..., jax.Array]:
