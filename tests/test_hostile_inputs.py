@@ -800,3 +800,50 @@ def test_what_loading_finds_suspect_is_in_the_report(small_project, tmp_path):
     assert "**Warnings of loading**" in notes and f"- {sanity}" in notes and f"- walking01: {lone}" in notes
     assert load_rig_project(config, progress=False).warnings == loaded.warnings  # kept with the prepared project
     assert _snapshot(project) == before
+
+
+def _c3d_integer_parameters(path: pathlib.Path) -> dict[str, list[int]]:
+    """Every 16-bit integer parameter of an Intel C3D file, as GROUP:NAME -> its values read unsigned, parsed
+    from the bytes (the C3D user guide's layout): the oracle for what ezc3d wrote."""
+    data = path.read_bytes()
+    start = (data[0] - 1) * 512 + 4  # header word 1, first byte: the parameter section's first block
+    groups, parameters, at = {}, {}, start
+    while True:
+        length, index = (int(v) for v in np.frombuffer(data[at : at + 2], np.int8))
+        if length == 0:
+            return {f"{groups[group]}:{name}": values for (group, name), values in parameters.items()}
+        name = data[at + 2 : at + 2 + abs(length)].decode()
+        following = at + 2 + abs(length)
+        step = int(np.frombuffer(data[following : following + 2], np.int16)[0])
+        if index < 0:
+            groups[-index] = name
+        elif data[following + 2] == 2:  # type int16
+            dims = data[following + 4 : following + 4 + data[following + 3]]
+            count = int(np.prod(list(dims)))
+            values = np.frombuffer(data[following + 4 + len(dims) :][: 2 * count], np.uint16)
+            parameters[(index, name)] = [int(v) for v in values]
+        if step == 0:
+            return {f"{groups[group]}:{name}": values for (group, name), values in parameters.items()}
+        at = following + step
+
+
+@pytest.mark.parametrize("first_frame", [5, 65530, 70000])
+def test_a_c3d_first_frame_past_16_bits_is_not_wrapped(tmp_path, first_frame):
+    """Issue 52 defect 5: frames 70000-70149 were written with the header's first frame 4464 (70000 + 1 wrapped
+    at 65536) beside the .trc's OrigDataStartFrame 70000.  The range is in TRIAL:ACTUAL_START_FIELD /
+    ACTUAL_END_FIELD (two 16-bit words, low first; C3D counts from 1), and the header holds the true first frame
+    when the last fits 16 bits, else the range 1..N as the C3D user guide advises: never a wrapped number."""
+    ezc3d = pytest.importorskip("ezc3d")
+    from jaxpose.formats.c3d import write_c3d
+
+    frames = 150
+    path = write_c3d(tmp_path / "walk.c3d", np.zeros((frames, 2, 3)), ["A", "B"], 50.0, "mm", first_frame)
+    words = [int(w) for w in np.frombuffer(path.read_bytes()[:12], np.uint16)]  # header words 1-6: 4 and 5 the range
+    fits = first_frame + frames <= 0xFFFF
+    assert (words[3], words[4]) == ((first_frame + 1, first_frame + frames) if fits else (1, frames))
+    parameters = _c3d_integer_parameters(path)
+    start, end = parameters["TRIAL:ACTUAL_START_FIELD"], parameters["TRIAL:ACTUAL_END_FIELD"]
+    assert start[0] + 65536 * start[1] == first_frame + 1 and end[0] + 65536 * end[1] == first_frame + frames
+    read = ezc3d.c3d(str(path))  # the reader agrees with the bytes
+    assert read["header"]["points"]["first_frame"] == words[3] - 1
+    assert [v & 0xFFFF for v in read["parameters"]["TRIAL"]["ACTUAL_START_FIELD"]["value"]] == start
