@@ -847,3 +847,99 @@ def test_a_c3d_first_frame_past_16_bits_is_not_wrapped(tmp_path, first_frame):
     read = ezc3d.c3d(str(path))  # the reader agrees with the bytes
     assert read["header"]["points"]["first_frame"] == words[3] - 1
     assert [v & 0xFFFF for v in read["parameters"]["TRIAL"]["ACTUAL_START_FIELD"]["value"]] == start
+
+
+def _reconstruct_argv(rig_run, project, output, *extra) -> list[str]:
+    return ["--checkpoint", str(rig_run.run_dir), "--data.root", str(project), "--output", str(output), "--fps", "50", "--no-progress", *extra]
+
+
+def _files_and_report(output: pathlib.Path) -> tuple[set[str], set[str]]:
+    """The recordings' files in `output` and those its report.json lists."""
+    report = json.loads((output / "report.json").read_text())
+    present = {path.name for path in output.iterdir() if path.name not in ("report.md", "report.json")}
+    return present, {name for row in report["recordings"] for name in row["files"]}
+
+
+@pytest.mark.trains  # the shared rig run (tests/conftest.py)
+@pytest.mark.processes
+def test_two_reconstructs_into_one_output_keep_its_report_whole(rig_run, tmp_path, monkeypatch):
+    """Issue 52 defect 8: two reconstructs of different recordings into one --output at once both exited 0 and
+    report.md listed one recording.  Here a second process starts while this one writes its first file: it
+    stops in one line naming the holder, and the folder's report lists every file in the folder."""
+    from jaxpose import reconstruct
+    from python_process import run_python
+
+    output, second = tmp_path / "motion", []
+    write_motion = reconstruct.motion_files.write_motion
+
+    def write_while_another_starts(*args, **kwargs):
+        if not second:
+            argv = _reconstruct_argv(rig_run, rig_run.project, output, "--data.recordings", "walking01")
+            second.append(run_python(f"from jaxpose import reconstruct; reconstruct.main({argv!r})", tmp_path))
+        return write_motion(*args, **kwargs)
+
+    monkeypatch.setattr(reconstruct.motion_files, "write_motion", write_while_another_starts)
+    reconstruct.main(_reconstruct_argv(rig_run, rig_run.project, output, "--data.recordings", "reaching02"))
+    (other,) = second
+    last = other.stderr.strip().splitlines()[-1]
+    assert other.returncode != 0 and "Traceback" not in other.stderr, other.stderr
+    assert re.fullmatch(rf"--output {output} is in use by another jaxpose.reconstruct \(process {os.getpid()} on .*\); wait for it to end, or choose another --output", last), last
+    present, listed = _files_and_report(output)
+    assert present == listed and {"reaching02.csv", "reaching02.npz", "reaching02.trc"} <= listed
+    assert not any(name.startswith("walking01") for name in present)
+
+
+@pytest.mark.trains
+def test_ctrl_c_during_reconstruct_is_one_line_and_a_report_of_what_was_written(rig_run, tmp_path, monkeypatch, capsys):
+    """Issue 52 defect 11: Ctrl-C printed a traceback and left files without a report.  Pressed while the first
+    recording's files are written, they are finished, the report lists them and the recording not done, the
+    command says so in one line and exits 130 (the shell's code for Ctrl-C)."""
+    import signal
+
+    from jaxpose import reconstruct
+
+    write_motion = reconstruct.motion_files.write_motion
+
+    def pressed_while_writing(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGINT)
+        return write_motion(*args, **kwargs)
+
+    monkeypatch.setattr(reconstruct.motion_files, "write_motion", pressed_while_writing)
+    output = tmp_path / "motion"
+    try:
+        reconstruct.main(_reconstruct_argv(rig_run, rig_run.project, output))
+        pytest.fail("Ctrl-C was not seen")
+    except KeyboardInterrupt:
+        pytest.fail("Ctrl-C came out of the command as a traceback")
+    except SystemExit as stop:
+        assert stop.code == 130
+    (line,) = [line for line in capsys.readouterr().err.splitlines() if "Ctrl-C" in line]
+    assert line == f"jaxpose.reconstruct: interrupted (Ctrl-C): 1 of 2 recordings written, each whole; {output / 'report.md'} lists their files"
+    present, listed = _files_and_report(output)  # reaching02 first: its gap splits it in two segments
+    assert present == listed == {"reaching02.csv", "reaching02.npz", "reaching02.trc", "reaching02.seg1.trc"}
+    report = json.loads((output / "report.json").read_text())
+    assert report["interrupted"] == {"after": 1, "of": 2, "not_reconstructed": ["walking01"]}
+    assert "**Interrupted (Ctrl-C)** after 1 of 2 recordings; not reconstructed: walking01." in (output / "report.md").read_text()
+
+
+@pytest.mark.trains
+def test_a_recording_too_short_for_limb_lengths_is_reported_as_smoothed_without_them(rig_run, tmp_path):
+    """Issue 52 defect 11: a recording of under 10 frames got no limb constraint (no limb measured at
+    `MIN_LENGTH_INSTANTS` instants) while the report said "solved over time" as for the others; the report says
+    how many limbs the trajectory held, per recording: none for 8 frames, every one for 160."""
+    from jaxpose import reconstruct
+    from jaxpose.reconstruction.trajectory import MIN_LENGTH_INSTANTS
+
+    project = _copy_project(rig_run.project, tmp_path / "project")
+    for frame in project.glob("walking01/*_json/*.json"):
+        if int(re.search(r"_(\d{12})_keypoints", frame.name)[1]) >= 8:
+            frame.unlink()
+    report = reconstruct.main(_reconstruct_argv(rig_run, project, tmp_path / "motion"))
+    rows = {row["recording"]: row for row in report["recordings"]}
+    limbs = len(rows["reaching02"]["limb_length_std_mm"])
+    assert 8 < MIN_LENGTH_INSTANTS and rows["walking01"]["frames"] == 8
+    assert rows["walking01"]["limbs_held"] == 0 and len(rows["walking01"]["limbs_free"]) == limbs
+    assert rows["reaching02"]["limbs_held"] == limbs and rows["reaching02"]["limbs_free"] == []
+    markdown = (tmp_path / "motion" / "report.md").read_text()
+    assert f"| walking01 | 0 of {limbs} (no limb measured at {MIN_LENGTH_INSTANTS} instants: smoothed without limb lengths) |" in markdown
+    assert f"| reaching02 | {limbs} of {limbs} |" in markdown
