@@ -943,3 +943,42 @@ def test_a_recording_too_short_for_limb_lengths_is_reported_as_smoothed_without_
     markdown = (tmp_path / "motion" / "report.md").read_text()
     assert f"| walking01 | 0 of {limbs} (no limb measured at {MIN_LENGTH_INSTANTS} instants: smoothed without limb lengths) |" in markdown
     assert f"| reaching02 | {limbs} of {limbs} |" in markdown
+
+
+@pytest.fixture(scope="module")
+def uncalibrated_project(tmp_path_factory):
+    """The example project of 2 recordings of 60 frames, walking01 and waving02, without its calibration.toml:
+    the rig is recovered (walking01 first: the person walks through the scene)."""
+    config = ExampleProjectConfig(recordings=2, frames_per_recording=60, motions=("walking", "waving"))
+    project = write_rig_project(tmp_path_factory.mktemp("uncalibrated") / "project", config)
+    (project / "calibration.toml").unlink()
+    return project
+
+
+def test_a_session_naming_a_recording_the_project_lacks_is_refused_with_the_closest_name(uncalibrated_project, tmp_path):
+    """Issue 52 defect 11: `--data.sessions b=walkng03` (a typo) was taken for a recording left out by
+    --data.recordings and session b vanished; a name no recording of the project has is refused in one line
+    naming it and the closest recording, before any calibration."""
+    project = _copy_project(uncalibrated_project, tmp_path / "project")
+    config = RigProjectConfig(root=project, recordings=("walking01",), sessions=("a=walking01", "b=wavng02"), image_size=(1920, 1080))
+    with pytest.raises(ValueError) as error:
+        load_rig_project(config, progress=False)
+    assert str(error.value) == f"--data.sessions b=wavng02: {project} has no recording 'wavng02'; the closest is 'waving02' (its recordings: walking01, waving02)"
+
+
+def test_a_session_whose_recording_lacks_a_camera_is_named_with_the_way_out(uncalibrated_project, tmp_path):
+    """Issue 52 defect 11: a session whose recording has no folder for one camera stopped with "view cam03 cannot
+    be placed in the rig: it sees only 0 of the joints", naming neither the session nor the recording; the
+    line names them, the camera they lack, and what to do."""
+    project = _copy_project(uncalibrated_project, tmp_path / "project")
+    shutil.rmtree(project / "walking01" / "cam03_json")
+    config = RigProjectConfig(root=project, sessions=("a=waving02", "b=walking01"), image_size=(1920, 1080))  # walking01's first
+    with pytest.raises(ValueError) as error:
+        load_rig_project(config, progress=False)
+    message = str(error.value)
+    assert "\n" not in message
+    assert message.startswith("session b (recordings walking01, as --data.sessions gives it): its rig cannot be recovered: view cam03 cannot be placed")
+    assert message.endswith(
+        "; recording walking01 has no detections of camera cam03; give every camera's detections, leave such a recording out"
+        " (--data.recordings) or give it a calibration file"
+    )
