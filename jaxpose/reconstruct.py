@@ -32,12 +32,22 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import os
 import pathlib
 import signal
 import sys
 import threading
 from collections.abc import Iterator, Sequence
 from typing import Annotated, Literal
+
+
+def _interrupted_while_starting(number, frame):
+    print("jaxpose.reconstruct: interrupted (Ctrl-C) while starting: nothing written", file=sys.stderr, flush=True)
+    os._exit(128 + number)  # at once: an exception raised inside the imports can be swallowed by them
+
+
+if __name__ == "__main__" and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+    signal.signal(signal.SIGINT, _interrupted_while_starting)  # the imports below take seconds: no traceback from them
 
 import numpy as np
 import tyro
@@ -114,14 +124,15 @@ def run(args: ReconstructArgs) -> dict:
             import ezc3d  # noqa: F401 - missing, refused before any work
         except ImportError:
             raise ImportError("--c3d needs ezc3d: pip install 'jaxpose[reconstruct]' (or pip install ezc3d)") from None
-    args = with_the_runs_settings(args, read_record(args.checkpoint))  # before the outputs are checked: the record may name the project
-    found = find_project(args.data.root, args.data.recordings, args.data.calibration)
-    check_output_folder(args.output, _inputs(args))
-    with exclusive_folder(args.output, LOCK_FILE, "--output", "jaxpose.reconstruct"):  # one report per folder
-        return _reconstruct(args, found)
+    with _CtrlC() as ctrl_c:
+        args = with_the_runs_settings(args, read_record(args.checkpoint))  # before the outputs are checked: the record may name the project
+        found = find_project(args.data.root, args.data.recordings, args.data.calibration)
+        check_output_folder(args.output, _inputs(args))
+        with exclusive_folder(args.output, LOCK_FILE, "--output", "jaxpose.reconstruct"):  # one report per folder
+            return _reconstruct(args, found, ctrl_c)
 
 
-def _reconstruct(args: ReconstructArgs, found) -> dict:
+def _reconstruct(args: ReconstructArgs, found, ctrl_c: _CtrlC) -> dict:
     """`run` once the output folder is this process's."""
     earlier = check_outputs(args, found.names)
     lifter = inference.load(args.checkpoint)
@@ -142,6 +153,7 @@ def _reconstruct(args: ReconstructArgs, found) -> dict:
         bar = tqdm(recording.recording_inputs(dataset), total=len(project.recordings), desc="recordings", unit="recording",
                    disable=not args.progress)  # fmt: skip
         for inputs in bar:
+            ctrl_c.check()
             bar.set_postfix_str(inputs.name)
             if not inputs.seen.any():  # nothing to fuse or lift: said, listed, and the other recordings go on
                 print(f"recording {inputs.name}: no camera detects the person at any instant (scores below --data.min-confidence"
@@ -157,7 +169,7 @@ def _reconstruct(args: ReconstructArgs, found) -> dict:
             if held and not held["limbs_held"]:
                 print(f"recording {inputs.name}: no limb measured at {MIN_LENGTH_INSTANTS} instants ({len(inputs.frames)} frames):"
                       " smoothed without limb lengths, as the report says", file=sys.stderr)  # fmt: skip
-            with _interruption_deferred():  # a recording's files are all written and listed, or none of them
+            with ctrl_c.deferred():  # a recording's files are all written and listed, or none of them
                 written = motion_files.write_motion(args.output, motion, lifter.joint_names, args.fps, up_axis, args.c3d)
                 files += [str(path) for path in written]
                 rows.append(recording_summary(motion) | quality | held | {"files": [path.name for path in written]})
@@ -188,7 +200,7 @@ def _reconstruct(args: ReconstructArgs, found) -> dict:
     }
     write_report(args.output, report, report_markdown(report), echo=interrupted is None)
     if interrupted is not None:
-        raise Interrupted(f"{interrupted['after']} of {interrupted['of']} recordings written, each whole; {args.output / 'report.md'} lists their files")
+        raise Interrupted(f"{interrupted['after']} of {interrupted['of']} recordings written (each whole), listed in {args.output / 'report.md'}")
     return report
 
 
@@ -196,20 +208,42 @@ class Interrupted(KeyboardInterrupt):
     """Ctrl-C, once the report of what was written is: the message says what is there."""
 
 
-@contextlib.contextmanager
-def _interruption_deferred() -> Iterator[None]:
-    """Ctrl-C inside the block takes effect at its end (the main thread's SIGINT; elsewhere nothing deferred)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    pressed = []
-    previous = signal.signal(signal.SIGINT, lambda number, frame: pressed.append(number))
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-    if pressed:
-        raise KeyboardInterrupt
+class _CtrlC:
+    """Ctrl-C (SIGINT) in the main thread while the command runs: a KeyboardInterrupt where it is pressed, except
+    inside `deferred` (at its end then); and remembered, so that one Python drops (raised inside a garbage
+    collector's callback, as JAX's) still ends the work at the next `check`.  Elsewhere (another thread, SIGINT
+    ignored or the caller's own handler) nothing is changed."""
+
+    def __init__(self):
+        self.pressed = self.deferring = self.installed = False
+
+    def _handler(self, number, frame) -> None:
+        self.pressed = True
+        if not self.deferring:
+            raise KeyboardInterrupt
+
+    def __enter__(self) -> _CtrlC:
+        if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            signal.signal(signal.SIGINT, self._handler)
+            self.installed = True
+        return self
+
+    def __exit__(self, *exception) -> None:
+        if self.installed:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    def check(self) -> None:
+        if self.pressed:
+            raise KeyboardInterrupt
+
+    @contextlib.contextmanager
+    def deferred(self) -> Iterator[None]:
+        self.deferring = True
+        try:
+            yield
+        finally:
+            self.deferring = False
+        self.check()
 
 
 def _limbs_held(motion: recording.RecordingMotion, bones: Sequence[tuple[int, int]], joint_names: Sequence[str]) -> dict:
@@ -358,4 +392,6 @@ def main(argv: Sequence[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
+    if signal.getsignal(signal.SIGINT) is _interrupted_while_starting:
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # started: main reports a Ctrl-C
     main()

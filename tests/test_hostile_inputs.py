@@ -914,7 +914,7 @@ def test_ctrl_c_during_reconstruct_is_one_line_and_a_report_of_what_was_written(
     except SystemExit as stop:
         assert stop.code == 130
     (line,) = [line for line in capsys.readouterr().err.splitlines() if "Ctrl-C" in line]
-    assert line == f"jaxpose.reconstruct: interrupted (Ctrl-C): 1 of 2 recordings written, each whole; {output / 'report.md'} lists their files"
+    assert line == f"jaxpose.reconstruct: interrupted (Ctrl-C): 1 of 2 recordings written (each whole), listed in {output / 'report.md'}"
     present, listed = _files_and_report(output)  # reaching02 first: its gap splits it in two segments
     assert present == listed == {"reaching02.csv", "reaching02.npz", "reaching02.trc", "reaching02.seg1.trc"}
     report = json.loads((output / "report.json").read_text())
