@@ -25,7 +25,9 @@ report.md / report.json, what was done per recording.  docs/reconstruction.md: t
 measured accuracy, when to trust a lifted-only joint.
 
 No file is written over without --overwrite, all checked before any work; each is written to a
-temporary name renamed into place (`jaxpose.formats.outputs`).
+temporary name renamed into place (`jaxpose.formats.outputs`).  One reconstruct at a time writes into DIR
+(a second stops at once, naming the first), so its report lists every file there; after Ctrl-C each
+recording's files are whole and the report lists them and the recordings not done (exit code 130).
 """
 
 from __future__ import annotations
@@ -148,7 +150,7 @@ def _reconstruct(args: ReconstructArgs, found, ctrl_c: _CtrlC) -> dict:
         up_axis = motion_files.camera_up_axis(dataset.rigs)
         print(f"up axis {up_axis}, from the cameras (--up-axis to name it)", file=sys.stderr)
     rows, files = [], []
-    names = [r.name for r in project.recordings]
+    names = [loaded.name for loaded in project.recordings]
     try:
         bar = tqdm(recording.recording_inputs(dataset), total=len(project.recordings), desc="recordings", unit="recording",
                    disable=not args.progress)  # fmt: skip

@@ -21,6 +21,17 @@ Each case failed before its fix.  Issue 42's cases, and where each is tested her
 | 10 an offset of 100,000, limbs of 22 m | test_what_loading_finds_suspect_is_in_the_report |
 | 10 "(770 steps)" despite --train.max-steps | test_the_training_line_says_where_max_steps_stops_it |
 | 10 the shared compilation cache | test_a_compilation_cache_written_without_a_size_limit_fails_no_later_write, test_a_compilation_cache_that_cannot_take_a_program_is_one_line_not_one_per_compilation |
+
+Issue 52's cases here:
+
+| Case | Tests |
+|---|---|
+| 5 the C3D first frame wraps at 65536 | test_a_c3d_first_frame_past_16_bits_is_not_wrapped |
+| 8 two reconstructs into one --output lose a report | test_two_reconstructs_into_one_output_keep_its_report_whole |
+| 11 a session's recording lacks a camera | test_a_session_whose_recording_lacks_a_camera_is_named_with_the_way_out |
+| 11 a typo in --data.sessions | test_a_session_naming_a_recording_the_project_lacks_is_refused_with_the_closest_name |
+| 11 under 10 frames: no limb constraint | test_a_recording_too_short_for_limb_lengths_is_reported_as_smoothed_without_them |
+| 11 Ctrl-C during reconstruct | test_ctrl_c_during_reconstruct_is_one_line_and_a_report_of_what_was_written |
 """
 
 from __future__ import annotations
