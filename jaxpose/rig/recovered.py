@@ -315,10 +315,11 @@ def _unrecoverable(name: str, recordings: Sequence[str], detections: Mapping[str
         absent = [camera for c, camera in enumerate(rows.camera_names) if not (rows.confidence[:, c] > 0).any()]
         lacking += [f"recording {recording} has no detections of camera {camera}" for camera in absent]
     how = "as --data.sessions gives it" if method == "labels" else "as found from the data"
+    way_out = "leave such a recording out (--data.recordings) or give it a calibration file"
     return (
         f"session {name} (recordings {', '.join(recordings)}, {how}): its rig cannot be recovered: {error}"
         + "".join(f"; {line}" for line in lacking)
-        + "; give every camera's detections, leave such a recording out (--data.recordings) or give it a calibration file"
+        + (f"; give every camera's detections, {way_out}" if lacking else f"; {way_out}")
     )
 
 
