@@ -157,14 +157,14 @@ def measure(batch_size: int, num_views: int, rounds: int, torch_modes: tuple[str
     loss_config = dataclasses.replace(PAPER_LOSS, triangulation=solver)
     step, state, batch, key = paper_step(batch_size, num_views, loss_config=loss_config)
     kernel_shapes = dense_kernel_shapes(state.params)
-    compiled = step.lower(state, batch, key).compile()
+    compiled = step.lower(state, batch, key, True).compile()
     flops = compiled.cost_analysis()["flops"]
     hlo = compiled.as_text()
     fusions = hlo[hlo.index("\nENTRY") :].count(" fusion(")
     holder = {"state": state}
 
     def train_step():
-        holder["state"], metrics = step(holder["state"], batch, key)
+        holder["state"], metrics = step(holder["state"], batch, key, True)  # the shares measured, as before the switch
         return holder["state"], metrics
 
     for _ in range(2):  # the first run also allocates the donated state's new buffers

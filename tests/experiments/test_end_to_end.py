@@ -11,6 +11,7 @@ from experiments import synthetic
 from jaxpose.training.experiment import TrainConfig
 from jaxpose.training.run_directory import prepare_run_dir
 from jaxpose.training.loop import train
+from jaxpose.training.stream import TrainingStream
 from jaxpose.training import pseudo_labelling
 from jaxpose.model import ModelConfig
 
@@ -41,7 +42,7 @@ def _tiny_config(run_dir, max_steps=0, window=1):
 def _train(config):
     splits = synthetic.load_splits(config.data)
     train_set = pseudo_labelling.label(splits.train)
-    state, _ = train(config, train_set, prepare_run_dir(config))
+    state, _ = train(config, TrainingStream.of(config, train_set), prepare_run_dir(config))
     return jax.device_get(state)
 
 
