@@ -101,8 +101,7 @@ def ground_truth_free_table(consistency: dict, camera_names: tuple[str, ...]) ->
     lines.append("| all | " + " | ".join(f"{consistency[m]['overall']:.1f}" for m in self_consistency.METRICS) + " |")
     lines += [
         "",
-        "Lower is better for all three. To compare runs without ground truth, use the reprojection: on Human3.6M it"
-        " ranks checkpoints and recipes as the true P-MPJPE does (docs/rig.md, section 5).",
+        "Lower is better for all three. How well each ranks runs as the true error would: docs/rig.md, section 5.",
     ]
     return "\n".join(lines)
 
