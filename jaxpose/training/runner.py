@@ -96,7 +96,7 @@ def _run_holding_the_directory(
     if replace_labels is not None:
         train_set = replace_labels(train_set)
     stream = dataclasses.replace(stream, dataset=train_set)
-    trained = np.arange(len(train_set)) if samples is None else samples
+    trained = np.arange(len(train_set)) if stream.rows is None else stream.rows
     for start in range(0, len(trained), VALIDATION_ROWS):
         validate_batch(train_set.batch(trained[start : start + VALIDATION_ROWS], config.model.temporal_window))
     splits = dataclasses.replace(splits, train=train_set)
