@@ -41,12 +41,13 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
     batch = jax.device_put(synthetic_batch(DEFAULT.train.batch_size, 4))
     programs = {}
     for label, share_every in (("shares every step", 1), ("shares every 50th step", 50)):
-        step = jit_train_step(make_train_step(model, model_config, optimizer, loss_config, 10_000, share_every=share_every))
+        step = jit_train_step(make_train_step(model, model_config, optimizer, loss_config, 10_000))
         # Each program keeps its own state; the step donates it, so the call replaces it.
-        holder = {"state": init_train_state(model, optimizer, jax.random.key(0))}
+        holder = {"state": init_train_state(model, optimizer, jax.random.key(0)), "calls": 0}
 
-        def run(step=step, holder=holder):
-            holder["state"], metrics = step(holder["state"], batch, jax.random.key(1))
+        def run(step=step, holder=holder, share_every=share_every):
+            holder["calls"] += 1
+            holder["state"], metrics = step(holder["state"], batch, jax.random.key(1), holder["calls"] % share_every == 0)
             return metrics["loss"]
 
         jax.block_until_ready(run())

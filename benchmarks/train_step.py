@@ -1,6 +1,7 @@
 """Throughput of the real `train_step` on CPU, against a matmul-only bound and a PyTorch reference.
 
     python -m benchmarks.train_step [--quick] [--out runs/benchmarks/train_step.json] [--no-torch]
+    python -m benchmarks.train_step --loop-steps 60 [--rounds 3] [--loop-tree OTHER_CHECKOUT ...]
 
 Every configuration is the paper's training setup (width 1024, dropout 0.5, BatchNorm, all four
 losses on with `output_triangulation_start=0`, Adam) on a synthetic batch of B samples x C views
@@ -20,6 +21,12 @@ so that its peak RSS (`resource.getrusage`) is its own.  Per configuration:
 The programs under comparison run interleaved, one call each per round, in the same process, so
 that a change of load on a shared machine hits them alike; besides wall time the table reports
 the process CPU time per step (user + system), which a busy machine distorts much less.
+
+`--loop-steps N` times the whole training loop instead (the data stream into the step included): the
+synthetic main job (`python -m experiments.synthetic`, batch 256 x 4 views) for N steps, logging every
+`LOOP_LOG_EVERY`; the loop's own samples/s of every logged interval but the first (which compiles), median
+per run, and the median over `--rounds` runs.  Given several `--loop-tree` checkouts (e.g. two versions of
+the loop), their runs alternate, so that a change of load hits them alike.
 
 Workers run with the CPU runtime settings of `TUNED_ENV` (see benchmarks/README.md, "CPU runtime
 settings"), unless `--untuned` or the variable is already set in the environment; the JSON records
@@ -157,14 +164,14 @@ def measure(batch_size: int, num_views: int, rounds: int, torch_modes: tuple[str
     loss_config = dataclasses.replace(PAPER_LOSS, triangulation=solver)
     step, state, batch, key = paper_step(batch_size, num_views, loss_config=loss_config)
     kernel_shapes = dense_kernel_shapes(state.params)
-    compiled = step.lower(state, batch, key).compile()
+    compiled = step.lower(state, batch, key, True).compile()
     flops = compiled.cost_analysis()["flops"]
     hlo = compiled.as_text()
     fusions = hlo[hlo.index("\nENTRY") :].count(" fusion(")
     holder = {"state": state}
 
     def train_step():
-        holder["state"], metrics = step(holder["state"], batch, key)
+        holder["state"], metrics = step(holder["state"], batch, key, True)  # the shares measured, as before the switch
         return holder["state"], metrics
 
     for _ in range(2):  # the first run also allocates the donated state's new buffers
@@ -222,6 +229,42 @@ def measure(batch_size: int, num_views: int, rounds: int, torch_modes: tuple[str
     if torch_modes:
         record.update(torch_warmup_s=torch_warmup_s, peak_rss_with_torch_gib=peak_rss_gib())
     return record
+
+
+LOOP_LOG_EVERY = 10
+
+
+def loop_samples_per_s(tree: Path, steps: int, env: dict[str, str]) -> tuple[float, float]:
+    """(median samples/s of the training loop after its first logged interval, the run's CPU seconds): the
+    synthetic main job of checkout `tree` for `steps` steps, in a process of its own."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as scratch:
+        run_dir = Path(scratch) / "run"
+        command = [sys.executable, "-m", "experiments.synthetic", "--run.run-dir", str(run_dir), "--train.max-steps", str(steps)]
+        command += ["--train.log-every", str(LOOP_LOG_EVERY)]
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        result = subprocess.run(command, cwd=tree, env={**env, "PYTHONPATH": str(tree)}, capture_output=True, text=True)
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        if result.returncode != 0:
+            raise RuntimeError(f"the training loop of {tree} failed:\n{result.stderr[-4000:]}")
+        rates = [json.loads(line)["samples_per_s"] for line in (run_dir / "metrics.jsonl").read_text().splitlines() if '"loss"' in line]
+    cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+    return statistics.median(rates[1:]), cpu
+
+
+def loop_benchmark(trees: Sequence[Path], steps: int, rounds: int, env: dict[str, str]) -> dict:
+    """`loop_samples_per_s` of every tree, `rounds` times, alternating."""
+    runs: dict[str, list[tuple[float, float]]] = {str(tree): [] for tree in trees}
+    for _ in range(rounds):
+        for tree in trees:
+            runs[str(tree)].append(loop_samples_per_s(tree, steps, env))
+            print(f"{tree}: {runs[str(tree)][-1][0]:.0f} samples/s", flush=True)
+    return {
+        tree: {"samples_per_s": [rate for rate, _ in values], "cpu_s": [cpu for _, cpu in values],
+               "median_samples_per_s": statistics.median(rate for rate, _ in values)}
+        for tree, values in runs.items()
+    }  # fmt: skip
 
 
 def package_version(name: str) -> str | None:
@@ -302,6 +345,10 @@ class Args:
     """Add the paper configuration without TUNED_ENV."""
     solver: Method = LossConfig.triangulation
     """Solver of the output triangulation in the step (the training default: normal)."""
+    loop_steps: int = 0
+    """Time the training loop over this many steps instead of the sweep (see above; 0: the sweep)."""
+    loop_tree: tuple[Path, ...] = (ROOT,)
+    """With --loop-steps: the checkouts whose loops are timed, alternately (default: this one)."""
     worker: Annotated[str | None, tyro.conf.arg(metavar="B,C")] = None
     """Internal, a worker process: measure the configuration of B samples x C views and print it as JSON."""
     worker_torch: Annotated[str, tyro.conf.arg(metavar="MODES")] = ""
@@ -316,6 +363,18 @@ def main(argv: Sequence[str] | None = None) -> None:
         batch_size, num_views = (int(v) for v in args.worker.split(","))
         torch_modes = tuple(filter(None, args.worker_torch.split(",")))
         print(json.dumps(measure(batch_size, num_views, args.rounds, torch_modes, args.solver)))
+        return
+
+    if args.loop_steps:
+        info = environment()
+        env = dict(os.environ) if args.untuned else {**TUNED_ENV, **os.environ}
+        loops = loop_benchmark(args.loop_tree, args.loop_steps, args.rounds, env)
+        info["load_average_end"] = os.getloadavg()
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps({"environment": info, "loop_steps": args.loop_steps, "loops": loops}, indent=1))
+        for tree, result in loops.items():
+            print(f"{tree}: median {result['median_samples_per_s']:.0f} samples/s over {args.rounds} runs"
+                  f" ({', '.join(f'{rate:.0f}' for rate in result['samples_per_s'])}), {os.cpu_count()} cores")  # fmt: skip
         return
 
     torch_modes = () if not args.torch else ("eager",) if args.quick else ("eager", "compile")

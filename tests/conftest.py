@@ -25,9 +25,10 @@ hypothesis.settings.register_profile("jaxpose", max_examples=25, deadline=None, 
 hypothesis.settings.load_profile("jaxpose")
 
 
-# The shared run: the tiny preset for 2 epochs (6 steps: the output triangulation term is on in the last),
+# The shared run: the tiny preset for 50 epochs (150 steps, past the start where its lifter is still worse than
+# the mean pose: tests/experiments/test_training_works.py; the output triangulation term is on in the last 15),
 # every step logged, evaluated every 4 steps and at the end, with the figures of 4 samples.
-TRAINED_RUN_ARGS = ["--preset", "tiny", "--train.epochs", "2", "--train.log-every", "1", "--train.eval-every", "4", "--run.plot-samples", "4"]
+TRAINED_RUN_ARGS = ["--preset", "tiny", "--train.epochs", "50", "--train.log-every", "1", "--train.eval-every", "4", "--run.plot-samples", "4"]
 
 
 @pytest.fixture(scope="session")

@@ -27,6 +27,7 @@ from experiments import synthetic
 from jaxpose.training.experiment import ExperimentConfig, ParallelConfig, RunConfig, TrainConfig
 from jaxpose.training.run_directory import prepare_run_dir
 from jaxpose.training.loop import train
+from jaxpose.training.stream import TrainingStream
 from jaxpose.training import parallel, pseudo_labelling
 from jaxpose.training.config import LossConfig, OptimizerConfig
 from jaxpose.model import ModelConfig
@@ -69,7 +70,7 @@ def sharded_run(problem: Problem, mesh) -> tuple[TrainState, dict]:
     batch = parallel.global_batch(problem.batch, mesh, len(problem.batch.pseudo3d))
     step = jit_train_step(problem.train_step, mesh)
     for _ in range(STEPS):
-        state, _ = step(state, batch, key)
+        state, _ = step(state, batch, key, False)
     copy = parallel.replicated(mesh)
     patterns = jax.jit(
         lambda variables, batch, key: zero_patterns(problem.model, variables, batch, key),
@@ -134,9 +135,9 @@ def _process(process_id: int, count: int, port: int, run_dir: str, out: str) -> 
     assert joined and jax.process_count() == count, (joined, jax.process_count())
     train_set = pseudo_labelling.label(synthetic.load_splits(config.data).train)
     first = dataclasses.replace(config, train=dataclasses.replace(config.train, max_steps=FIRST_STEPS))
-    train(first, train_set, prepare_run_dir(first))
+    train(first, TrainingStream.of(first, train_set), prepare_run_dir(first))
     # The same run directory again: every process restores the checkpoint and training goes on.
-    state, _ = train(config, train_set, prepare_run_dir(config))
+    state, _ = train(config, TrainingStream.of(config, train_set), prepare_run_dir(config))
     np.savez(out, **flat(state.params, "params"), step=np.asarray(state.step))
 
 

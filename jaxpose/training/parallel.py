@@ -10,7 +10,8 @@ losses, gradients, dropout masks (random bits are drawn for the global array) an
 device fed the whole batch, up to the order of floating-point sums.
 
 Several processes (hosts) run the same program (SPMD): `initialize` connects them, each process
-gathers only the samples its own devices hold (`process_batches`), and
+gathers only the samples its own devices hold (`local_rows`, read by
+`jaxpose.training.stream.TrainingStream`), and
 `jax.make_array_from_process_local_data` joins the pieces into one global array.  A single device
 is the one-device mesh of the same code path.
 """
@@ -18,7 +19,6 @@ is the one-device mesh of the same code path.
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
 from typing import Any, TypeVar
 
 import jax
@@ -26,7 +26,6 @@ import numpy as np
 from jax.sharding import AxisType, Mesh, NamedSharding, PartitionSpec
 
 from jaxpose.data.batch import MultiViewBatch
-from jaxpose.data.dataset import MultiViewDataset, training_indices
 
 DATA_AXIS = "data"
 
@@ -122,30 +121,6 @@ def global_batch(local: MultiViewBatch, mesh: Mesh, batch_size: int) -> MultiVie
     return jax.tree.map(
         lambda leaf: jax.make_array_from_process_local_data(sharding, leaf, (batch_size, *leaf.shape[1:])), local
     )
-
-
-def process_batches(
-    dataset: MultiViewDataset,
-    batch_size: int,
-    seed: int,
-    mesh: Mesh,
-    start_step: int = 0,
-    window: int = 1,
-    samples: np.ndarray | None = None,
-) -> Iterator[tuple[int, MultiViewBatch]]:
-    """Endless (step, global batch) stream from `start_step` on, gathering only this process's samples
-    (with the lifter's input windows of `window` frames where it is > 1).
-
-    The global batches are those of `jaxpose.data.dataset.training_indices` (the same epoch order
-    of (seed, epoch) on every process), so a run's data do not depend on its device count.
-    `samples`: the rows of `dataset` trained on (default: all), drawn without copying the data set,
-    which may be memory-mapped.
-    """
-    rows = local_rows(mesh, batch_size)
-    count = len(dataset) if samples is None else len(samples)
-    for step, indices in training_indices(count, batch_size, seed, start_step):
-        picked = indices[rows] if samples is None else samples[indices[rows]]
-        yield step, global_batch(dataset.batch(picked, window), mesh, batch_size)
 
 
 def local_replica(tree: Tree) -> Tree:

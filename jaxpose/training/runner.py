@@ -29,7 +29,8 @@ from jaxpose.training.experiment import ExperimentConfig, check_config
 from jaxpose.training.report import evaluate_and_report
 from jaxpose.training.run_directory import RunDirectory, check_resumable, exclusive, prepare_run_dir, write_record
 from jaxpose.training.splits import Splits
-from jaxpose.training.loop import Diverged, Interrupted, train, training_budget
+from jaxpose.training.loop import Diverged, Interrupted, train
+from jaxpose.training.stream import TrainingStream
 from jaxpose.training import parallel, pseudo_labelling
 from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.data.batch import validate_batch
@@ -84,33 +85,35 @@ def _run_holding_the_directory(
         where = "" if groups is None else " (" + ", ".join(f"{name}: {count}" for name, count in zip(*np.unique(groups[~usable], return_counts=True))) + ")"
         log.warning("leaving out %d training samples with fewer than %d usable views%s", int((~usable).sum()), config.pseudo_labels.min_views, where)
         samples = np.flatnonzero(usable)
-    if not usable.any():  # which of the two: the budget below sees only the count
+    if not usable.any():  # which of the two: the stream's budget below sees only the count
         why = "every instant was held out (--data.validation-*)" if not len(usable) else (
             f"all {len(usable)} training instants have fewer usable views than --pseudo-labels.min-views {config.pseudo_labels.min_views}"
             " (scores below the data's score threshold, e.g. --data.min-confidence)")  # fmt: skip
         raise SystemExit(f"error: no training sample is left: {why}")
-    training_budget(len(usable) if samples is None else len(samples), config.train)  # a batch larger than the data stops here, before the run directory is written
+    # The budget is known before labelling: a batch larger than the data stops here, before the run directory is written.
+    stream = TrainingStream.of(config, splits.train, samples)
     train_set = pseudo_labelling.label(splits.train, config.pseudo_labels, progress=config.run.progress)
     if replace_labels is not None:
         train_set = replace_labels(train_set)
-    trained = np.arange(len(train_set)) if samples is None else samples
+    stream = dataclasses.replace(stream, dataset=train_set)
+    trained = np.arange(len(train_set)) if stream.rows is None else stream.rows
     for start in range(0, len(trained), VALIDATION_ROWS):
         validate_batch(train_set.batch(trained[start : start + VALIDATION_ROWS], config.model.temporal_window))
-    splits = dataclasses.replace(splits, train=train_set, train_samples=samples)
+    splits = dataclasses.replace(splits, train=train_set)
     run_dir = prepare_run_dir(config)
     if jax.process_index() == 0:
         write_record(run_dir, splits.record)
         for write in splits.artifacts:
             write(RunDirectory(run_dir))
     try:
-        state, model = train(config, train_set, run_dir, splits.test, samples)
+        state, model = train(config, stream, run_dir, splits.test)
     except Interrupted as stop:
         log.warning("%s", stop)
         raise SystemExit(130) from None
     except Diverged as error:
         raise SystemExit(f"error: {error}") from None
     method = "Lifter, supervised (3D ground truth)" if config.loss.supervision == "full" else "Lifter, self-supervised (ours)"
-    report = evaluate_and_report(config, splits, state, model, run_dir, method, time.perf_counter() - begin)
+    report = evaluate_and_report(config, splits, stream.budget, state, model, run_dir, method, time.perf_counter() - begin)
     if jax.process_index() == 0:
         print(RunDirectory(run_dir).report_md.read_text())
         print(f"run directory: {run_dir}  (wall time {time.perf_counter() - begin:.0f} s)")

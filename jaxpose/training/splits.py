@@ -33,15 +33,6 @@ class Splits:
     `jaxpose.calibrate` recovered, to `RunDirectory.recovered_cameras`)."""
     record: RunRecord = RunRecord()
     """What the run records of its input for the commands that use it (`run_directory.RunRecord`)."""
-    train_samples: np.ndarray | None = None
-    """The rows of `train` trained on (None: all of them).  The runner leaves out the samples with too
-    few usable views this way, so a memory-mapped training set is never copied."""
-
-    @property
-    def train_count(self) -> int:
-        """Training samples trained on."""
-        return len(self.train) if self.train_samples is None else len(self.train_samples)
-
     def view_names(self) -> tuple[str, ...]:
         return self.camera_names or tuple(f"view {c}" for c in range(self.test.num_views))
 

@@ -1,11 +1,12 @@
-"""The train state, ONE jitted `train_step`, and single-view prediction.
+"""The train state, the pure `train_step` and its one jit (`jit_train_step`).
 
-`train_step(state, batch, key)` runs the lifter on all C views of every sample as one batch of
-B*C poses (so BatchNorm sees all views), evaluates the four losses, and applies the Adam update and
-the BatchNorm statistics update, all inside one `jax.jit` with the state donated.  Dropout keys are
-`fold_in(key, step)`, so a resumed run draws exactly the masks an uninterrupted one would.  The
-output-triangulation weight is a function of the traced step, so switching it on in the last 10%
-of training does not recompile.
+`train_step(state, batch, key, measure_shares)` runs the lifter on all C views of every sample as one batch
+of B*C poses (so BatchNorm sees all views), evaluates the losses (the four of the paper, or the supervised
+one), and applies the Adam update and the BatchNorm statistics update; jitted with the state donated.
+Dropout keys are `fold_in(key, step)`, so a resumed run draws exactly the masks an uninterrupted one would.
+Two switches are traced values, so neither recompiles: the output-triangulation weight (a function of the
+step: on in the last 10% of training) and `measure_shares`, whether the step also measures each term's
+share of the gradient (the caller sets it on the steps it logs).
 """
 
 from __future__ import annotations
@@ -129,21 +130,20 @@ def output_triangulation_start_step(loss: LossConfig, total_steps: int) -> int:
 
 def make_loss_fn(
     model: LifterNetwork, model_config: ModelConfig, loss: LossConfig, output_start_step: int,
-    measures_shares: Callable[[jax.Array], jax.Array],
     *,
     augmentation: InputAugmentation = InputAugmentation(),
     skeleton: Skeleton | None = None,
 ) -> Callable[..., tuple[jax.Array, tuple[dict[str, jax.Array], Any]]]:
-    """loss_fn(params, batch_stats, batch, dropout_key, step) -> (loss, (metrics, new batch_stats)).
+    """loss_fn(params, batch_stats, batch, dropout_key, step, measure_shares) -> (loss, (metrics, new batch_stats)).
 
-    The terms' gradient shares are computed on the steps where `measures_shares(step)` holds and are
-    0 on the others: their backward pulls make the main job's step 1.13x slower (benchmarks/README.md),
-    and only logged steps need them.
+    The terms' gradient shares are computed where the traced bool `measure_shares` holds and are 0
+    elsewhere: their backward pulls make the main job's step 1.13x slower (benchmarks/README.md), and
+    only logged steps need them.
     """
     if skeleton is None and (augmentation.swap > 0 or augmentation.mirror > 0):
         raise ValueError("input augmentation swap / mirror: the train step needs the skeleton (its left/right pairs)")
 
-    def loss_fn(params, batch_stats, batch: MultiViewBatch, dropout_key, step):
+    def loss_fn(params, batch_stats, batch: MultiViewBatch, dropout_key, step, measure_shares):
         keypoints, confidence = lifter_input_2d(batch)
         K = batch.cameras.K
         # Each augmentation has its own key, derived from the step's dropout key: the dropout masks are those
@@ -175,7 +175,7 @@ def make_loss_fn(
             weights = loss.weights(output_triangulation_on=step >= output_start_step)
             value, metrics = total_loss(pred, batch, weights, loss.triangulation, loss.label_robust_scale_mm)
             shares = jax.lax.cond(
-                measures_shares(step),
+                measure_shares,
                 lambda p: gradient_shares(p, batch, weights, loss.triangulation, loss.label_robust_scale_mm),
                 lambda p: {name: jnp.zeros((), p.dtype) for name in TERMS},
                 jax.lax.stop_gradient(pred),
@@ -194,43 +194,35 @@ def make_train_step(
     loss: LossConfig,
     total_steps: int,
     *,
-    share_every: int = 1,
-    last_step: int | None = None,
     augmentation: InputAugmentation = InputAugmentation(),
     skeleton: Skeleton | None = None,
-) -> Callable[[TrainState, MultiViewBatch, jax.Array], tuple[TrainState, dict[str, jax.Array]]]:
-    """The pure train step (un-jitted; see `jit_train_step`).
+) -> Callable[..., tuple[TrainState, dict[str, jax.Array]]]:
+    """The pure train step `train_step(state, batch, key, measure_shares=False) -> (state, metrics)`
+    (un-jitted; see `jit_train_step`).
 
-    The metrics' gradient shares are measured every `share_every` steps (counting completed steps,
-    as the run log does) and on the step that completes `last_step` (default `total_steps`), 0 on
-    the others: pass the log interval so that every logged line has them at no cost elsewhere.
-    `augmentation` perturbs the lifter's input only (`augment_inputs`, `mirror_views`: a mirrored view's
-    lift is mirrored back before the losses); its swaps and mirror need the `skeleton`'s left/right pairs.
+    The metrics' gradient shares are measured where `measure_shares` (a bool, traced: one program for
+    both) is true and are 0 elsewhere; the parameters do not depend on it.  `augmentation` perturbs the
+    lifter's input only (`augment_inputs`, `mirror_views`: a mirrored view's lift is mirrored back before
+    the losses); its swaps and mirror need the `skeleton`'s left/right pairs.
     """
     if loss.supervision not in ("self", "full"):
         raise ValueError(f"unknown supervision {loss.supervision!r}; expected 'self' or 'full'")
-    if share_every < 1:
-        raise ValueError(f"share_every must be >= 1, got {share_every}")
-    last_step = total_steps if last_step is None else last_step
-
-    def measures_shares(step: jax.Array) -> jax.Array:
-        done = step + 1
-        return (done % share_every == 0) | (done == last_step)
-
     loss_fn = make_loss_fn(
-        model, model_config, loss, output_triangulation_start_step(loss, total_steps), measures_shares,
+        model, model_config, loss, output_triangulation_start_step(loss, total_steps),
         augmentation=augmentation, skeleton=skeleton,
     )  # fmt: skip
     grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
 
-    def train_step(state: TrainState, batch: MultiViewBatch, key: jax.Array):
+    def train_step(state: TrainState, batch: MultiViewBatch, key: jax.Array, measure_shares: jax.Array | bool = False):
         if loss.supervision == "full" and batch.target3d is None:
             raise ValueError(
                 "supervision='full' needs batch.target3d (a training set recalibrated with another calibration"
                 " has none: its world frame is not the motion capture's)"
             )
         dropout_key = jax.random.fold_in(key, state.step)
-        (value, (metrics, batch_stats)), grads = grad_fn(state.params, state.batch_stats, batch, dropout_key, state.step)
+        (value, (metrics, batch_stats)), grads = grad_fn(
+            state.params, state.batch_stats, batch, dropout_key, state.step, jnp.asarray(measure_shares, bool)
+        )
         updates, opt_state = optimizer.update(grads, state.opt_state, state.params)
         params = optax.apply_updates(state.params, updates)
         metrics = dict(metrics, loss=value, grad_norm=optax.tree.norm(grads))
@@ -241,12 +233,12 @@ def make_train_step(
 
 
 def jit_train_step(train_step: Callable, mesh: Mesh | None = None) -> Callable:
-    """The jit of `train_step(state, batch, key) -> (state, metrics)` over the devices of `mesh`
-    (None: the default device alone), the one way a train step is compiled.
+    """The jit of `train_step(state, batch, key, measure_shares) -> (state, metrics)` over the devices of
+    `mesh` (None: the default device alone), the one way a train step is compiled.
 
-    State and key replicated, batch split by samples, outputs replicated (`jaxpose.training.parallel`); the
-    state is donated, so its buffers are reused for the new state.
+    State, key and switch replicated, batch split by samples, outputs replicated (`jaxpose.training.parallel`);
+    the state is donated, so its buffers are reused for the new state.
     """
     mesh = parallel.data_mesh(1) if mesh is None else mesh
     copy, split = parallel.replicated(mesh), parallel.batch_sharding(mesh)
-    return jax.jit(train_step, in_shardings=(copy, split, copy), out_shardings=(copy, copy), donate_argnums=0)
+    return jax.jit(train_step, in_shardings=(copy, split, copy, copy), out_shardings=(copy, copy), donate_argnums=0)

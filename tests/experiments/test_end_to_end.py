@@ -11,6 +11,7 @@ from experiments import synthetic
 from jaxpose.training.experiment import TrainConfig
 from jaxpose.training.run_directory import prepare_run_dir
 from jaxpose.training.loop import train
+from jaxpose.training.stream import TrainingStream
 from jaxpose.training import pseudo_labelling
 from jaxpose.model import ModelConfig
 
@@ -41,7 +42,7 @@ def _tiny_config(run_dir, max_steps=0, window=1):
 def _train(config):
     splits = synthetic.load_splits(config.data)
     train_set = pseudo_labelling.label(splits.train)
-    state, _ = train(config, train_set, prepare_run_dir(config))
+    state, _ = train(config, TrainingStream.of(config, train_set), prepare_run_dir(config))
     return jax.device_get(state)
 
 
@@ -66,7 +67,7 @@ def test_resumed_training_matches_uninterrupted_training(tmp_path, window):
 
 
 def test_main_job_writes_the_run_directory(trained_run):
-    """The shared tiny run (tests/conftest.py: the main job's tiny preset, 6 steps)."""
+    """The shared tiny run (tests/conftest.py: the main job's tiny preset, 150 steps)."""
     run_dir = trained_run[0]
     report = json.loads((run_dir / "report.json").read_text())
     plots = ("plots/loss_curves.png", "plots/gradient_shares.png", "plots/gt_vs_prediction.png")
@@ -159,7 +160,7 @@ def _tensorboard_scalars(directory) -> dict[str, list[tuple[int, float]]]:
 def test_periodic_evaluation_and_tensorboard_curves(trained_run):
     """--train.eval-every logs the current model's test errors while training, to metrics.jsonl and
     TensorBoard; over the whole test split, its last value is the report's (the final checkpoint).  The
-    shared tiny run (tests/conftest.py) is evaluated every 4 of its 6 steps, on its whole test split."""
+    shared tiny run (tests/conftest.py) is evaluated every 4 of its 150 steps, on its whole test split."""
     run_dir = trained_run[0]
     report = json.loads((run_dir / "report.json").read_text())
     assert len(trained_run[1]) <= TrainConfig().eval_samples  # the whole test split: not thinned

@@ -1,9 +1,10 @@
-"""The training budget (jaxpose.training.loop.training_budget): --train.max-samples shortens the run and
+"""The training budget (jaxpose.training.stream.training_budget) and the stream of its batches: --train.max-samples shortens the run and
 its schedules by thinning every epoch, a resume continues it, --train.epochs lifts a preset's cap, and a
 batch larger than the data is refused before the run directory is written."""
 
 import dataclasses
 import json
+import threading
 
 import jax
 import numpy as np
@@ -12,7 +13,8 @@ import pytest
 from experiments import cli, synthetic
 from jaxpose.training.experiment import TrainConfig
 from jaxpose.training.run_directory import check_resumable, prepare_run_dir
-from jaxpose.training.loop import budget_batches, train, training_budget
+from jaxpose.training.loop import train
+from jaxpose.training.stream import TrainingStream, training_budget
 from jaxpose.training import parallel, pseudo_labelling
 from jaxpose.training.config import OptimizerConfig
 from jaxpose.data.dataset import training_indices
@@ -58,39 +60,55 @@ def labelled():
     return pseudo_labelling.label(synthetic.load_splits(_tiny(None).data).train)
 
 
+def _stream(labelled, rows=None, **train) -> TrainingStream:
+    return TrainingStream.of(_tiny(None, **train), labelled, rows)
+
+
 def test_the_capped_stream_is_each_epochs_first_batches_and_resumes_anywhere(labelled):
-    budget = training_budget(len(labelled), TrainConfig(batch_size=32, epochs=3, max_samples=32 * 3 * 5))
+    stream = _stream(labelled, batch_size=32, epochs=3, max_samples=32 * 3 * 5)
+    budget = stream.budget
     assert (budget.full_steps_per_epoch, budget.steps_per_epoch) == (12, 5)
     full = dict(zip(range(36), (indices for _, indices in training_indices(len(labelled), 32, 0))))
     mesh = parallel.data_mesh(1)
-    stream = budget_batches(labelled, budget, 0, mesh, 0, 1)
-    for step in range(budget.total_steps):
-        got_step, batch = next(stream)
+    batches = list(stream.batches(mesh, 0, budget.total_steps))
+    assert [step for step, _ in batches] == list(range(budget.total_steps))
+    for step, batch in batches:
         epoch, position = divmod(step, 5)
-        expected = labelled.batch(full[epoch * 12 + position])
-        assert got_step == step
-        np.testing.assert_array_equal(np.asarray(batch.keypoints2d), expected.keypoints2d)
+        np.testing.assert_array_equal(np.asarray(batch.keypoints2d), labelled.batch(full[epoch * 12 + position]).keypoints2d)
     for start in (3, 5, 9):  # mid-epoch, an epoch's first step, an epoch's last step
-        got_step, batch = next(budget_batches(labelled, budget, 0, mesh, start, 1))
+        [(got_step, batch)] = list(stream.batches(mesh, start, start + 1))
         epoch, position = divmod(start, 5)
         assert got_step == start
         np.testing.assert_array_equal(np.asarray(batch.keypoints2d), labelled.batch(full[epoch * 12 + position]).keypoints2d)
 
 
 def test_training_on_some_rows_draws_the_batches_of_their_copy(labelled):
-    # The runner leaves out samples with too few usable views as `samples` rows instead of a copy
+    # The runner leaves out samples with too few usable views as `rows` instead of a copy
     # (a memory-mapped training set stays on disk): the batches must be those of the copy.
     samples = np.flatnonzero(np.arange(len(labelled)) % 7 != 3)
-    copy = labelled.subset(samples)
-    budget = training_budget(len(samples), TrainConfig(batch_size=32, epochs=2, max_samples=32 * 2 * 4))
-    mesh = parallel.data_mesh(1)
-    from_rows = budget_batches(labelled, budget, 0, mesh, 2, 1, samples)
-    from_copy = budget_batches(copy, budget, 0, mesh, 2, 1)
-    for _ in range(budget.total_steps - 2):
-        (step, batch), (copy_step, copy_batch) = next(from_rows), next(from_copy)
+    from_rows = _stream(labelled, samples, batch_size=32, epochs=2, max_samples=32 * 2 * 4)
+    from_copy = _stream(labelled.subset(samples), batch_size=32, epochs=2, max_samples=32 * 2 * 4)
+    assert from_rows.budget == from_copy.budget
+    mesh, total = parallel.data_mesh(1), from_rows.budget.total_steps
+    for (step, batch), (copy_step, copy_batch) in zip(from_rows.batches(mesh, 2, total), from_copy.batches(mesh, 2, total), strict=True):
         assert step == copy_step
         for field in ("keypoints2d", "confidence", "pseudo3d", "pseudo3d_weight"):
             np.testing.assert_array_equal(np.asarray(getattr(batch, field)), np.asarray(getattr(copy_batch, field)))
+
+
+def test_the_stream_raises_what_went_wrong_making_a_batch_and_stops_its_thread_when_left(labelled, monkeypatch):
+    stream = _stream(labelled, batch_size=32, epochs=3)
+    mesh = parallel.data_mesh(1)
+    before = threading.active_count()
+    batches = stream.batches(mesh, 0, stream.budget.total_steps)
+    next(batches)
+    batches.close()  # a loop that stops early (Ctrl-C, a diverged loss) leaves no thread behind
+    assert threading.active_count() == before
+    broken = dataclasses.replace(stream, rows=np.arange(len(labelled)) + 5)  # 5 rows past the data set's end
+    with pytest.raises(IndexError):
+        for _ in broken.batches(mesh, 0, broken.budget.total_steps):
+            pass
+    assert threading.active_count() == before
 
 
 def _metrics(run_dir) -> list[dict]:
@@ -102,7 +120,7 @@ def _metrics(run_dir) -> list[dict]:
 def test_the_cap_shortens_the_schedule_and_a_resume_across_it_matches(tmp_path, labelled):
     # 400 samples at batch 32: 12 full steps per epoch; the cap 320 allows 5 per epoch, 10 in all.
     config = _tiny(tmp_path / "whole", max_samples=320)
-    state, _ = train(config, labelled, prepare_run_dir(config))
+    state, _ = train(config, TrainingStream.of(config, labelled), prepare_run_dir(config))
     records = _metrics(tmp_path / "whole")
     assert int(state.step) == 10 and [r["step"] for r in records] == list(range(1, 11))
     assert [r["epoch"] for r in records][4::5] == [1.0, 2.0]
@@ -116,9 +134,9 @@ def test_the_cap_shortens_the_schedule_and_a_resume_across_it_matches(tmp_path, 
     assert records[-1]["learning_rate"] < 0.05 * config.optimizer.learning_rate < 0.1 * float(config.optimizer.learning_rate_schedule(24)(9))
     # Stopped at step 4 (--train.max-steps, not part of the run's identity) and resumed: the same run.
     stopped = _tiny(tmp_path / "resumed", max_samples=320, max_steps=4)
-    train(stopped, labelled, prepare_run_dir(stopped))
+    train(stopped, TrainingStream.of(stopped, labelled), prepare_run_dir(stopped))
     resumed_config = _tiny(tmp_path / "resumed", max_samples=320)
-    resumed, _ = train(resumed_config, labelled, prepare_run_dir(resumed_config))
+    resumed, _ = train(resumed_config, TrainingStream.of(resumed_config, labelled), prepare_run_dir(resumed_config))
     assert _metrics(tmp_path / "resumed") == records
     for a, b in zip(jax.tree.leaves(jax.device_get(state.params)), jax.tree.leaves(jax.device_get(resumed.params))):
         np.testing.assert_array_equal(a, b)

@@ -41,8 +41,8 @@ def with_window(batch, frames: int = 3):
 
 def losses(model, variables, batch, augmentation, supervision="self"):
     loss = LossConfig(output_triangulation_start=0.0, supervision=supervision)
-    loss_fn = make_loss_fn(model, CONFIG, loss, 0, lambda step: step >= 0, augmentation=augmentation, skeleton=H36M_17)
-    value, (metrics, _) = jax.jit(loss_fn)(variables["params"], variables.get("batch_stats", {}), batch, jax.random.key(3), 0)
+    loss_fn = make_loss_fn(model, CONFIG, loss, 0, augmentation=augmentation, skeleton=H36M_17)
+    value, (metrics, _) = jax.jit(loss_fn)(variables["params"], variables.get("batch_stats", {}), batch, jax.random.key(3), 0, True)
     return float(value), {name: float(metric) for name, metric in metrics.items()}
 
 

@@ -80,7 +80,7 @@ def test_eight_devices_train_as_one(tmp_path):
     problem = reference_problem()
     plain_step, state = jax.jit(problem.train_step), problem.initial_state
     for _ in range(STEPS):
-        state, _ = plain_step(state, jax.device_put(problem.batch), jax.random.key(1))
+        state, _ = plain_step(state, jax.device_put(problem.batch), jax.random.key(1), False)
     plain = jax.device_get(state)
     one_device, one_device_zeros = sharded_run(problem, parallel.data_mesh(1))
     for a, b in zip(jax.tree.leaves(one_device), jax.tree.leaves(plain)):
