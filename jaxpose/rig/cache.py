@@ -14,7 +14,8 @@ searches of every split read the same prepared folder.
 
 The key (`entry`, `key`) digests every option that changes the arrays (not the split), the code's `VERSION`, and
 each input file's path, size, modification and status-change times (``st_ctime``) and inode, in groups
-(the project's own files, a calibration's, each recording's: `input_digests`): a file edited, replaced,
+(the project's own files, a calibration's, each recording's: `input_digests`), the files being those
+finding the project found, whatever their names (`_input_files`): a file edited, replaced,
 touched or renamed is a miss.  The status-change time is what makes this safe without reading the
 files: no tool can set it (``cp -p``, ``rsync -t``, archive extraction and ``os.utime`` keep the
 modification time but not it), so a file edited in place to the same size with its time kept is a miss
@@ -22,8 +23,9 @@ too.  A copy of the project is a miss once (new inodes and times), never stale.
 
 The folder appears whole or not at all: it is written under a temporary name and renamed.  A prepared
 folder is removed only when it can never be read again: when a group of input files it was made from
-has changed since (`commit`, `_prune`); folders of other options (another --data.min-confidence, another
-subset of recordings) are kept, and the log says how many folders the cache holds and their size.  A
+has changed since, or names a recording that is gone (`commit`, `_prune`); it is renamed away before it
+is deleted, and only folders the cache made are looked at.  Folders of other options (another
+--data.min-confidence, another subset of recordings) are kept, and the log says how many folders the cache holds and their size.  A
 cache that cannot be written (a read-only project without --data.cache-dir) is a warning; the arrays
 then stay in memory.
 
@@ -39,6 +41,7 @@ import hashlib
 import json
 import logging
 import os
+import re
 import shutil
 import struct
 import time
@@ -114,18 +117,27 @@ def _options(config: RigProjectConfig) -> dict:
 
 
 def _input_files(config: RigProjectConfig, found: FoundProject) -> dict[str, list[Path]]:
-    """Every file loading may read, by group (`input_digests`): the project folder's files, --data.calibration
-    with its siblings of the same kind (EasyMocap's extri.yml), and each recording's (its folder's files and
-    every camera's detections), named by their absolute folders."""
+    """Every file loading reads, by group (`input_digests`), taken from what `find_project` found whatever its
+    name (a calibration named ``.calibration.toml`` too): the project folder's files with the calibration
+    found there, or --data.calibration in a group of its own; each recording's folder's files with its own
+    calibration and every camera's detections.  A calibration comes with its siblings of the same kind
+    (EasyMocap's intri.yml beside extri.yml, the files of a calibration folder); a folder's other files are
+    there too, as a later run may find one (a new calibration, a ground truth)."""
 
     def plain_files(folder: Path, suffix: str = "") -> list[Path]:
         return [entry for entry in folder.iterdir() if not entry.name.startswith(".") and entry.suffix.endswith(suffix) and not entry.is_dir()]
 
-    groups = {f"project {config.root.resolve()}": plain_files(config.root)}
-    if config.calibration is not None:
-        groups[f"calibration {config.calibration.resolve()}"] = [config.calibration, *plain_files(config.calibration.parent, config.calibration.suffix)]
+    def calibration_files(path: Path | None) -> list[Path]:
+        if path is None:
+            return []
+        return [path, *(plain_files(path) if path.is_dir() else plain_files(path.parent, path.suffix))]
+
+    project = f"project {config.root.resolve()}"
+    groups = {project: plain_files(config.root)}
+    given = None if config.calibration is None else f"calibration {config.calibration.resolve()}"
+    groups.setdefault(given or project, []).extend(calibration_files(found.calibration))
     for recording in found.recordings:
-        files = plain_files(recording.folder)
+        files = plain_files(recording.folder) + calibration_files(recording.calibration)
         for source in recording.sources.values():
             files += plain_files(source, ".json") if source.is_dir() else [source]
         groups[f"recording {recording.folder.resolve()}"] = files
@@ -155,7 +167,7 @@ def _read(cache: Path, cache_key: str, layout: str | None = None) -> PreparedPro
         )
     except Exception as error:  # noqa: BLE001 - an unreadable cache is only a missed shortcut
         log.warning("ignoring the unreadable prepared project %s (%s: %s); preparing it again", prepared, type(error).__name__, error)
-        shutil.rmtree(prepared, ignore_errors=True)
+        _remove(prepared)
         return None
     if layout is not None and meta["layout"] != layout:
         return None
@@ -341,21 +353,56 @@ def commit(temporary: Path, cache_key: str, meta: Mapping[str, Any], recovered: 
 
 
 def _prune(kept: Path, inputs: Mapping[str, str]) -> None:
-    """Remove the prepared folders beside `kept` that no options can read again: those made from a group
-    of input files (`input_digests`) whose digest is now another, and those of an earlier jaxpose (no
-    digests: their `VERSION` is in no key made now).  Folders of other options or other recordings stay."""
+    """Remove the prepared folders beside `kept` that no run can read again: those made from a group of input
+    files (`input_digests`) whose digest is now another, those of this project made from a recording (or a
+    calibration) that is gone, and those of an earlier jaxpose (no digests: their `VERSION` is in no key
+    made now).  Only the cache's own folders are looked at (`_made_from`); folders of other options, or of
+    recordings that are there but left out by --data.recordings, stay."""
+    projects = {group for group in inputs if group.startswith("project ")}
     for other in kept.parent.glob(f"{PREFIX}*"):
-        if ".tmp-" in other.name or other == kept:
+        made_from = _made_from(other)
+        if other == kept or made_from is None:
             continue
-        try:
-            made_from = json.loads((other / "project.json").read_text()).get("inputs")
-        except (OSError, ValueError, AttributeError):
-            continue  # being written, or not jaxpose's: left alone
-        changed = ["an earlier version of jaxpose"] if made_from is None else sorted(
-            group for group, digest in made_from.items() if group in inputs and inputs[group] != digest)  # fmt: skip
+        if made_from is _EARLIER:
+            changed = ["an earlier version of jaxpose"]
+        else:
+            changed = sorted(group for group, digest in made_from.items() if group in inputs and inputs[group] != digest)
+            if projects & set(made_from):  # this project's: a group of a path that is gone never comes back
+                changed += sorted(f"{group} (gone)" for group in made_from if group not in inputs and not os.path.exists(group.partition(" ")[2]))
         if changed:
             log.info("removing the prepared project %s: made from inputs that have changed since (%s)", other, ", ".join(changed)[:200])
-            shutil.rmtree(other, ignore_errors=True)
+            _remove(other)
+
+
+_EARLIER: Mapping[str, str] = {}
+_KEY_NAME = re.compile(re.escape(PREFIX) + "[0-9a-f]{32}")
+
+
+def _made_from(prepared: Path) -> Mapping[str, str] | None:
+    """The input digests a prepared folder was made from (`_EARLIER` for one of an earlier jaxpose); None for
+    what the cache did not make, which is never removed: a folder named otherwise than `folder` names it (a
+    user's, in a shared --data.cache-dir; one being written), a link, or one without jaxpose's project.json."""
+    if not _KEY_NAME.fullmatch(prepared.name) or prepared.is_symlink() or not prepared.is_dir():
+        return None
+    try:
+        meta = json.loads((prepared / "project.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(meta, dict) or "layout" not in meta:
+        return None
+    return meta.get("inputs", _EARLIER)
+
+
+def _remove(prepared: Path) -> None:
+    """Delete a prepared folder so that a run reading the cache meanwhile finds it whole or not at all: it is
+    renamed to a temporary name first (atomic; a second run removing it too finds nothing to rename), then
+    deleted; a deletion cut short is finished by a later `start` (`_remove_interrupted`)."""
+    doomed = prepared.with_name(f"{prepared.name}.tmp-{os.getpid()}")
+    try:
+        os.rename(prepared, doomed)
+    except OSError:
+        return
+    shutil.rmtree(doomed, ignore_errors=True)
 
 
 def size_note(cache: Path) -> str:
