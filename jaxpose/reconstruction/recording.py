@@ -108,13 +108,13 @@ def _whole_project(data: RigProjectConfig, found: FoundProject, progress: bool) 
 def _holds_rig(prepared: PreparedProject, recovered: pathlib.Path) -> bool:
     """Whether the prepared project's one rig is the run's recovered rig (the file `recovered`): the same
     cameras to float precision (another recovery gives another world frame, far from it)."""
-    rigs = prepared.meta["rigs"]
+    rigs = prepared.meta.rigs
     if len(prepared.sessions) != 1 or len(rigs["K"]) != 1:
         return False
     rig = read_rig_calibration(recovered)
-    if set(rig.camera_names) != set(prepared.meta["camera_names"]):
+    if set(rig.camera_names) != set(prepared.meta.camera_names):
         return False
-    cameras = in_view_order(rig, prepared.meta["camera_names"]).cameras
+    cameras = in_view_order(rig, prepared.meta.camera_names).cameras
     return all(np.allclose(np.asarray(getattr(cameras, field), np.float64), np.asarray(rigs[field][0]), rtol=1e-5, atol=1e-3)
                for field in ("K", "R", "t"))  # fmt: skip
 
