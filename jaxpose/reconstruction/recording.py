@@ -19,7 +19,7 @@ root-relative in the camera's axes; its chunks of fixed sizes keep the compilati
 the recordings), fused with the detections (`jaxpose.reconstruction.fusion.fuse`, world mm), the views
 whose root was occluded lifted about the fused root and fused again (`lift_and_reconstruct`), then the
 instants nothing fixes bridged up to `max_gap` frames and the rest split off
-(`jaxpose.reconstruction.gaps.fill_gaps`).
+(`jaxpose.formats.gaps.fill_gaps`).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.formats.calibration_files import read_rig_calibration
 from jaxpose.serving.inference import Lifter3D
 from jaxpose.reconstruction.fusion import MIN_DEPTH_MM, Fusion, FusionConfig, Provenance, fuse
-from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, complete_segments, fill_gaps
+from jaxpose.formats.gaps import DEFAULT_MAX_GAP, complete_segments, fill_gaps
 from jaxpose.reconstruction.trajectory import TrajectoryConfig, limb_lengths, solve_trajectory
 from jaxpose.rig.cameras import in_view_order
 from jaxpose.rig.project import prepared_project

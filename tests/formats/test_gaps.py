@@ -1,4 +1,4 @@
-"""Gap filling and segments (jaxpose.reconstruction.gaps) against a frame-by-frame loop oracle."""
+"""Gap filling and segments (jaxpose.formats.gaps) against a frame-by-frame loop oracle."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, complete_segments, fill_gaps
+from jaxpose.formats.gaps import DEFAULT_MAX_GAP, complete_segments, fill_gaps
 
 
 def oracle(values: np.ndarray, max_gap: int) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int]]]:
