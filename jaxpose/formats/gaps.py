@@ -32,11 +32,6 @@ class GapFilling:
     segments: np.ndarray
 
     @property
-    def filled_frames(self) -> int:
-        """Frames with at least one interpolated joint."""
-        return int(self.filled.any(-1).sum())
-
-    @property
     def dropped_frames(self) -> int:
         """Frames in no segment: some joint is missing there even after filling."""
         return len(self.values) - int(np.sum(self.segments[:, 1] - self.segments[:, 0]))

@@ -348,3 +348,26 @@ def test_prepared_folders_of_removed_recordings_are_removed(tmp_path):
     assert len(ours) == 1, ours
     assert (users / "project.json").read_text() == '{"mine": 1}' and (elsewhere / "project.json").exists()
     assert (cache_folder / ("prepared-" + "0" * 32)).is_symlink()
+
+
+def test_a_project_json_written_before_its_type_is_read_as_it_was(small, tmp_path):
+    """`cache.ProjectMeta` reads a prepared folder's project.json as jaxpose wrote it before the type (the
+    rigs as plain nested lists): the same recordings, rigs and samples, read from the cache."""
+    import json
+
+    root = tmp_path / "project"
+    shutil.copytree(small, root, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    config = RigProjectConfig(root=root, frame_offsets=("cam03=3",))
+    cold = load_rig_project(config, progress=False)
+    (folder,) = _prepared_folders(root)
+    written = root / ".jaxpose_cache" / folder / "project.json"
+    meta = json.loads(written.read_text())
+    assert meta["rigs"]["K"]["dtype"] == "<f4"
+    meta["rigs"] = {field: value["ndarray"] for field, value in meta["rigs"].items()}
+    written.write_text(json.dumps(meta, indent=1))
+    warm = load_rig_project(config, progress=False)
+    assert warm.prepared.startswith("read from the cache") and warm.recordings == cold.recordings
+    assert isinstance(warm.recordings[0].cameras, tuple) and warm.camera_names == cold.camera_names
+    jax.tree.map(np.testing.assert_array_equal, cold.validation.rigs, warm.validation.rigs)
+    assert warm.validation.rigs.K.dtype == np.float32
+    jax.tree.map(np.testing.assert_array_equal, cold.validation.samples, warm.validation.samples)
