@@ -52,7 +52,7 @@ from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.formats.outputs import check_report, write_report
 from jaxpose.logs import show_logs
 from jaxpose.reconstruction.fusion import FusionConfig
-from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, fill_gaps
+from jaxpose.formats.gaps import DEFAULT_MAX_GAP, fill_gaps
 from jaxpose.reconstruction.motion_quality import acceleration_error, limb_length_spread
 from jaxpose.reconstruction.recording import RecordingInput, lift_and_reconstruct, placed_lifts, recording_inputs, smooth_recording
 from jaxpose.reconstruction.trajectory import TrajectoryConfig

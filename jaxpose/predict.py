@@ -66,14 +66,13 @@ from jaxpose import viz
 from jaxpose.serving import inference, lifting_figures, tracking
 from jaxpose.training.checkpoint import CheckpointError
 from jaxpose.compilation_cache import enable_compilation_cache
-from jaxpose.formats import detection_file, intrinsics, pose_files
+from jaxpose.formats import detection_file, gaps, intrinsics, pose_files
 from jaxpose.formats.outputs import OutputError, check_output, check_output_folder
 from jaxpose.layouts import LAYOUTS, check_body25_layout, infer_layout, layout_joint_names, layout_of, to_skeleton
 from jaxpose.logs import show_logs
 
 # Poses per `Lifter3D.predict` call; inputs larger than this get a progress bar.
 LIFT_BLOCK = 16384
-"""The --plot figures' names (`lifting_<pose index>.png`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,10 +115,10 @@ class PredictArgs:
     fps: float = 10.0
     """Frames per second of the input sequence (pass your video's; the default is 10): the outputs' time,
     (frame - first frame) / fps in seconds, a .trc's DataRate, and the rate of --animation."""
-    max_gap: int = pose_files.DEFAULT_MAX_GAP
+    max_gap: int = gaps.DEFAULT_MAX_GAP
     """A .trc output: up to this many frames in a row without a lifted pose of a person are filled by linear
     interpolation (Pose2Sim's default, 10); a longer gap ends the file and a new segment begins."""
-    track_gap: int = tracking.DEFAULT_MAX_GAP
+    track_gap: int = tracking.DEFAULT_TRACK_GAP
     """Frames a person may go unseen and still be followed (`jaxpose.serving.tracking`); one who comes back later
     counts as another person."""
     overwrite: bool = False

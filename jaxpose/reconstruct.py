@@ -17,7 +17,7 @@ the instants' evidence with a constant-velocity prior and each limb's length hel
 uncertainty.  --no-smoothing keeps each instant's own estimate instead, as before: such instants
 interpolated up to --max-gap frames, and so is a joint no camera detects for that long
 (--no-bridge-lifted keeps its lifts).  A longer gap splits the recording into segments
-(`jaxpose.reconstruction.gaps`).  Files per recording in DIR
+(`jaxpose.formats.gaps`).  Files per recording in DIR
 (`jaxpose.reconstruction.motion_files`): <recording>.trc (OpenSim, Pose2Sim's layout, metres, Y up; a
 later segment <recording>.seg<S>.trc; with --c3d a .c3d beside each), <recording>.csv and
 <recording>.npz (calibration's world, mm, with provenance, uncertainty and views per joint), and
@@ -63,7 +63,7 @@ from jaxpose.formats.outputs import OutputError, check_output_folder, check_repo
 from jaxpose.logs import show_logs
 from jaxpose.reconstruction import motion_files, recording
 from jaxpose.reconstruction.fusion import FusionConfig, Provenance
-from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP
+from jaxpose.formats.gaps import DEFAULT_MAX_GAP
 from jaxpose.reconstruction.motion_quality import motion_summary
 from jaxpose.reconstruction.trajectory import MIN_LENGTH_INSTANTS, TrajectoryConfig, limb_lengths
 from jaxpose.rig.config import RigProjectConfig, with_recorded_settings

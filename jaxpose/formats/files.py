@@ -168,7 +168,11 @@ def from_typed_json(kind: Any, value: Any) -> Any:
         hints = typing.get_type_hints(kind)
         return kind(**{field.name: from_typed_json(hints[field.name], value[field.name]) for field in dataclasses.fields(kind) if field.name in value})
     if typing.get_origin(kind) is tuple and isinstance(value, list):
-        return tuple(value)
+        items = typing.get_args(kind)
+        items = items[:1] * len(value) if len(items) == 2 and items[1] is Ellipsis else items or (Any,) * len(value)
+        if len(items) != len(value):
+            raise ValueError(f"{kind}: expected {len(items)} items, found {len(value)}")
+        return tuple(from_typed_json(item, entry) for item, entry in zip(items, value))
     if typing.get_origin(kind) is dict:
         if not isinstance(value, dict):
             raise ValueError(f"{kind}: expected an object")

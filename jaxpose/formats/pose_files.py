@@ -14,7 +14,7 @@ the camera frame (x right, y down, z forward), in mm unless said otherwise:
 - ``.trc`` (OpenSim markers, `jaxpose.formats.trc`): a file per person and continuous segment, a row per
   frame, Frame# the input's frame and Time as above, a marker per joint (``/`` becomes ``_``), Units m.
   A frame where the person has no lifted pose is filled by linear interpolation between the lifted frames
-  around it when the gap is at most `max_gap` frames; a longer gap ends the segment, so that no TRC holds
+  around it when the gap is at most `max_gap` frames (`jaxpose.formats.gaps`); a longer gap ends the segment, so that no TRC holds
   an empty cell (OpenSim stops at one).  One segment in all is written to the path given; otherwise
   ``<stem>.person<P>.trc`` holds person P's first segment and ``<stem>.person<P>.seg<S>.trc`` its later
   ones (S = 1, 2, ...).  The axes are OpenSim's for a subject facing the camera (X forward, Y up, Z to
@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from jaxpose.formats import trc
+from jaxpose.formats.gaps import DEFAULT_MAX_GAP, fill_gaps
 from jaxpose.formats.outputs import atomic_output
 
 SUFFIXES = (".json", ".npz", ".csv", ".trc")
@@ -43,8 +44,6 @@ SUFFIXES = (".json", ".npz", ".csv", ".trc")
 # (determinant +1) to OpenSim's X forward, Y up, Z right for a subject who faces the camera.
 TRC_AXES = np.array([[0, 0, -1], [0, -1, 0], [-1, 0, 0]], np.float32)
 TRC_NOTE = "(jaxpose: root-relative; X=-z Y=-y Z=-x of the camera's x right y down z forward)"
-DEFAULT_MAX_GAP = 10
-"""Frames in a row a .trc fills by interpolation (Pose2Sim's ``interp_if_gap_smaller_than``)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -122,8 +121,9 @@ def write_poses(path: Path, lifted: LiftedPoses) -> None:
 
 
 def segments(lifted: LiftedPoses, max_gap: int = DEFAULT_MAX_GAP) -> list[Segment]:
-    """Each person's lifted poses as continuous segments, person by person: a gap of at most `max_gap`
-    frames without a lifted pose is filled by linear interpolation, a longer one starts a new segment."""
+    """Each person's lifted poses as continuous segments, person by person (`jaxpose.formats.gaps.fill_gaps`):
+    a gap of at most `max_gap` frames without a lifted pose is filled by linear interpolation, a longer one
+    starts a new segment."""
     if max_gap < 0:
         raise ValueError(f"max_gap must be >= 0, got {max_gap}")
     found = []
@@ -136,21 +136,16 @@ def segments(lifted: LiftedPoses, max_gap: int = DEFAULT_MAX_GAP) -> list[Segmen
         if (np.diff(frames) == 0).any():
             frame = int(frames[np.flatnonzero(np.diff(frames) == 0)[0]])
             raise ValueError(f"person {person} has two poses in frame {frame}: a person is in a frame once")
-        breaks = np.flatnonzero(np.diff(frames) - 1 > max_gap) + 1
-        for index, part in enumerate(np.split(np.arange(len(rows)), breaks)):
-            known, poses = frames[part], lifted.poses[rows[part]].astype(np.float64)
-            span = np.arange(known[0], known[-1] + 1)
-            found.append(Segment(person, index, span, _interpolate(known, poses, span), len(span) - len(known)))
+        # Filled on a time axis where every gap longer than max_gap is cut to max_gap + 1 frames (still too
+        # long to bridge), so that memory follows the poses, not the frame numbers; a segment holds no cut gap.
+        position = np.concatenate([[0], np.cumsum(np.minimum(np.diff(frames), max_gap + 2))])
+        poses = np.full((position[-1] + 1, *lifted.poses.shape[1:]), np.nan)
+        poses[position] = lifted.poses[rows]
+        filling = fill_gaps(poses, max_gap)
+        for index, (start, stop) in enumerate(filling.segments.tolist()):
+            span = frames[np.searchsorted(position, start)] + np.arange(stop - start)
+            found.append(Segment(person, index, span, filling.values[start:stop], int(filling.filled[start:stop].any(-1).sum())))
     return found
-
-
-def _interpolate(known: np.ndarray, poses: np.ndarray, frames: np.ndarray) -> np.ndarray:
-    """f64[F, J, 3] at `frames` (within the sorted `known`'s range): linear between the poses at `known`."""
-    before = np.searchsorted(known, frames, side="right") - 1
-    after = np.minimum(before + 1, len(known) - 1)
-    step = known[after] - known[before]  # 0 at the last known frame
-    weight = np.where(step > 0, (frames - known[before]) / np.maximum(step, 1), 0.0)[:, None, None]
-    return (1.0 - weight) * poses[before] + weight * poses[after]
 
 
 def trc_paths(path: Path, found: Sequence[Segment]) -> list[Path]:

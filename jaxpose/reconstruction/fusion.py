@@ -83,7 +83,7 @@ class Provenance(enum.IntEnum):
     LIFTED = 1
     FUSED = 2
     TRIANGULATED = 3
-    INTERPOLATED = 4  # never from `fuse`: a gap bridged by `jaxpose.reconstruction.gaps.fill_gaps`
+    INTERPOLATED = 4  # never from `fuse`: a gap bridged by `jaxpose.formats.gaps.fill_gaps`
 
 
 @dataclasses.dataclass(frozen=True)

@@ -19,7 +19,7 @@ root-relative in the camera's axes; its chunks of fixed sizes keep the compilati
 the recordings), fused with the detections (`jaxpose.reconstruction.fusion.fuse`, world mm), the views
 whose root was occluded lifted about the fused root and fused again (`lift_and_reconstruct`), then the
 instants nothing fixes bridged up to `max_gap` frames and the rest split off
-(`jaxpose.reconstruction.gaps.fill_gaps`).
+(`jaxpose.formats.gaps.fill_gaps`).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.formats.calibration_files import read_rig_calibration
 from jaxpose.serving.inference import Lifter3D
 from jaxpose.reconstruction.fusion import MIN_DEPTH_MM, Fusion, FusionConfig, Provenance, fuse
-from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP, complete_segments, fill_gaps
+from jaxpose.formats.gaps import DEFAULT_MAX_GAP, complete_segments, fill_gaps
 from jaxpose.reconstruction.trajectory import TrajectoryConfig, limb_lengths, solve_trajectory
 from jaxpose.rig.cameras import in_view_order
 from jaxpose.rig.project import prepared_project
@@ -108,13 +108,13 @@ def _whole_project(data: RigProjectConfig, found: FoundProject, progress: bool) 
 def _holds_rig(prepared: PreparedProject, recovered: pathlib.Path) -> bool:
     """Whether the prepared project's one rig is the run's recovered rig (the file `recovered`): the same
     cameras to float precision (another recovery gives another world frame, far from it)."""
-    rigs = prepared.meta["rigs"]
+    rigs = prepared.meta.rigs
     if len(prepared.sessions) != 1 or len(rigs["K"]) != 1:
         return False
     rig = read_rig_calibration(recovered)
-    if set(rig.camera_names) != set(prepared.meta["camera_names"]):
+    if set(rig.camera_names) != set(prepared.meta.camera_names):
         return False
-    cameras = in_view_order(rig, prepared.meta["camera_names"]).cameras
+    cameras = in_view_order(rig, prepared.meta.camera_names).cameras
     return all(np.allclose(np.asarray(getattr(cameras, field), np.float64), np.asarray(rigs[field][0]), rtol=1e-5, atol=1e-3)
                for field in ("K", "R", "t"))  # fmt: skip
 

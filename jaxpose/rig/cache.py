@@ -5,7 +5,7 @@ is done once; its result, every instant of every recording on one time axis per 
 ``CACHE/prepared-<key>/`` (CACHE: ``PROJECT/.jaxpose_cache``, or --data.cache-dir): one ``.npy`` per
 array (``instants.keypoints2d.npy``, ...), written row block by row block as the recordings are prepared
 (`Assembly`), and ``project.json`` with the rest (cameras, layout, the per-recording summaries, the
-inputs' digests, the sessions of a project without calibration; ``recovered.json`` for the rigs
+inputs' digests, the sessions of a project without calibration: a `ProjectMeta`; ``recovered.json`` for the rigs
 recovered, one per session).  The next run with the same inputs and options
 memory-maps the arrays (`read_arrays`): it starts in seconds, and a project larger than memory trains with
 only the rows of each batch read from disk.  A split (held-out recordings or fraction, strides) is a
@@ -14,7 +14,8 @@ searches of every split read the same prepared folder.
 
 The key (`entry`, `key`) digests every option that changes the arrays (not the split), the code's `VERSION`, and
 each input file's path, size, modification and status-change times (``st_ctime``) and inode, in groups
-(the project's own files, a calibration's, each recording's: `input_digests`): a file edited, replaced,
+(the project's own files, a calibration's, each recording's: `input_digests`), the files being those
+finding the project found, whatever their names (`_input_files`): a file edited, replaced,
 touched or renamed is a miss.  The status-change time is what makes this safe without reading the
 files: no tool can set it (``cp -p``, ``rsync -t``, archive extraction and ``os.utime`` keep the
 modification time but not it), so a file edited in place to the same size with its time kept is a miss
@@ -22,8 +23,9 @@ too.  A copy of the project is a miss once (new inodes and times), never stale.
 
 The folder appears whole or not at all: it is written under a temporary name and renamed.  A prepared
 folder is removed only when it can never be read again: when a group of input files it was made from
-has changed since (`commit`, `_prune`); folders of other options (another --data.min-confidence, another
-subset of recordings) are kept, and the log says how many folders the cache holds and their size.  A
+has changed since, or names a recording that is gone (`commit`, `_prune`); it is renamed away before it
+is deleted, and only folders the cache made are looked at.  Folders of other options (another
+--data.min-confidence, another subset of recordings) are kept, and the log says how many folders the cache holds and their size.  A
 cache that cannot be written (a read-only project without --data.cache-dir) is a warning; the arrays
 then stay in memory.
 
@@ -39,6 +41,7 @@ import hashlib
 import json
 import logging
 import os
+import re
 import shutil
 import struct
 import time
@@ -66,12 +69,74 @@ _HEADER_BYTES = 128  # a fixed-length .npy header: the row count is set at the e
 
 
 @dataclasses.dataclass(frozen=True)
+class RecordingSummary:
+    """What loading did to one recording, for the report (counts over all its instants)."""
+
+    name: str
+    cameras: tuple[str, ...]
+    """Its cameras, in the prepared project's view order."""
+    instants: int
+    calibration: str
+    """Where its rig comes from (the calibration file, or the session it was recovered for)."""
+    offsets: dict[str, int]
+    offsets_estimated: bool
+    sync_reliable: bool | None
+    instants_with_choice: int
+    views_without_match: int
+    ground_truth_instants: int
+    warnings: tuple[str, ...] = ()
+    """What reading it found suspect: an unreliable sync and why, a camera sharing no instant with the others."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SessionSummary:
+    """A session of a project without calibration, without its rig (which is kept in ``recovered.json``)."""
+
+    name: str
+    recordings: tuple[str, ...]
+    reprojection_px: float
+    found: str
+
+    @classmethod
+    def of(cls, session: RecoveredSession) -> "SessionSummary":
+        return cls(session.name, tuple(session.recordings), session.reprojection_px, session.found)
+
+    def with_rig(self, calibration: object) -> RecoveredSession:
+        return RecoveredSession(self.name, self.recordings, self.reprojection_px, self.found, calibration)
+
+
+@dataclasses.dataclass(frozen=True)
+class ProjectMeta:
+    """What preparing a project found besides its arrays: its folder's ``project.json`` (`typed_json`)."""
+
+    camera_names: tuple[str, ...]
+    """Every view, in the prepared arrays' order."""
+    layout: str
+    """The recordings' keypoint layout."""
+    recordings: tuple[RecordingSummary, ...]
+    """In the order of their rows."""
+    ground_truth_seen: bool
+    warnings: tuple[str, ...]
+    """What the checks of the calibrations found suspect (people of an unlikely size), for the report."""
+    sessions: tuple[SessionSummary, ...]
+    """Without a calibration: the sessions whose rigs were recovered."""
+    rigs: dict[str, np.ndarray]
+    """"K", "R", "t": f32[R, C, 3, 3], [R, C, 3, 3], [R, C, 3] (mm) of the distinct rigs, undistorted (the
+    arrays' "rig_index" indexes them)."""
+    inputs: dict[str, str] = dataclasses.field(default_factory=dict)
+    """The digests of the input files it was made from (`input_digests`; `_prune` reads them)."""
+
+    def __post_init__(self):
+        # A project.json of jaxpose before this type holds the rigs as plain nested lists.
+        object.__setattr__(self, "rigs", {field: np.asarray(values, np.float32) for field, values in self.rigs.items()})
+
+
+@dataclasses.dataclass(frozen=True)
 class PreparedProject:
     """Every instant of every recording prepared (`jaxpose.rig.project`'s steps 1-7), as the cache holds it:
     the recordings one after the other, each on its time axis in order."""
 
-    meta: Mapping
-    """project.json: camera_names, layout, recordings (their summaries), ground_truth_seen, rigs, inputs."""
+    meta: ProjectMeta
     arrays: Mapping[str, np.ndarray]
     """Per instant: keypoints2d, confidence, rig_index, subject, recording, frame, and target3d where some
     recording has ground truth; memory-mapped from the cache, or in memory."""
@@ -114,18 +179,27 @@ def _options(config: RigProjectConfig) -> dict:
 
 
 def _input_files(config: RigProjectConfig, found: FoundProject) -> dict[str, list[Path]]:
-    """Every file loading may read, by group (`input_digests`): the project folder's files, --data.calibration
-    with its siblings of the same kind (EasyMocap's extri.yml), and each recording's (its folder's files and
-    every camera's detections), named by their absolute folders."""
+    """Every file loading reads, by group (`input_digests`), taken from what `find_project` found whatever its
+    name (a calibration named ``.calibration.toml`` too): the project folder's files with the calibration
+    found there, or --data.calibration in a group of its own; each recording's folder's files with its own
+    calibration and every camera's detections.  A calibration comes with its siblings of the same kind
+    (EasyMocap's intri.yml beside extri.yml, the files of a calibration folder); a folder's other files are
+    there too, as a later run may find one (a new calibration, a ground truth)."""
 
     def plain_files(folder: Path, suffix: str = "") -> list[Path]:
         return [entry for entry in folder.iterdir() if not entry.name.startswith(".") and entry.suffix.endswith(suffix) and not entry.is_dir()]
 
-    groups = {f"project {config.root.resolve()}": plain_files(config.root)}
-    if config.calibration is not None:
-        groups[f"calibration {config.calibration.resolve()}"] = [config.calibration, *plain_files(config.calibration.parent, config.calibration.suffix)]
+    def calibration_files(path: Path | None) -> list[Path]:
+        if path is None:
+            return []
+        return [path, *(plain_files(path) if path.is_dir() else plain_files(path.parent, path.suffix))]
+
+    project = f"project {config.root.resolve()}"
+    groups = {project: plain_files(config.root)}
+    given = None if config.calibration is None else f"calibration {config.calibration.resolve()}"
+    groups.setdefault(given or project, []).extend(calibration_files(found.calibration))
     for recording in found.recordings:
-        files = plain_files(recording.folder)
+        files = plain_files(recording.folder) + calibration_files(recording.calibration)
         for source in recording.sources.values():
             files += plain_files(source, ".json") if source.is_dir() else [source]
         groups[f"recording {recording.folder.resolve()}"] = files
@@ -147,20 +221,18 @@ def _read(cache: Path, cache_key: str, layout: str | None = None) -> PreparedPro
     if not prepared.is_dir():
         return None
     try:
-        meta, recovered = read_meta(prepared, _recovered_type(prepared))
-        arrays = read_arrays(prepared)[PART]
-        sessions = tuple(
-            RecoveredSession(**session | {"recordings": tuple(session["recordings"]), "calibration": recovered[session["name"]]})
-            for session in meta["sessions"]
-        )
+        written, recovered = read_meta(prepared, _recovered_type(prepared))
+        meta = from_typed_json(ProjectMeta, written)
+        arrays = read_arrays(prepared)
+        sessions = tuple(session.with_rig(recovered[session.name]) for session in meta.sessions)
     except Exception as error:  # noqa: BLE001 - an unreadable cache is only a missed shortcut
         log.warning("ignoring the unreadable prepared project %s (%s: %s); preparing it again", prepared, type(error).__name__, error)
-        shutil.rmtree(prepared, ignore_errors=True)
+        _remove(prepared)
         return None
-    if layout is not None and meta["layout"] != layout:
+    if layout is not None and meta.layout != layout:
         return None
     log.info("prepared project read from the cache %s in %.1f s (%d recordings, %d instants); %s", prepared,
-             time.perf_counter() - started, len(meta["recordings"]), len(arrays["frame"]), size_note(cache))  # fmt: skip
+             time.perf_counter() - started, len(meta.recordings), len(arrays["frame"]), size_note(cache))  # fmt: skip
     return PreparedProject(meta, arrays, sessions, prepared, f"read from the cache {prepared}")
 
 
@@ -227,56 +299,48 @@ class _GrowingNpy:
 
 
 class Assembly:
-    """The prepared arrays of each part ("train", "validation"), appended recording by recording: into
-    growing .npy files in `directory`, or in memory where `directory` is None.  An array that a later
-    recording starts (a ground truth) is filled with NaN for the rows before it."""
+    """The prepared arrays, appended recording by recording: into growing .npy files ``instants.<name>.npy``
+    (`PART`) in `directory`, or in memory where `directory` is None.  An array that a later recording starts
+    (a ground truth) is filled with NaN for the rows before it."""
 
     def __init__(self, directory: Path | None):
         self.directory = directory
-        self.files: dict[tuple[str, str], _GrowingNpy | list[np.ndarray]] = {}
-        self.rows: dict[str, int] = {}
+        self.files: dict[str, _GrowingNpy | list[np.ndarray]] = {}
+        self.rows = 0
 
-    def add(self, part: str, arrays: Mapping[str, np.ndarray | None]) -> None:
+    def add(self, arrays: Mapping[str, np.ndarray | None]) -> None:
         count = len(next(iter(arrays.values())))
-        start = self.rows.get(part, 0)
         for name, array in arrays.items():
             if array is None:
-                if (part, name) in self.files:
-                    self._write(part, name, np.full((count, *self._row_shape(part, name)), np.nan, np.float32))
+                if name in self.files:
+                    self._write(name, np.full((count, *self._row_shape(name)), np.nan, np.float32))
                 continue
-            if (part, name) not in self.files and start:
-                self._write(part, name, np.full((start, *array.shape[1:]), np.nan, array.dtype))
-            self._write(part, name, array)
-        self.rows[part] = start + count
+            if name not in self.files and self.rows:
+                self._write(name, np.full((self.rows, *array.shape[1:]), np.nan, array.dtype))
+            self._write(name, array)
+        self.rows += count
 
-    def _row_shape(self, part: str, name: str) -> tuple[int, ...]:
-        target = self.files[part, name]
+    def _row_shape(self, name: str) -> tuple[int, ...]:
+        target = self.files[name]
         return target.row_shape if isinstance(target, _GrowingNpy) else target[0].shape[1:]
 
-    def _write(self, part: str, name: str, array: np.ndarray) -> None:
-        if (part, name) not in self.files:
-            self.files[part, name] = [] if self.directory is None else _GrowingNpy(self.directory / f"{part}.{name}.npy", array)
-        self.files[part, name].append(array)
+    def _write(self, name: str, array: np.ndarray) -> None:
+        if name not in self.files:
+            self.files[name] = [] if self.directory is None else _GrowingNpy(self.directory / f"{PART}.{name}.npy", array)
+        self.files[name].append(array)
 
-    def close(self) -> dict[str, dict[str, np.ndarray]] | None:
-        """The files closed (read them with `read_arrays`), or in memory {part: {name: array}}."""
+    def close(self) -> dict[str, np.ndarray] | None:
+        """The files closed (read them with `read_arrays`), or in memory {name: array}."""
         if self.directory is not None:
             for target in self.files.values():
                 target.close()
             return None
-        arrays: dict[str, dict[str, np.ndarray]] = {}
-        for (part, name), pieces in self.files.items():
-            arrays.setdefault(part, {})[name] = np.concatenate(pieces)
-        return arrays
+        return {name: np.concatenate(pieces) for name, pieces in self.files.items()}
 
 
-def read_arrays(directory: Path) -> dict[str, dict[str, np.ndarray]]:
-    """{part: {name: memory-mapped array}} of a prepared folder."""
-    arrays: dict[str, dict[str, np.ndarray]] = {}
-    for path in sorted(directory.glob("*.npy")):
-        part, name = path.stem.split(".", 1)
-        arrays.setdefault(part, {})[name] = np.load(path, mmap_mode="r", allow_pickle=False)
-    return arrays
+def read_arrays(directory: Path) -> dict[str, np.ndarray]:
+    """{name: memory-mapped array} of a prepared folder."""
+    return {path.name[len(PART) + 1 : -len(".npy")]: np.load(path, mmap_mode="r", allow_pickle=False) for path in sorted(directory.glob(f"{PART}.*.npy"))}
 
 
 def start(entry: Entry) -> Path | None:
@@ -313,20 +377,20 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def finish(entry: Entry, temporary: Path | None, assembly: Assembly, meta: Mapping[str, Any],
+def finish(entry: Entry, temporary: Path | None, assembly: Assembly, meta: ProjectMeta,
            sessions: tuple[RecoveredSession, ...]) -> PreparedProject:  # fmt: skip
     """The prepared project whose arrays `assembly` holds: committed to the cache as `entry` (with its inputs'
     digests in `meta`) and memory-mapped from it, or in memory where the cache cannot be written (`temporary` None)."""
     in_memory = assembly.close()
-    meta = dict(meta) | {"inputs": dict(entry.inputs)}
+    meta = dataclasses.replace(meta, inputs=dict(entry.inputs))
     if temporary is None:
-        return PreparedProject(meta, in_memory[PART], sessions, None, f"prepared in memory ({entry.cache} cannot be written: not cached)")
-    final = commit(temporary, entry.key, meta, {session.name: session.calibration for session in sessions} or None)
-    return PreparedProject(meta, read_arrays(final)[PART], sessions, final, f"prepared and written to the cache {final}")
+        return PreparedProject(meta, in_memory, sessions, None, f"prepared in memory ({entry.cache} cannot be written: not cached)")
+    final = commit(temporary, entry.key, typed_json(meta), {session.name: session.calibration for session in sessions} or None)
+    return PreparedProject(meta, read_arrays(final), sessions, final, f"prepared and written to the cache {final}")
 
 
 def commit(temporary: Path, cache_key: str, meta: Mapping[str, Any], recovered: object | None) -> Path:
-    """Write the metadata, then move the folder to its final name (another process's finished folder
+    """Write the metadata (`meta`: project.json's JSON, a `ProjectMeta` as `typed_json`), then move the folder to its final name (another process's finished folder
     of the same key wins); prepared folders made from inputs that have changed since are removed."""
     (temporary / "project.json").write_text(json.dumps(meta, indent=1))
     if recovered is not None:
@@ -341,21 +405,56 @@ def commit(temporary: Path, cache_key: str, meta: Mapping[str, Any], recovered: 
 
 
 def _prune(kept: Path, inputs: Mapping[str, str]) -> None:
-    """Remove the prepared folders beside `kept` that no options can read again: those made from a group
-    of input files (`input_digests`) whose digest is now another, and those of an earlier jaxpose (no
-    digests: their `VERSION` is in no key made now).  Folders of other options or other recordings stay."""
+    """Remove the prepared folders beside `kept` that no run can read again: those made from a group of input
+    files (`input_digests`) whose digest is now another, those of this project made from a recording (or a
+    calibration) that is gone, and those of an earlier jaxpose (no digests: their `VERSION` is in no key
+    made now).  Only the cache's own folders are looked at (`_made_from`); folders of other options, or of
+    recordings that are there but left out by --data.recordings, stay."""
+    projects = {group for group in inputs if group.startswith("project ")}
     for other in kept.parent.glob(f"{PREFIX}*"):
-        if ".tmp-" in other.name or other == kept:
+        made_from = _made_from(other)
+        if other == kept or made_from is None:
             continue
-        try:
-            made_from = json.loads((other / "project.json").read_text()).get("inputs")
-        except (OSError, ValueError, AttributeError):
-            continue  # being written, or not jaxpose's: left alone
-        changed = ["an earlier version of jaxpose"] if made_from is None else sorted(
-            group for group, digest in made_from.items() if group in inputs and inputs[group] != digest)  # fmt: skip
+        if made_from is _EARLIER:
+            changed = ["an earlier version of jaxpose"]
+        else:
+            changed = sorted(group for group, digest in made_from.items() if group in inputs and inputs[group] != digest)
+            if projects & set(made_from):  # this project's: a group of a path that is gone never comes back
+                changed += sorted(f"{group} (gone)" for group in made_from if group not in inputs and not os.path.exists(group.partition(" ")[2]))
         if changed:
             log.info("removing the prepared project %s: made from inputs that have changed since (%s)", other, ", ".join(changed)[:200])
-            shutil.rmtree(other, ignore_errors=True)
+            _remove(other)
+
+
+_EARLIER: Mapping[str, str] = {}
+_KEY_NAME = re.compile(re.escape(PREFIX) + "[0-9a-f]{32}")
+
+
+def _made_from(prepared: Path) -> Mapping[str, str] | None:
+    """The input digests a prepared folder was made from (`_EARLIER` for one of an earlier jaxpose); None for
+    what the cache did not make, which is never removed: a folder named otherwise than `folder` names it (a
+    user's, in a shared --data.cache-dir; one being written), a link, or one without jaxpose's project.json."""
+    if not _KEY_NAME.fullmatch(prepared.name) or prepared.is_symlink() or not prepared.is_dir():
+        return None
+    try:
+        meta = json.loads((prepared / "project.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(meta, dict) or "layout" not in meta:
+        return None
+    return meta.get("inputs", _EARLIER)
+
+
+def _remove(prepared: Path) -> None:
+    """Delete a prepared folder so that a run reading the cache meanwhile finds it whole or not at all: it is
+    renamed to a temporary name first (atomic; a second run removing it too finds nothing to rename), then
+    deleted; a deletion cut short is finished by a later `start` (`_remove_interrupted`)."""
+    doomed = prepared.with_name(f"{prepared.name}.tmp-{os.getpid()}")
+    try:
+        os.rename(prepared, doomed)
+    except OSError:
+        return
+    shutil.rmtree(doomed, ignore_errors=True)
 
 
 def size_note(cache: Path) -> str:
@@ -409,7 +508,7 @@ _COPY_ROWS = 65536
 
 
 def read_meta(directory: Path, recovered_type: type | None = None) -> tuple[dict[str, Any], object | None]:
-    """(project.json, the recovered calibration as a `recovered_type` or None) of a prepared folder.  A file that does not decode is a `DataFormatError` naming it."""
+    """(project.json's JSON, the recovered calibration as a `recovered_type` or None) of a prepared folder.  A file that does not decode is a `DataFormatError` naming it."""
     meta = json.loads((directory / "project.json").read_text())
     recovered = None
     path = directory / RECOVERED_JSON

@@ -31,7 +31,7 @@ from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.layouts import lifting_skeleton
 from jaxpose.rig import cache, geometry, people
-from jaxpose.rig.cache import PART, Assembly, PreparedProject
+from jaxpose.rig.cache import Assembly, PreparedProject, ProjectMeta, RecordingSummary, SessionSummary
 from jaxpose.rig.cameras import check_unit_against_people, distinct_rigs, in_view_order, read_calibrations
 from jaxpose.rig.config import RigProjectConfig
 from jaxpose.rig.recordings import FoundProject, Recording, ground_truth_on_instants, lifting_views, read_detections
@@ -140,7 +140,7 @@ def prepare(config: RigProjectConfig, found: FoundProject, progress: bool, entry
     rigs = geometry.Rigs.of([in_view_order(rig, camera_order) for rig in distinct])
     temporary = cache.start(entry)
     preparation = Preparation(
-        rigs, rig_index, cache.Assembly(temporary), phases, threshold_px=config.person_threshold_px, recovered=bool(sessions),
+        rigs, rig_index, tuple(camera_order), cache.Assembly(temporary), phases, threshold_px=config.person_threshold_px, recovered=bool(sessions),
         check_unit=config.calibration_unit == "auto" and not sessions,
         labels={"subject": np.dtype(f"<U{len(f'rig{len(rig_index) - 1}')}"),
                 "recording": np.dtype(f"<U{max(len(recording.name) for recording in recordings)}")},
@@ -153,17 +153,11 @@ def prepare(config: RigProjectConfig, found: FoundProject, progress: bool, entry
         raise
     finally:
         phases.close()
-    summaries = [summary | {"cameras": [camera for camera in camera_order if camera in recording.cameras]}
-                 for summary, recording in zip(outcome.summaries, recordings)]  # fmt: skip
-    meta = {
-        "camera_names": camera_order,
-        "layout": outcome.layout,
-        "recordings": summaries,
-        "ground_truth_seen": outcome.ground_truth_seen,
-        "warnings": list(outcome.warnings),
-        "sessions": [session.summary() for session in sessions],
-        "rigs": {field: np.stack([np.asarray(getattr(c.cameras, field), np.float32) for c in rigs.calibrations]).tolist() for field in ("K", "R", "t")},
-    }
+    meta = ProjectMeta(
+        camera_names=tuple(camera_order), layout=outcome.layout, recordings=outcome.summaries, ground_truth_seen=outcome.ground_truth_seen,
+        warnings=outcome.warnings, sessions=tuple(SessionSummary.of(session) for session in sessions),
+        rigs={field: np.stack([np.asarray(getattr(c.cameras, field), np.float32) for c in rigs.calibrations]) for field in ("K", "R", "t")},
+    )  # fmt: skip
     prepared = cache.finish(entry, temporary, preparation.assembly, meta, sessions)
     note = "" if prepared.folder is None else f"; {cache.size_note(config.cache)}"
     log.info("%d recordings (%d instants) %s in %.1f s%s", len(recordings), len(prepared.arrays["frame"]), prepared.how, time.perf_counter() - started, note)
@@ -237,8 +231,8 @@ def _parsed_name(recording: Recording) -> str:
 class Outcome:
     """What preparing the recordings did besides the arrays (`Preparation.run`)."""
 
-    summaries: tuple[dict, ...]
-    """Per recording, in order, what loading did, for `jaxpose.rig.split.RecordingSummary`."""
+    summaries: tuple[RecordingSummary, ...]
+    """Per recording, in order, what loading did."""
     ground_truth_seen: bool
     warnings: tuple[str, ...]
     """What the checks of the calibrations found suspect (people of an unlikely size), for the report."""
@@ -249,7 +243,7 @@ class Outcome:
 @dataclasses.dataclass
 class Preparation:
     """Undistort every recording, choose its person, attach its ground truth, check the calibrations'
-    unit (`check_unit`) and append every instant to `assembly` (its part `jaxpose.rig.cache.PART`).
+    unit (`check_unit`) and append every instant to `assembly`.
     `labels`: the string dtypes of the "subject" and "recording" labels (one width for every recording).
     `run` takes the recordings as they come and returns its `Outcome`; the fields after `labels` are its
     tally while it runs."""
@@ -257,13 +251,15 @@ class Preparation:
     rigs: geometry.Rigs
     rig_of: Mapping[str, int]
     """Recording name -> its rig's index in `rigs`."""
+    camera_order: tuple[str, ...]
+    """Every view, in the prepared arrays' order."""
     assembly: Assembly
     phases: Phases
     threshold_px: float
     recovered: bool
     check_unit: bool
     labels: dict[str, np.dtype]
-    summaries: list[dict] = dataclasses.field(default_factory=list)
+    summaries: list[RecordingSummary] = dataclasses.field(default_factory=list)
     ground_truth_seen: bool = False
     warnings: list[str] = dataclasses.field(default_factory=list)
     layout: str | None = None
@@ -335,7 +331,7 @@ class Preparation:
         self.ground_truth_seen |= target is not None
         if units is not None:
             units.add(rig_index, choice.keypoints, choice.confidence, lifting_skeleton(part.layout))
-        self.assembly.add(PART, {
+        self.assembly.add({
             "keypoints2d": choice.keypoints,
             "confidence": choice.confidence,
             "rig_index": np.full(len(instants), rig_index, np.int32),
@@ -344,20 +340,13 @@ class Preparation:
             "recording": np.full(len(instants), recording.name, self.labels["recording"]),
             "frame": instants.astype(np.int32),
         })  # fmt: skip
-        self.summaries.append(
-            {
-                "name": recording.name,
-                "instants": len(part.instants),
-                "calibration": part.calibration.source,
-                "offsets": dict(part.offsets),
-                "offsets_estimated": part.sync is not None,
-                "sync_reliable": None if part.sync is None else part.sync.reliable,
-                "warnings": list(part.warnings),
-                "instants_with_choice": choice.instants_with_choice,
-                "views_without_match": choice.views_without_match,
-                "ground_truth_instants": truth_instants,
-            }
-        )
+        self.summaries.append(RecordingSummary(
+            name=recording.name, cameras=tuple(camera for camera in self.camera_order if camera in recording.cameras),
+            instants=len(part.instants), calibration=part.calibration.source, offsets=dict(part.offsets),
+            offsets_estimated=part.sync is not None, sync_reliable=None if part.sync is None else part.sync.reliable,
+            instants_with_choice=choice.instants_with_choice, views_without_match=choice.views_without_match,
+            ground_truth_instants=truth_instants, warnings=part.warnings,
+        ))  # fmt: skip
 
 
 class _UnitCheck:

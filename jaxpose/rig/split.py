@@ -22,28 +22,11 @@ from jaxpose.data.dataset import FrameContext, MultiViewDataset, consecutive_spa
 from jaxpose.data.samples import Samples
 from jaxpose.layouts import lifting_skeleton
 from jaxpose.rig import cache
-from jaxpose.rig.cache import PreparedProject
+from jaxpose.rig.cache import PreparedProject, RecordingSummary
 from jaxpose.rig.config import RigProjectConfig
 from jaxpose.rig.recovered import RecoveredSession
 
 log = logging.getLogger(__name__)
-
-@dataclasses.dataclass(frozen=True)
-class RecordingSummary:
-    """What loading did to one recording, for the report (counts over all its instants)."""
-
-    name: str
-    cameras: tuple[str, ...]
-    instants: int
-    calibration: str
-    offsets: dict[str, int]
-    offsets_estimated: bool
-    sync_reliable: bool | None
-    instants_with_choice: int
-    views_without_match: int
-    ground_truth_instants: int
-    warnings: tuple[str, ...] = ()
-    """What reading it found suspect: an unreliable sync and why, a camera sharing no instant with the others."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,7 +69,7 @@ def every_instant(prepared: PreparedProject, recordings: tuple[str, ...] = ()) -
     recording's, or those of `recordings` (names the prepared project holds)."""
     arrays = prepared.arrays
     spans = consecutive_spans({"frame": arrays["frame"], "sequence": arrays["recording"]})
-    summaries = _summaries(prepared.meta)
+    summaries = prepared.meta.recordings
     rows = np.arange(len(arrays["frame"]))
     if recordings:
         summaries = tuple(summary for summary in summaries if summary.name in recordings)
@@ -102,9 +85,9 @@ def split(prepared: PreparedProject, config: RigProjectConfig) -> RigProject:
     the recording in each part.  Each part's windows of frames are cut from every instant (its context)."""
     meta, arrays = prepared.meta, prepared.arrays
     held_out, sample = [], []
-    for summary in meta["recordings"]:
-        out = _held_out(config, summary["name"], summary["instants"])
-        position = np.arange(summary["instants"])
+    for summary in meta.recordings:
+        out = _held_out(config, summary.name, summary.instants)
+        position = np.arange(summary.instants)
         held_out.append(out)
         sample.append(np.where(out, position % config.validation_stride == 0, position % config.train_stride == 0))
     held_out, sample = np.concatenate(held_out), np.concatenate(sample)
@@ -118,19 +101,13 @@ def split(prepared: PreparedProject, config: RigProjectConfig) -> RigProject:
     return RigProject(
         train=train,
         validation=validation,
-        camera_names=tuple(meta["camera_names"]),
-        layout=meta["layout"],
-        recordings=_summaries(meta),
-        warnings=tuple(meta["warnings"]),
+        camera_names=meta.camera_names,
+        layout=meta.layout,
+        recordings=meta.recordings,
+        warnings=meta.warnings,
         ground_truth_joints=ground_truth.ground_truth_joint_names(validation),
         sessions=prepared.sessions,
         prepared=prepared.how,
-    )
-
-
-def _summaries(meta) -> tuple[RecordingSummary, ...]:
-    return tuple(
-        RecordingSummary(**summary | {"cameras": tuple(summary["cameras"]), "warnings": tuple(summary["warnings"])}) for summary in meta["recordings"]
     )
 
 
@@ -138,8 +115,8 @@ def _dataset(prepared: PreparedProject, spans: np.ndarray, part: str, rows: np.n
     """The prepared instants `rows` as a data set (`jaxpose.rig.cache.selected_rows`), with every instant as
     its context (`spans`: each instant's stretch of consecutive frames)."""
     meta, arrays = prepared.meta, prepared.arrays
-    skeleton = lifting_skeleton(meta["layout"])
-    rigs = Cameras(**{field: np.asarray(values, np.float32) for field, values in meta["rigs"].items()})
+    skeleton = lifting_skeleton(meta.layout)
+    rigs = Cameras(**meta.rigs)
     selected = cache.selected_rows(prepared.folder, part, arrays, rows)
     samples = Samples(
         keypoints2d=selected["keypoints2d"], confidence=selected["confidence"], rig_index=selected["rig_index"], target3d=selected.get("target3d"),

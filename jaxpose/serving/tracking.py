@@ -23,7 +23,7 @@ import numpy as np
 
 DEFAULT_GATE = 0.5
 """The largest cost (median keypoint distance / the person's size) at which a pose continues a track."""
-DEFAULT_MAX_GAP = 30
+DEFAULT_TRACK_GAP = 30
 """Frames a track may go unseen and still be continued."""
 MIN_SIZE_PX = 10.0
 """The smallest size a person is given, so that one or two detected keypoints do not make every distance huge."""
@@ -65,7 +65,7 @@ def _costs(tracks: list[_Track], frame: int, keypoints: np.ndarray, valid: np.nd
 
 def follow_people(
     frames: np.ndarray, keypoints: np.ndarray, valid: np.ndarray, gate: float = DEFAULT_GATE,
-    max_gap: int = DEFAULT_MAX_GAP,
+    max_gap: int = DEFAULT_TRACK_GAP,
 ) -> np.ndarray:  # fmt: skip
     """int64[N] the track of each pose (`NOT_FOLLOWED` for a pose without a detected keypoint).
 

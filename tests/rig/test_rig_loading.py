@@ -95,8 +95,9 @@ def test_the_prepared_project_is_cached_and_memory_mapped(small, tmp_path):
     # One frame edited in place to the same size with its times put back: prepared again, and the two
     # folders made from the frame as it was, which no options can read any more, are removed; so is a
     # folder of an earlier jaxpose (no input digests: its version is in no key made now).
-    (root / ".jaxpose_cache" / "prepared-earlier").mkdir()
-    (root / ".jaxpose_cache" / "prepared-earlier" / "project.json").write_text('{"layout": "coco17"}')
+    earlier = root / ".jaxpose_cache" / ("prepared-" + "e" * 32)  # named as the cache names its folders
+    earlier.mkdir()
+    (earlier / "project.json").write_text('{"layout": "coco17"}')
     frame = sorted((sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith("."))[0] / "cam01_json").glob("*.json"))[3]
     times = frame.stat()
     text = frame.read_text()
@@ -261,3 +262,112 @@ def test_a_one_step_run_compiles_as_much_for_eight_recordings_as_for_two(small, 
             ])  # fmt: skip
         counts[name] = found["lowered"]
     assert counts["two"] == counts["eight"], counts
+
+
+def test_a_calibration_of_any_name_is_in_the_cache_key(small, tmp_path):
+    """Issue 52 defect 9: a calibration named ``.calibration.toml`` is the one used; moving a camera by 500 mm
+    in it must prepare again with the camera moved, not read the arrays of the rig as it was."""
+    root = tmp_path / "project"
+    shutil.copytree(small, root, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    hidden = root / ".calibration.toml"
+    (root / "calibration.toml").rename(hidden)
+    config = RigProjectConfig(root=root, frame_offsets=("cam03=3",))
+    before = load_rig_project(config, progress=False)
+    text = hidden.read_text()
+    first = re.search(r"translation = \[ ([-0-9.e]+),", text)  # cam01's, in metres
+    hidden.write_text(text[: first.start(1)] + repr(float(first.group(1)) + 0.5) + text[first.end(1) :])
+    after = load_rig_project(config, progress=False)
+    assert after.prepared.startswith("prepared and written")
+    moved = np.zeros_like(np.asarray(before.validation.rigs.t))
+    moved[0, 0, 0] = 500.0  # rig 0, camera cam01 (the first in view order), x
+    np.testing.assert_allclose(np.asarray(after.validation.rigs.t) - np.asarray(before.validation.rigs.t), moved, atol=1e-3)
+
+
+def test_every_file_loading_opens_is_in_the_cache_key(small, tmp_path):
+    """The cache key's files are what finding the project found (`cache._input_files`): every file that a
+    cold load opens outside its cache, calibrations of any name, the project's and a recording's own, is
+    among them, so that no file read can change without a miss."""
+    import sys
+
+    from jaxpose.rig import cache
+    from jaxpose.rig.recordings import find_project
+
+    root = tmp_path / "project"
+    shutil.copytree(small, root, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    recording = sorted(p for p in root.iterdir() if p.is_dir())[0]
+    shutil.copy(root / "calibration.toml", recording / ".own.toml")  # a recording's own rig, hidden too
+    (root / "calibration.toml").rename(root / ".calibration.toml")
+    config = RigProjectConfig(root=root, frame_offsets=("cam03=3",))
+    opened: list[pathlib.Path] = []
+    watching = [True]
+
+    def hook(event, args):
+        if watching and event == "open" and isinstance(args[0], (str, os.PathLike)):
+            opened.append(pathlib.Path(os.fsdecode(args[0])))
+
+    sys.addaudithook(hook)  # an audit hook cannot be removed: `watching` ends it
+    try:
+        load_rig_project(config, progress=False)
+    finally:
+        watching.clear()
+    found = find_project(root, (), None)
+    keyed = {path.resolve() for files in cache._input_files(config, found).values() for path in files}
+    read = {path.resolve() for path in opened if path.resolve().is_relative_to(root.resolve()) and path.resolve().is_file()}
+    read = {path for path in read if not path.is_relative_to(config.cache.resolve())}
+    assert root.resolve() / ".calibration.toml" in read and recording.resolve() / ".own.toml" in read
+    assert read <= keyed, sorted(map(str, read - keyed))
+
+
+def test_prepared_folders_of_removed_recordings_are_removed(tmp_path):
+    """Issue 52 defect 10: after adding a recording and removing two, only the prepared folder of the
+    recordings there are now is left (the others name recordings that no longer exist: no run can read
+    them); a folder of other options over existing recordings stays, and so does a folder that is not the
+    cache's own (a user's, named like one), a link to a folder, or one without jaxpose's project.json."""
+    root = _project(tmp_path / "project", 3, (30, 30, 30))
+    names = sorted(p.name for p in root.iterdir() if p.is_dir())
+    spare = tmp_path / "spare"
+    shutil.move(root / names[2], spare)  # the third recording, added later
+    config = RigProjectConfig(root=root, frame_offsets=("cam03=3",))
+    load_rig_project(config, progress=False)
+    load_rig_project(dataclasses.replace(config, recordings=(names[0],)), progress=False)  # another subset: kept while its recording is there
+    cache_folder = root / ".jaxpose_cache"
+    users = cache_folder / "prepared-notes"
+    users.mkdir()
+    (users / "project.json").write_text('{"mine": 1}')
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "project.json").write_text('{"layout": "coco17"}')
+    (cache_folder / ("prepared-" + "0" * 32)).symlink_to(elsewhere)
+    shutil.move(spare, root / names[2])
+    load_rig_project(config, progress=False)
+    assert len(_prepared_folders(root)) == 3 + 2  # the two subsets and all three, the user's folder and the link
+    shutil.rmtree(root / names[0])
+    shutil.rmtree(root / names[1])
+    load_rig_project(config, progress=False)
+    ours = [name for name in _prepared_folders(root) if name not in ("prepared-notes", "prepared-" + "0" * 32)]
+    assert len(ours) == 1, ours
+    assert (users / "project.json").read_text() == '{"mine": 1}' and (elsewhere / "project.json").exists()
+    assert (cache_folder / ("prepared-" + "0" * 32)).is_symlink()
+
+
+def test_a_project_json_written_before_its_type_is_read_as_it_was(small, tmp_path):
+    """`cache.ProjectMeta` reads a prepared folder's project.json as jaxpose wrote it before the type (the
+    rigs as plain nested lists): the same recordings, rigs and samples, read from the cache."""
+    import json
+
+    root = tmp_path / "project"
+    shutil.copytree(small, root, ignore=shutil.ignore_patterns(".jaxpose_cache"))
+    config = RigProjectConfig(root=root, frame_offsets=("cam03=3",))
+    cold = load_rig_project(config, progress=False)
+    (folder,) = _prepared_folders(root)
+    written = root / ".jaxpose_cache" / folder / "project.json"
+    meta = json.loads(written.read_text())
+    assert meta["rigs"]["K"]["dtype"] == "<f4"
+    meta["rigs"] = {field: value["ndarray"] for field, value in meta["rigs"].items()}
+    written.write_text(json.dumps(meta, indent=1))
+    warm = load_rig_project(config, progress=False)
+    assert warm.prepared.startswith("read from the cache") and warm.recordings == cold.recordings
+    assert isinstance(warm.recordings[0].cameras, tuple) and warm.camera_names == cold.camera_names
+    jax.tree.map(np.testing.assert_array_equal, cold.validation.rigs, warm.validation.rigs)
+    assert warm.validation.rigs.K.dtype == np.float32
+    jax.tree.map(np.testing.assert_array_equal, cold.validation.samples, warm.validation.samples)

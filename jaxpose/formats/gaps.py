@@ -1,4 +1,5 @@
-"""Instants no camera sees: short gaps bridged by linear interpolation, long ones split the recording.
+"""Frames without a value: short gaps bridged by linear interpolation, long ones split the recording (the
+one gap filler of reconstruct's motion files and of predict's .trc files, `jaxpose.formats.pose_files`).
 
 OpenSim cannot read a marker table with an empty cell, so a motion file must be gap-free.  A joint
 missing for at most `max_gap` consecutive frames between two frames that have it is interpolated
@@ -29,11 +30,6 @@ class GapFilling:
     values: np.ndarray
     filled: np.ndarray
     segments: np.ndarray
-
-    @property
-    def filled_frames(self) -> int:
-        """Frames with at least one interpolated joint."""
-        return int(self.filled.any(-1).sum())
 
     @property
     def dropped_frames(self) -> int:
