@@ -40,12 +40,14 @@ EXAMPLE_ROOT = RigProjectConfig().root
 def load_splits(data: RigProjectConfig, progress: bool = True) -> Splits:
     """The project's training recordings and its held-out part; the embedded example is written first
     when --data.root is left at its default and does not exist yet.  `progress`: --run.progress.  (Every
-    instant is prepared: a temporal lifter's windows need no option of loading.)"""
+    instant is prepared: a temporal lifter's windows need no option of loading.)  The paths are taken absolute
+    and resolved."""
     if data.root == EXAMPLE_ROOT and not data.root.exists():
         from jaxpose.synthetic.project import write_rig_project
 
         log.info("writing the embedded example project to %s", data.root)
         write_rig_project(data.root)
+    data = data.resolved()  # one project, one cache entry and one record, however the command line named it
     project = load_rig_project(data, progress=progress)
     artifacts = ()
     if project.sessions:

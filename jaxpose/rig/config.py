@@ -4,14 +4,16 @@
 The fields fall in three kinds: where the project and its cache are (`root`, `cache_dir`); the split into
 training and validation parts (`SPLIT_FIELDS`: row selections made after loading, `jaxpose.rig.split`);
 and everything else, which changes the prepared arrays (the cache's key: `jaxpose.rig.project`) and is
-what a run records (`recorded_settings`; its commands read it back with `with_recorded_settings`).
+what a run records (`recorded_settings`; the commands that use the run take it back as their defaults,
+`from_record`, and say where a flag given differs, `differences`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import pathlib
-from typing import Literal
+from collections.abc import Mapping
+from typing import Any, Literal
 
 from jaxpose.formats.rig_cameras import CalibrationUnit
 from jaxpose.rig.people import DEFAULT_THRESHOLD_PX
@@ -24,6 +26,7 @@ of the cache's key (a reconstruction takes every instant of every recording)."""
 NOT_PREPARED = ("root", "cache_dir", *SPLIT_FIELDS)
 """The fields that change no prepared array: where the project and its cache are, and the split."""
 _NOT_RECORDED = ("recordings", *SPLIT_FIELDS)  # which recordings a command reads is its own choice
+_PATHS = ("root", "calibration", "cache_dir")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,6 +98,11 @@ class RigProjectConfig:
         if self.train_stride < 1 or self.validation_stride < 1 or self.max_sync_offset < 0:
             raise ValueError("--data.train-stride and --data.validation-stride must be >= 1, --data.max-sync-offset >= 0")
 
+    def resolved(self) -> RigProjectConfig:
+        """The same settings with the paths absolute and resolved, as the commands take them: the project's
+        cache key and a run's record then name one project however the command line named it."""
+        return dataclasses.replace(self, **{name: getattr(self, name).resolve() for name in _PATHS if getattr(self, name) is not None})
+
     @property
     def cache(self) -> pathlib.Path:
         """The project's cache: --data.cache-dir, else PROJECT/.jaxpose_cache."""
@@ -103,28 +111,34 @@ class RigProjectConfig:
 
 def recorded_settings(config: RigProjectConfig, layout: str) -> dict:
     """The settings a run records of its project (`RunRecord.project`): every field but the recordings and
-    the split, JSON-ready, with the layout the loader resolved."""
+    the split, JSON-ready, with the layout the loader resolved and the paths absolute and resolved (a run used
+    from another working directory, or naming the project by another path, reads the same project)."""
     settings = {field.name: getattr(config, field.name) for field in dataclasses.fields(config) if field.name not in _NOT_RECORDED}
     settings["skeleton"] = layout
-    return {name: str(value) if isinstance(value, pathlib.Path) else list(value) if isinstance(value, tuple) else value for name, value in settings.items()}
+    return {name: str(value.resolve()) if isinstance(value, pathlib.Path) else list(value) if isinstance(value, tuple) else value for name, value in settings.items()}
 
 
-def with_recorded_settings(config: RigProjectConfig, recorded: dict, source: str) -> tuple[RigProjectConfig, list[str]]:
-    """`config` with each field left at its default taken from the run's recorded settings; and one line for
-    each field given that differs from the record (the given value is used)."""
-    defaults, changes, notes = RigProjectConfig(), {}, []
-    for field in dataclasses.fields(config):
+def from_record(recorded: Mapping[str, Any]) -> RigProjectConfig:
+    """The project settings a run recorded (`recorded_settings`) as a config, the fields it does not record
+    (the recordings, the split) at their defaults: the defaults of a command that uses the run."""
+    values = {}
+    for field in dataclasses.fields(RigProjectConfig):
         if field.name not in recorded or field.name in _NOT_RECORDED:
             continue
         value = recorded[field.name]
         if isinstance(value, list):
             value = tuple(tuple(v) if isinstance(v, list) else v for v in value)
-        if field.name in ("root", "calibration", "cache_dir") and value is not None:
+        if field.name in _PATHS and value is not None:
             value = pathlib.Path(value)
-        given = getattr(config, field.name)
-        if given == getattr(defaults, field.name):
-            changes[field.name] = value
-        elif given != value:
-            flag = "--data." + field.name.replace("_", "-")
-            notes.append(f"{flag} {given} differs from the run's {value} ({source}): using {given}")
-    return dataclasses.replace(config, **changes), notes
+        values[field.name] = value
+    return RigProjectConfig(**values)
+
+
+def differences(given: RigProjectConfig, trained: RigProjectConfig) -> list[str]:
+    """One line per setting the command line gives that differs from the run's (the given value is used)."""
+    return [
+        f"--data.{field.name.replace('_', '-')} {getattr(given, field.name)} given; the run was trained with {getattr(trained, field.name)}"
+        for field in dataclasses.fields(given)
+        if field.name not in _NOT_RECORDED and getattr(given, field.name) != getattr(trained, field.name)
+    ]
+

@@ -17,7 +17,7 @@ import logging
 import pathlib
 import shutil
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
 import jax
@@ -138,6 +138,21 @@ def read_record(run_dir: pathlib.Path) -> RunRecord | None:
         return None if fields is None else RunRecord(**fields)
     except (ValueError, TypeError, AttributeError) as error:
         raise ValueError(f"{path}: not a run record jaxpose wrote ({error})") from None
+
+
+def record_named_in(argv: Sequence[str]) -> tuple[pathlib.Path | None, RunRecord | None]:
+    """(the run `--checkpoint RUN` names in a command line, its record): read before the command line is
+    parsed, because the run's settings are its defaults (`--help` shows them, every flag given wins).  (None,
+    None) without the flag; (RUN, None) for a run from before records.  Raises ValueError for an unreadable record."""
+    for index, argument in enumerate(argv):
+        if argument.startswith("--checkpoint="):
+            run = pathlib.Path(argument.split("=", 1)[1])
+        elif argument == "--checkpoint" and index + 1 < len(argv):
+            run = pathlib.Path(argv[index + 1])
+        else:
+            continue
+        return run, read_record(run)
+    return None, None
 
 
 # What a run writes into its folder, and what --run.overwrite may remove.
