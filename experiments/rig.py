@@ -53,7 +53,7 @@ def load_splits(data: RigProjectConfig, progress: bool = True) -> Splits:
     if project.sessions:
 
         def write_calibration(run: RunDirectory) -> None:
-            from jaxpose.calibration.rig_file import write_recovered_rig  # the calibrate extra, which recovered it
+            from jaxpose.calibration.rig_file import world_and_scale, write_recovered_rig  # the calibrate extra, which recovered it
 
             several = len(project.sessions) > 1  # one file per session; one session keeps the one name
             for session in project.sessions:
@@ -62,12 +62,15 @@ def load_splits(data: RigProjectConfig, progress: bool = True) -> Splits:
                 toml_path = run.recovered_session_toml(session.name) if several else run.recovered_toml
                 json_path.parent.mkdir(exist_ok=True)
                 sizes = {"rig": [tuple(int(v) for v in size) for size in calibration.image_size]}
-                comment = f"Recovered by jaxpose.calibrate from the recordings {', '.join(session.recordings)} of {data.root}."
+                world, scale = world_and_scale(calibration)
+                comment = (f"Recovered by jaxpose.calibrate from the recordings {', '.join(session.recordings)} of {data.root}."
+                           f" World frame: {world}; scale: {scale}.")  # fmt: skip
                 save_cameras(json_path, {"rig": (list(calibration.camera_names), calibration.cameras)}, sizes, comment)
                 write_recovered_rig(toml_path, calibration, overwrite=True)  # the run's own file, rewritten on a resume
 
         artifacts = (write_calibration,)
-    record = RunRecord(min_confidence=data.min_confidence, layout=project.layout, project=recorded_settings(data, project.layout))
+    sessions = {session.name: list(session.recordings) for session in project.sessions} if len(project.sessions) > 1 else None
+    record = RunRecord(min_confidence=data.min_confidence, layout=project.layout, project=recorded_settings(data, project.layout), sessions=sessions)
     return Splits(
         train=project.train,
         test=project.validation,

@@ -69,7 +69,7 @@ from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP
 from jaxpose.reconstruction.motion_quality import motion_summary
 from jaxpose.reconstruction.trajectory import MIN_LENGTH_INSTANTS, TrajectoryConfig, limb_lengths
 from jaxpose.rig.config import RigProjectConfig, differences, from_record
-from jaxpose.training.run_directory import record_named_in
+from jaxpose.training.run_directory import RunDirectory, record_named_in
 from jaxpose.rig.recordings import find_project
 
 LOCK_FILE = "reconstruct.lock"
@@ -275,7 +275,26 @@ def parse(argv: Sequence[str] | None) -> ReconstructArgs:
     else:
         for line in differences(args.data, trained):
             print(line, file=sys.stderr)
-    return args
+    return dataclasses.replace(args, data=_session_recordings(args, record))
+
+
+def _session_recordings(args: ReconstructArgs, record) -> RigProjectConfig:
+    """--data with the recordings limited to the session whose recovered rig --data.calibration names (the
+    run's recovered_sessions/SESSION.toml is that session's world, no other's); a recording of another session
+    named by --data.recordings is refused."""
+    session = None if args.data.calibration is None else RunDirectory.of(args.checkpoint).session_of(args.data.calibration)
+    if session is None or record is None or not record.sessions or session not in record.sessions:
+        return args.data
+    own = tuple(record.sessions[session])
+    others = [name for name in args.data.recordings if name not in own]
+    if others:
+        raise SystemExit(
+            f"jaxpose.reconstruct: error: --data.calibration {args.data.calibration} is the rig of session {session}"
+            f" (recordings {', '.join(own)}), not of {', '.join(others)}: name that session's rig for them"
+        )
+    if not args.data.recordings:
+        print(f"--data.calibration {args.data.calibration}: the rig of session {session}: its recordings only ({', '.join(own)})", file=sys.stderr)
+    return dataclasses.replace(args.data, recordings=args.data.recordings or own)
 
 
 def _inputs(args: ReconstructArgs) -> list[pathlib.Path]:

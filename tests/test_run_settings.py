@@ -154,6 +154,23 @@ def test_an_old_run_record_still_loads(tmp_path):
                                       image_size=(1920, 1080), min_confidence=0.2)  # fmt: skip
 
 
+
+def test_a_sessions_rig_limits_reconstruct_to_that_sessions_recordings(tmp_path, capsys):
+    """Defect 3: after a run of two sessions (a = walking01, b = turning02), --data.calibration
+    RUN/recovered_sessions/a.toml wrote turning02 in session a's world."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "run.json").write_text('{"jaxpose_run": 1}\n')
+    settings = recorded_settings(RigProjectConfig(root=tmp_path / "project"), "coco17")
+    write_record(run, RunRecord(project=settings, sessions={"a": ["walking01"], "b": ["turning02"]}))
+    assert read_record(run).sessions == {"a": ["walking01"], "b": ["turning02"]}
+    rig = str(run / "recovered_sessions" / "a.toml")
+    assert _reconstruct_args(run, "--data.calibration", rig).data.recordings == ("walking01",)
+    assert "the rig of session a: its recordings only (walking01)" in capsys.readouterr().err
+    with pytest.raises(SystemExit, match=r"is the rig of session a \(recordings walking01\), not of turning02"):
+        _reconstruct_args(run, "--data.calibration", rig, "--data.recordings", "walking01", "turning02")
+    assert _reconstruct_args(run).data.recordings == ()  # the project's own rigs: every recording
+
 @pytest.mark.slow  # prepares a small project twice (~10 s)
 def test_the_same_project_named_by_another_path_keeps_its_cache(tmp_path, monkeypatch, caplog):
     """Defect 7: a project named by another path (relative from another working directory) was taken for one
@@ -167,3 +184,30 @@ def test_the_same_project_named_by_another_path_keeps_its_cache(tmp_path, monkey
     assert "read from the cache" in again.notes[1]
     assert len([entry for entry in (project / ".jaxpose_cache").iterdir() if entry.is_dir() and entry.name.startswith("prepared")]) == 1
     assert dataclasses.asdict(again.record) == dataclasses.asdict(first.record)
+
+
+@pytest.mark.slow  # recovers a rig (calibrate: ~40-60 s on 2 cores, most of it compiling)
+def test_recovered_rig_files_state_the_world_they_are_in(tmp_path):
+    """Defect 1: a rig recovered without a calibration is moved into the upright world (+Y up), yet its files and
+    the report said "view 0's camera frame" and the limb prior's scale.  Also read back from the cache."""
+    import tomllib
+
+    from jaxpose.calibration.world import WORLD_FRAME as UPRIGHT
+    from jaxpose.training.run_directory import RunDirectory
+
+    project = write_rig_project(tmp_path / "p", ExampleProjectConfig(recordings=2, frames_per_recording=200, desync_camera=-1))
+    for calibration in project.glob("calibration*"):
+        calibration.unlink()
+    config = RigProjectConfig(root=project, image_size=(1920, 1080), recovery_frames=200)
+    for attempt in ("prepared", "from the cache"):
+        splits = rig_job.load_splits(config, progress=False)
+        assert ("read from the cache" in splits.notes[1]) == (attempt == "from the cache")
+        run = RunDirectory(tmp_path / attempt)
+        run.path.mkdir()
+        (write_calibration,) = splits.artifacts
+        write_calibration(run)
+        metadata = tomllib.loads(run.recovered_toml.read_text())["metadata"]
+        assert metadata["world"] == UPRIGHT and metadata["up"] in ("normal of the floor the ankles stand on", "the subject's body axis")
+        assert metadata["scale"] == "the subject's limb lengths"  # no height given: set again in the upright world
+        assert f"World frame: {UPRIGHT}" in run.recovered_cameras.read_text()
+        assert f"World frame: {UPRIGHT}" in splits.notes[2] and "view 0's camera frame" not in splits.notes[2]

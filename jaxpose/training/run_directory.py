@@ -95,6 +95,12 @@ class RunDirectory:
         """The same session's rig as a Pose2Sim/Anipose calibration TOML (metres): recovered_sessions/SESSION.toml."""
         return self.path / RECOVERED_SESSIONS_DIR / f"{session}.toml"
 
+    def session_of(self, calibration: pathlib.Path) -> str | None:
+        """The session whose recovered rig `calibration` is (recovered_sessions/SESSION.json or .toml), or None."""
+        folder = (self.path / RECOVERED_SESSIONS_DIR).resolve()
+        calibration = calibration.resolve()
+        return calibration.stem if calibration.parent == folder and calibration.suffix in (".json", ".toml") else None
+
     @property
     def plots(self) -> pathlib.Path:
         return self.path / "plots"
@@ -116,6 +122,9 @@ class RunRecord:
     project: Mapping[str, Any] | None = None
     """A rig project's settings (`RigProjectConfig` as JSON, its split left out: sync, frame offsets,
     calibration and its unit, score threshold, ...)."""
+    sessions: Mapping[str, Sequence[str]] | None = None
+    """A rig project of several sessions without a calibration: each session's recordings, by session name
+    (its rig is `RunDirectory.recovered_session_toml`); None otherwise."""
 
 
 def write_record(run_dir: pathlib.Path, record: RunRecord) -> None:
