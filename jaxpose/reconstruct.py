@@ -68,7 +68,7 @@ from jaxpose.reconstruction.fusion import FusionConfig, Provenance
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP
 from jaxpose.reconstruction.motion_quality import motion_summary
 from jaxpose.reconstruction.trajectory import MIN_LENGTH_INSTANTS, TrajectoryConfig, limb_lengths
-from jaxpose.rig.config import RigProjectConfig, differences, from_record
+from jaxpose.rig.config import RigProjectConfig, differences
 from jaxpose.training.run_directory import RunDirectory, record_named_in
 from jaxpose.rig.recordings import find_project
 
@@ -266,7 +266,7 @@ def parse(argv: Sequence[str] | None) -> ReconstructArgs:
         run, record = record_named_in(argv)
     except ValueError as error:
         raise SystemExit(f"jaxpose.reconstruct: error: {error}") from None
-    trained = None if record is None or record.project is None else from_record(record.project)
+    trained = None if record is None else record.project
     default = ReconstructArgs(checkpoint=tyro.MISSING, output=tyro.MISSING, fps=tyro.MISSING, data=trained or RigProjectConfig())
     args = tyro.cli(ReconstructArgs, default=default, args=argv, description=__doc__, prog="python -m jaxpose.reconstruct")
     args = dataclasses.replace(args, data=args.data.resolved())

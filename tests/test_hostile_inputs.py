@@ -316,7 +316,7 @@ def test_the_run_record_carries_the_project_settings_to_the_commands_that_use_th
     from the run's it is said in one line."""
     from jaxpose import reconstruct
     from jaxpose.serving.inference import score_threshold
-    from jaxpose.rig.config import from_record, recorded_settings
+    from jaxpose.rig.config import recorded_settings
     from jaxpose.training.run_directory import RunRecord, prepare_run_dir, read_record, write_record
 
     trained = RigProjectConfig(
@@ -328,7 +328,7 @@ def test_the_run_record_carries_the_project_settings_to_the_commands_that_use_th
     write_record(run_dir, RunRecord(min_confidence=0.2, layout="coco17", project=recorded_settings(trained, "coco17")))
     record = read_record(run_dir / "checkpoints")  # the checkpoints folder names the same run
     expected = dataclasses.replace(trained, skeleton="coco17", validation_fraction=0.2, train_stride=1)  # the split is not carried
-    assert from_record(record.project) == expected.resolved()
+    assert record.project == expected.resolved()
     argv = ["--checkpoint", str(run_dir), "--output", str(tmp_path / "motion"), "--fps", "50"]
     assert reconstruct.parse(argv).data == expected.resolved()
     assert "trained with" not in capsys.readouterr().err

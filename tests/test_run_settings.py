@@ -13,7 +13,7 @@ import pytest
 
 from experiments import rig as rig_job
 from jaxpose import predict, reconstruct
-from jaxpose.rig.config import RigProjectConfig, from_record, recorded_settings
+from jaxpose.rig.config import RigProjectConfig, recorded_settings
 from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
 from jaxpose.training.run_directory import RunRecord, read_record, write_record
 
@@ -128,8 +128,8 @@ def test_a_run_records_its_project_by_an_absolute_resolved_path(tmp_path, monkey
     (tmp_path / "a" / "b").mkdir(parents=True)
     monkeypatch.chdir(tmp_path / "a" / "b")
     recorded = recorded_settings(RigProjectConfig(root=pathlib.Path("../project"), cache_dir=pathlib.Path("cache")), "coco17")
-    assert recorded["root"] == str(tmp_path.resolve() / "a" / "project")
-    assert recorded["cache_dir"] == str(tmp_path.resolve() / "a" / "b" / "cache")
+    assert recorded.root == tmp_path.resolve() / "a" / "project"
+    assert recorded.cache_dir == tmp_path.resolve() / "a" / "b" / "cache"
     run = tmp_path / "run"
     run.mkdir()
     (run / "run.json").write_text('{"jaxpose_run": 1}\n')
@@ -142,17 +142,22 @@ def test_a_run_records_its_project_by_an_absolute_resolved_path(tmp_path, monkey
 
 
 def test_an_old_run_record_still_loads(tmp_path):
-    """A run.json written before the paths were resolved (relative root, lists for tuples) reads back."""
+    """A run.json written before the record was typed (its project a plain JSON object, a relative root) reads
+    back as the typed record; the typed one round-trips."""
     run = tmp_path / "run"
     run.mkdir()
     project = {"root": "project", "calibration": None, "sync": "auto", "frame_offsets": ["cam02=3"], "skeleton": "coco17",
                "image_size": [1920, 1080], "min_confidence": 0.2}  # fmt: skip
     (run / "run.json").write_text(json.dumps({"jaxpose_run": 1, "trained_on": {"min_confidence": 0.2, "layout": "coco17", "project": project}}))
     record = read_record(run / "checkpoints")
-    config = from_record(record.project)
-    assert config == RigProjectConfig(root=pathlib.Path("project"), sync="auto", frame_offsets=("cam02=3",), skeleton="coco17",
-                                      image_size=(1920, 1080), min_confidence=0.2)  # fmt: skip
-
+    assert record == RunRecord(min_confidence=0.2, layout="coco17", project=RigProjectConfig(
+        root=pathlib.Path("project"), sync="auto", frame_offsets=("cam02=3",), skeleton="coco17", image_size=(1920, 1080), min_confidence=0.2
+    ))  # fmt: skip
+    typed = RunRecord(min_confidence=0.3, layout="coco17", project=recorded_settings(RigProjectConfig(root=tmp_path, **TRAINED), "coco17"),
+                      sessions={"a": ["walking01"]})  # fmt: skip
+    write_record(run, typed)
+    assert read_record(run) == typed
+    assert json.loads((run / "run.json").read_text())["jaxpose_run"] == 1  # the marker kept
 
 
 def test_a_sessions_rig_limits_reconstruct_to_that_sessions_recordings(tmp_path, capsys):
@@ -208,6 +213,6 @@ def test_recovered_rig_files_state_the_world_they_are_in(tmp_path):
         write_calibration(run)
         metadata = tomllib.loads(run.recovered_toml.read_text())["metadata"]
         assert metadata["world"] == UPRIGHT and metadata["up"] in ("normal of the floor the ankles stand on", "the subject's body axis")
-        assert metadata["scale"] == "the subject's limb lengths"  # no height given: set again in the upright world
+        assert metadata["scale"].startswith("limb prior (")  # no height given, the limbs too few to rescale: the rig's own
         assert f"World frame: {UPRIGHT}" in run.recovered_cameras.read_text()
         assert f"World frame: {UPRIGHT}" in splits.notes[2] and "view 0's camera frame" not in splits.notes[2]

@@ -4,16 +4,15 @@
 The fields fall in three kinds: where the project and its cache are (`root`, `cache_dir`); the split into
 training and validation parts (`SPLIT_FIELDS`: row selections made after loading, `jaxpose.rig.split`);
 and everything else, which changes the prepared arrays (the cache's key: `jaxpose.rig.project`) and is
-what a run records (`recorded_settings`; the commands that use the run take it back as their defaults,
-`from_record`, and say where a flag given differs, `differences`).
+what a run records (`recorded_settings`: the commands that use the run take it as their defaults, and
+say where a flag given differs, `differences`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import pathlib
-from collections.abc import Mapping
-from typing import Any, Literal
+from typing import Literal
 
 from jaxpose.formats.rig_cameras import CalibrationUnit
 from jaxpose.rig.people import DEFAULT_THRESHOLD_PX
@@ -109,29 +108,14 @@ class RigProjectConfig:
         return self.cache_dir if self.cache_dir is not None else self.root / CACHE_DIR
 
 
-def recorded_settings(config: RigProjectConfig, layout: str) -> dict:
-    """The settings a run records of its project (`RunRecord.project`): every field but the recordings and
-    the split, JSON-ready, with the layout the loader resolved and the paths absolute and resolved (a run used
-    from another working directory, or naming the project by another path, reads the same project)."""
-    settings = {field.name: getattr(config, field.name) for field in dataclasses.fields(config) if field.name not in _NOT_RECORDED}
-    settings["skeleton"] = layout
-    return {name: str(value.resolve()) if isinstance(value, pathlib.Path) else list(value) if isinstance(value, tuple) else value for name, value in settings.items()}
-
-
-def from_record(recorded: Mapping[str, Any]) -> RigProjectConfig:
-    """The project settings a run recorded (`recorded_settings`) as a config, the fields it does not record
-    (the recordings, the split) at their defaults: the defaults of a command that uses the run."""
-    values = {}
-    for field in dataclasses.fields(RigProjectConfig):
-        if field.name not in recorded or field.name in _NOT_RECORDED:
-            continue
-        value = recorded[field.name]
-        if isinstance(value, list):
-            value = tuple(tuple(v) if isinstance(v, list) else v for v in value)
-        if field.name in _PATHS and value is not None:
-            value = pathlib.Path(value)
-        values[field.name] = value
-    return RigProjectConfig(**values)
+def recorded_settings(config: RigProjectConfig, layout: str) -> RigProjectConfig:
+    """The settings a run records of its project (`RunRecord.project`), and the defaults of the commands that
+    use the run: every field but the recordings and the split (left at their defaults: a command's own choice),
+    with the layout the loader resolved and the paths absolute and resolved (a run used from another working
+    directory, or naming the project by another path, reads the same project)."""
+    defaults = RigProjectConfig()
+    unrecorded = {name: getattr(defaults, name) for name in _NOT_RECORDED}
+    return dataclasses.replace(config.resolved(), skeleton=layout, **unrecorded)
 
 
 def differences(given: RigProjectConfig, trained: RigProjectConfig) -> list[str]:

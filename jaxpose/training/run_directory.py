@@ -18,11 +18,12 @@ import pathlib
 import shutil
 import time
 from collections.abc import Iterator, Mapping, Sequence
-from typing import Any
 
 import jax
 
+from jaxpose.formats.files import from_typed_json, typed_json
 from jaxpose.formats.outputs import atomic_output, exclusive_folder
+from jaxpose.rig.config import RigProjectConfig
 from jaxpose.training.experiment import ExperimentConfig, TrainConfig, dumps, to_json_dict
 
 log = logging.getLogger("jaxpose")
@@ -119,9 +120,9 @@ class RunRecord:
     """Keypoints scored below this were missing in training (None: the data set's 2D taken as given)."""
     layout: str | None = None
     """The detector keypoint layout trained on (a `jaxpose.layouts` name; None: the data set's own joints)."""
-    project: Mapping[str, Any] | None = None
-    """A rig project's settings (`RigProjectConfig` as JSON, its split left out: sync, frame offsets,
-    calibration and its unit, score threshold, ...)."""
+    project: RigProjectConfig | None = None
+    """A rig project's settings (`jaxpose.rig.config.recorded_settings`: sync, frame offsets, calibration and
+    its unit, score threshold, ..., the paths resolved; its recordings and split left at their defaults)."""
     sessions: Mapping[str, Sequence[str]] | None = None
     """A rig project of several sessions without a calibration: each session's recordings, by session name
     (its rig is `RunDirectory.recovered_session_toml`); None otherwise."""
@@ -131,9 +132,9 @@ def write_record(run_dir: pathlib.Path, record: RunRecord) -> None:
     """Add `record` to the run's run.json (atomically: a failed write keeps the marker as it was)."""
     path = RunDirectory(run_dir).record
     content = json.loads(path.read_text()) if path.exists() else {"jaxpose_run": 1}
-    content["trained_on"] = dataclasses.asdict(record)
+    content["trained_on"] = typed_json(record)
     with atomic_output(path) as temporary:
-        temporary.write_text(json.dumps(content, indent=1, default=str) + "\n")
+        temporary.write_text(json.dumps(content, indent=1, default=str) + "\n")  # default: the paths as text
 
 
 def read_record(run_dir: pathlib.Path) -> RunRecord | None:
@@ -144,7 +145,7 @@ def read_record(run_dir: pathlib.Path) -> RunRecord | None:
         return None
     try:
         fields = json.loads(path.read_text()).get("trained_on")
-        return None if fields is None else RunRecord(**fields)
+        return None if fields is None else from_typed_json(RunRecord, fields)  # a record of before the codec reads so too
     except (ValueError, TypeError, AttributeError) as error:
         raise ValueError(f"{path}: not a run record jaxpose wrote ({error})") from None
 
