@@ -29,7 +29,7 @@ the command prints what it filled and split.
 
 Keypoints that cannot be right are lifted as missing, and the command says how many joints of how many
 poses it treated so, per reason (`jaxpose.serving.inference.implausible_joints`): NaN or infinite coordinates
-with a positive score, a score below --min-confidence (default 0.05), and, where the image size is known
+with a positive score, a score below --min-confidence (default: the threshold the run was trained with, else 0.05), and, where the image size is known
 (--image-size, or the --intrinsics calibration's), a keypoint more than --outside-margin (default 10%) of
 the larger image side outside the image.  Then, in each pose, the joint that fits the rest of the pose
 worst can be lifted as missing where it lies more than --reject-inconsistent (2 for a lifter trained with
