@@ -40,18 +40,20 @@ EXAMPLE_ROOT = RigProjectConfig().root
 def load_splits(data: RigProjectConfig, progress: bool = True) -> Splits:
     """The project's training recordings and its held-out part; the embedded example is written first
     when --data.root is left at its default and does not exist yet.  `progress`: --run.progress.  (Every
-    instant is prepared: a temporal lifter's windows need no option of loading.)"""
+    instant is prepared: a temporal lifter's windows need no option of loading.)  The paths are taken absolute
+    and resolved."""
     if data.root == EXAMPLE_ROOT and not data.root.exists():
         from jaxpose.synthetic.project import write_rig_project
 
         log.info("writing the embedded example project to %s", data.root)
         write_rig_project(data.root)
+    data = data.resolved()  # one project, one cache entry and one record, however the command line named it
     project = load_rig_project(data, progress=progress)
     artifacts = ()
     if project.sessions:
 
         def write_calibration(run: RunDirectory) -> None:
-            from jaxpose.calibration.rig_file import write_recovered_rig  # the calibrate extra, which recovered it
+            from jaxpose.calibration.rig_file import world_and_scale, write_recovered_rig  # the calibrate extra, which recovered it
 
             several = len(project.sessions) > 1  # one file per session; one session keeps the one name
             for session in project.sessions:
@@ -60,12 +62,15 @@ def load_splits(data: RigProjectConfig, progress: bool = True) -> Splits:
                 toml_path = run.recovered_session_toml(session.name) if several else run.recovered_toml
                 json_path.parent.mkdir(exist_ok=True)
                 sizes = {"rig": [tuple(int(v) for v in size) for size in calibration.image_size]}
-                comment = f"Recovered by jaxpose.calibrate from the recordings {', '.join(session.recordings)} of {data.root}."
+                world, scale = world_and_scale(calibration)
+                comment = (f"Recovered by jaxpose.calibrate from the recordings {', '.join(session.recordings)} of {data.root}."
+                           f" World frame: {world}; scale: {scale}.")  # fmt: skip
                 save_cameras(json_path, {"rig": (list(calibration.camera_names), calibration.cameras)}, sizes, comment)
                 write_recovered_rig(toml_path, calibration, overwrite=True)  # the run's own file, rewritten on a resume
 
         artifacts = (write_calibration,)
-    record = RunRecord(min_confidence=data.min_confidence, layout=project.layout, project=recorded_settings(data, project.layout))
+    sessions = {session.name: list(session.recordings) for session in project.sessions} if len(project.sessions) > 1 else None
+    record = RunRecord(min_confidence=data.min_confidence, layout=project.layout, project=recorded_settings(data, project.layout), sessions=sessions)
     return Splits(
         train=project.train,
         test=project.validation,

@@ -27,6 +27,7 @@ from jaxpose.calibration import (
     WORLD_FRAME, Calibration, CalibrationConfig, RigComparison, RigDetections, calibrate, compare_rigs, from_dataset,
     read_detections_npz,
 )  # fmt: skip
+from jaxpose.calibration.rig_file import world_and_scale
 from jaxpose.camera import Cameras, camera_centres
 from jaxpose.formats.camera_file import read_calibration, save_cameras, select_views
 from jaxpose.formats.outputs import atomic_output, check_output
@@ -85,13 +86,16 @@ def report(calibration: Calibration, comparison: RigComparison | None, reference
     estimated = (calibration.lens.state != "held").any()
     intrinsics = "estimated intrinsics" if estimated else "given intrinsics"
     scale = calibration.scale
+    world, scale_set = world_and_scale(calibration)  # the world the rig is in: moved into the upright one, or not
     lines = [
         f"# Rig recovered from the person ({len(calibration.camera_names)} cameras, {intrinsics})",
         "",
-        f"{calibration.frames_used} frames, {calibration.seconds:.1f} s. World frame: {WORLD_FRAME}.",
+        f"{calibration.frames_used} frames, {calibration.seconds:.1f} s. World frame: {world}.",
         "Scale from the limb prior: "
         + ", ".join(f"{limb} {scale.prior_mm[limb]:.0f} mm (measured {length:.0f})" for limb, length in scale.measured_mm.items())
-        + ".",
+        + "."
+        if calibration.world is None or calibration.world.scale_source == "rig"
+        else f"Scale from {scale_set} (x{calibration.world.scale:.3f} the limb prior's).",
         "",
     ]
     header = "| camera | focal (px) | re-projection median (px) | 90th percentile (px) | detections kept |"

@@ -29,7 +29,7 @@ the command prints what it filled and split.
 
 Keypoints that cannot be right are lifted as missing, and the command says how many joints of how many
 poses it treated so, per reason (`jaxpose.serving.inference.implausible_joints`): NaN or infinite coordinates
-with a positive score, a score below --min-confidence (default 0.05), and, where the image size is known
+with a positive score, a score below --min-confidence (default: the threshold the run was trained with, else 0.05), and, where the image size is known
 (--image-size, or the --intrinsics calibration's), a keypoint more than --outside-margin (default 10%) of
 the larger image side outside the image.  Then, in each pose, the joint that fits the rest of the pose
 worst can be lifted as missing where it lies more than --reject-inconsistent (2 for a lifter trained with
@@ -126,10 +126,10 @@ class PredictArgs:
     figures); without it the command stops before any work.  A file the command reads is never replaced."""
     batch_size: int = inference.DEFAULT_BATCH_SIZE
     """Most poses per jitted lifter call."""
-    min_confidence: float | None = None
+    min_confidence: float = inference.DEFAULT_MIN_CONFIDENCE
     """Keypoints scored below this are lifted as missing (0 keeps every keypoint with a positive score).
     Default: the threshold the run was trained with (its run.json; a rig project's --data.min-confidence),
-    else 0.05."""
+    else 0.05; `--help` with --checkpoint shows it."""
     outside_margin: float | None = inference.DEFAULT_OUTSIDE_MARGIN
     """Keypoints more than this fraction of the larger image side outside the image are lifted as missing
     (needs the image size: --image-size or a calibration that has it); None disables the check."""
@@ -155,7 +155,6 @@ def run(args: PredictArgs) -> np.ndarray:
     if detections.clipped_scores:
         print(f"{detections.clipped_scores} scores above 1 clipped to 1 (docs/files.md)", file=sys.stderr)
     lifter = inference.load(args.checkpoint, batch_size=args.batch_size)
-    args = dataclasses.replace(args, min_confidence=inference.score_threshold(lifter, args.min_confidence))
     camera = input_camera(args, detections)
     layout = args.format or input_layout(lifter.skeleton, detections)
     scores = detections.scores if detections.scores is not None else np.ones(detections.keypoints.shape[:2], np.float32)
@@ -223,7 +222,7 @@ def check_args(args: PredictArgs) -> None:
             viz.check_animation_path(args.animation, args.fps)
         except ValueError as error:
             raise ValueError(f"--animation {error}") from None
-    if args.min_confidence is not None and not 0.0 <= args.min_confidence <= 1.0:
+    if not 0.0 <= args.min_confidence <= 1.0:
         raise ValueError(f"--min-confidence must lie in [0, 1], got {args.min_confidence}")
     if args.outside_margin is not None and not args.outside_margin >= 0:
         raise ValueError(f"--outside-margin must be >= 0, got {args.outside_margin}")
@@ -397,7 +396,7 @@ def drop_implausible(
 
 def main(argv: Sequence[str] | None = None) -> np.ndarray:
     """Entry point; input, checkpoint and shape errors end the process with a one-line message."""
-    args = tyro.cli(PredictArgs, args=argv, description=__doc__, prog="python -m jaxpose.predict")
+    args = inference.parse_with_run(PredictArgs, argv, __doc__, "python -m jaxpose.predict")
     show_logs()
     enable_compilation_cache()  # the lifter's programs from disk on the next run
     try:

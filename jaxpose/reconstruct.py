@@ -5,7 +5,9 @@ trained lifter fused, no gap where a camera sees the person.
 
 RUN is a run of `experiments.rig` on the project (its lifter lifts every camera's view); PROJECT any
 project `experiments.rig` reads, with the same --data.* flags (the split flags aside: every instant of
-every recording is reconstructed).  The world frame is the calibration's; a project without one is
+every recording is reconstructed).  The --data defaults are the settings RUN was trained with (its
+run.json: `--help` with --checkpoint shows them); a flag given always wins, said in one line where it
+differs from the run's.  The world frame is the calibration's; a project without one is
 taken in the rig recovered in RUN (RUN/recovered_cameras.json), never recovered again.
 
 Per recording and instant: each camera's detection and lifted pose, fused in one robust weighted least
@@ -66,8 +68,8 @@ from jaxpose.reconstruction.fusion import FusionConfig, Provenance
 from jaxpose.formats.gaps import DEFAULT_MAX_GAP
 from jaxpose.reconstruction.motion_quality import motion_summary
 from jaxpose.reconstruction.trajectory import MIN_LENGTH_INSTANTS, TrajectoryConfig, limb_lengths
-from jaxpose.rig.config import RigProjectConfig, with_recorded_settings
-from jaxpose.training.run_directory import RECORD_FILE, RunRecord, read_record
+from jaxpose.rig.config import RigProjectConfig, differences
+from jaxpose.training.run_directory import RunDirectory, record_named_in
 from jaxpose.rig.recordings import find_project
 
 LOCK_FILE = "reconstruct.lock"
@@ -127,7 +129,6 @@ def run(args: ReconstructArgs) -> dict:
         except ImportError:
             raise ImportError("--c3d needs ezc3d: pip install 'jaxpose[reconstruct]' (or pip install ezc3d)") from None
     with _CtrlC() as ctrl_c:
-        args = with_the_runs_settings(args, read_record(args.checkpoint))  # before the outputs are checked: the record may name the project
         found = find_project(args.data.root, args.data.recordings, args.data.calibration)
         check_output_folder(args.output, _inputs(args))
         with exclusive_folder(args.output, LOCK_FILE, "--output", "jaxpose.reconstruct"):  # one report per folder
@@ -256,18 +257,44 @@ def _limbs_held(motion: recording.RecordingMotion, bones: Sequence[tuple[int, in
     return {"limbs_held": int(np.isfinite(lengths).sum()), "limbs_free": free}
 
 
-def with_the_runs_settings(args: ReconstructArgs, record: RunRecord | None) -> ReconstructArgs:
-    """The project read as the run was trained on it: the settings its `record` holds (sync, frame offsets,
-    calibration and unit, score threshold, layout, ...) wherever a --data flag is left at its default; a
-    flag given that differs from the record is said in one line and used."""
-    if record is None or record.project is None:
-        print(f"{args.checkpoint} records no project settings (a run from before run.json): the --data flags as given", file=sys.stderr)
-        return args
-    data, notes = with_recorded_settings(args.data, dict(record.project), f"{args.checkpoint}/{RECORD_FILE}")
-    for note in notes:
-        print(note, file=sys.stderr)
-    print(f"project settings of the run ({args.checkpoint}/{RECORD_FILE}): --data flags override them", file=sys.stderr)
-    return dataclasses.replace(args, data=data)
+def parse(argv: Sequence[str] | None) -> ReconstructArgs:
+    """The command line over the run's settings: the project settings the run named by --checkpoint was trained
+    with (its run.json) are the --data defaults, so `--help` shows them and every flag given wins; a flag given
+    that differs from the run's value is said in one line.  Paths are taken absolute and resolved."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        run, record = record_named_in(argv)
+    except ValueError as error:
+        raise SystemExit(f"jaxpose.reconstruct: error: {error}") from None
+    trained = None if record is None else record.project
+    default = ReconstructArgs(checkpoint=tyro.MISSING, output=tyro.MISSING, fps=tyro.MISSING, data=trained or RigProjectConfig())
+    args = tyro.cli(ReconstructArgs, default=default, args=argv, description=__doc__, prog="python -m jaxpose.reconstruct")
+    args = dataclasses.replace(args, data=args.data.resolved())
+    if trained is None:
+        print(f"{run} records no project settings (a run from before run.json): the --data flags as given", file=sys.stderr)
+    else:
+        for line in differences(args.data, trained):
+            print(line, file=sys.stderr)
+    return dataclasses.replace(args, data=_session_recordings(args, record))
+
+
+def _session_recordings(args: ReconstructArgs, record) -> RigProjectConfig:
+    """--data with the recordings limited to the session whose recovered rig --data.calibration names (the
+    run's recovered_sessions/SESSION.toml is that session's world, no other's); a recording of another session
+    named by --data.recordings is refused."""
+    session = None if args.data.calibration is None else RunDirectory.of(args.checkpoint).session_of(args.data.calibration)
+    if session is None or record is None or not record.sessions or session not in record.sessions:
+        return args.data
+    own = tuple(record.sessions[session])
+    others = [name for name in args.data.recordings if name not in own]
+    if others:
+        raise SystemExit(
+            f"jaxpose.reconstruct: error: --data.calibration {args.data.calibration} is the rig of session {session}"
+            f" (recordings {', '.join(own)}), not of {', '.join(others)}: name that session's rig for them"
+        )
+    if not args.data.recordings:
+        print(f"--data.calibration {args.data.calibration}: the rig of session {session}: its recordings only ({', '.join(own)})", file=sys.stderr)
+    return dataclasses.replace(args.data, recordings=args.data.recordings or own)
 
 
 def _inputs(args: ReconstructArgs) -> list[pathlib.Path]:
@@ -378,7 +405,7 @@ def _number(value: float | None, digits: int) -> str:
 
 def main(argv: Sequence[str] | None = None) -> dict:
     """Entry point; data, checkpoint and output errors end the process with a one-line message."""
-    args = tyro.cli(ReconstructArgs, args=argv, description=__doc__, prog="python -m jaxpose.reconstruct")
+    args = parse(argv)
     show_logs()
     enable_compilation_cache()  # the lifter's programs from disk on the next run
     try:

@@ -311,10 +311,12 @@ def test_reconstruct_never_writes_into_its_inputs(small_project, tmp_path, insid
 
 def test_the_run_record_carries_the_project_settings_to_the_commands_that_use_the_run(tmp_path, capsys):
     """Issue 42 case 8 / issue 41's run record: a run trained with --data.sync auto, offsets, a calibration in
-    metres and a score threshold of 0.2 is read back so by reconstruct (flags left at their defaults), and
-    predict takes its threshold; a flag given that differs is said in one line and used."""
+    metres and a score threshold of 0.2 is read back so by reconstruct (its --data defaults), and export takes
+    its threshold; a flag given always wins (issue 52: also at the command's own default), and where it differs
+    from the run's it is said in one line."""
+    from jaxpose import reconstruct
     from jaxpose.serving.inference import score_threshold
-    from jaxpose.rig.config import recorded_settings, with_recorded_settings
+    from jaxpose.rig.config import recorded_settings
     from jaxpose.training.run_directory import RunRecord, prepare_run_dir, read_record, write_record
 
     trained = RigProjectConfig(
@@ -325,13 +327,16 @@ def test_the_run_record_carries_the_project_settings_to_the_commands_that_use_th
     prepare_run_dir(_experiment(run_dir, overwrite=False))
     write_record(run_dir, RunRecord(min_confidence=0.2, layout="coco17", project=recorded_settings(trained, "coco17")))
     record = read_record(run_dir / "checkpoints")  # the checkpoints folder names the same run
-    applied, notes = with_recorded_settings(RigProjectConfig(), record.project, "run.json")
-    assert notes == []
     expected = dataclasses.replace(trained, skeleton="coco17", validation_fraction=0.2, train_stride=1)  # the split is not carried
-    assert applied == expected
-    overridden, notes = with_recorded_settings(RigProjectConfig(sync="given", min_confidence=0.3), record.project, "run.json")
-    assert overridden.min_confidence == 0.3 and overridden.sync == "auto"  # sync "given" is the default: the run's wins
-    assert notes == ["--data.min-confidence 0.3 differs from the run's 0.2 (run.json): using 0.3"]
+    assert record.project == expected.resolved()
+    argv = ["--checkpoint", str(run_dir), "--output", str(tmp_path / "motion"), "--fps", "50"]
+    assert reconstruct.parse(argv).data == expected.resolved()
+    assert "trained with" not in capsys.readouterr().err
+    overridden = reconstruct.parse([*argv, "--data.sync", "given", "--data.min-confidence", "0.3"]).data
+    assert overridden.min_confidence == 0.3 and overridden.sync == "given"  # given at the default: still given
+    assert capsys.readouterr().err.splitlines() == [
+        "--data.min-confidence 0.3 given; the run was trained with 0.2", "--data.sync given given; the run was trained with auto"
+    ]
     trained_lifter = types.SimpleNamespace(record=record, source=run_dir / "checkpoints")  # what score_threshold reads of a Lifter3D
     assert score_threshold(trained_lifter, None) == 0.2
     assert score_threshold(types.SimpleNamespace(record=None, source=tmp_path / "checkpoints"), None) == 0.05  # a run from before the record

@@ -39,6 +39,7 @@ from jaxpose.calibration.initial import CalibrationError, initial_rig
 from jaxpose.calibration.inputs import RigDetections, from_dataset, read_detections_npz
 from jaxpose.calibration.lens import INTRINSICS, LensConfig, LensEstimate, LensSetup, lens_setup
 from jaxpose.calibration.scale import DEFAULT_LIMB_LENGTHS_MM, MetricScale, metric_scale
+from jaxpose.calibration.world import WorldFrame
 from jaxpose.camera import Cameras, project_with_matrices, undistort_points
 from jaxpose.triangulation import triangulate
 
@@ -116,6 +117,10 @@ class Calibration:
     """The adjustment's robust residual variance factor (near 1 when the per-joint noise levels explain the residuals)."""
     frames_used: int
     seconds: float
+    world: WorldFrame | None = None
+    """The world the cameras are in: None = view 0's camera frame (`WORLD_FRAME`, as `calibrate` leaves
+    them); else the upright metric world this similarity moved them into (`jaxpose.calibration.world.to_world`),
+    so that whatever writes the rig states the world it is in."""
 
 
 def _select_frames(valid: np.ndarray, config: CalibrationConfig) -> np.ndarray:

@@ -29,19 +29,22 @@ scaled by a generic limb prior.  Gravity, the floor and the subject's size are i
   position over those frames; millimetres.  `WORLD_FRAME` says it in one line, for files.
 
 `world_frame` returns the similarity X_world = scale R X_rig + t (`WorldFrame`); `points_to_world`
-and `cameras_to_world` apply it.  numpy, float64; pure functions of their inputs.
+and `cameras_to_world` apply it, `to_world` to a recovered rig, which then names its world.  numpy, float64; pure functions of their inputs.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
 from jaxpose.calibration.scale import body_part, metric_scale
 from jaxpose.camera import Cameras
 from jaxpose.skeleton import Skeleton
+
+if TYPE_CHECKING:
+    from jaxpose.calibration import Calibration
 
 WORLD_FRAME = (
     "upright world from the person: origin on the floor below the subject's mean hip position over the first"
@@ -97,6 +100,14 @@ def cameras_to_world(frame: WorldFrame, cameras: Cameras) -> Cameras:
     R = np.asarray(cameras.R, np.float64) @ frame.R.T
     t = frame.scale * np.asarray(cameras.t, np.float64) - np.einsum("...ij,j->...i", R, frame.t)
     return cameras.replace(K=np.asarray(cameras.K, np.float64), R=R, t=t)
+
+
+def to_world(frame: WorldFrame, calibration: "Calibration") -> "Calibration":
+    """A recovered rig (`jaxpose.calibration.Calibration`, in view 0's camera frame) moved into the upright
+    world `frame`, which it then names (`Calibration.world`)."""
+    if calibration.world is not None:
+        raise ValueError("the rig is already in the upright world: moving it again would move it twice")
+    return dataclasses.replace(calibration, cameras=cameras_to_world(frame, calibration.cameras), world=frame)
 
 
 def world_frame(

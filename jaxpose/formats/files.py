@@ -11,6 +11,7 @@ import contextlib
 import dataclasses
 import json
 import pickle
+import types
 import typing
 import zipfile
 import zlib
@@ -167,6 +168,11 @@ def from_typed_json(kind: Any, value: Any) -> Any:
             raise ValueError(f"{kind.__name__}: expected an object")
         hints = typing.get_type_hints(kind)
         return kind(**{field.name: from_typed_json(hints[field.name], value[field.name]) for field in dataclasses.fields(kind) if field.name in value})
+    if kind is Path and isinstance(value, str):
+        return Path(value)
+    if typing.get_origin(kind) in (typing.Union, types.UnionType):  # X | None: None, or the one other type
+        options = [option for option in typing.get_args(kind) if option is not type(None)]
+        return None if value is None else from_typed_json(options[0], value) if len(options) == 1 else value
     if typing.get_origin(kind) is tuple and isinstance(value, list):
         items = typing.get_args(kind)
         items = items[:1] * len(value) if len(items) == 2 and items[1] is Ellipsis else items or (Any,) * len(value)

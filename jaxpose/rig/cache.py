@@ -60,7 +60,7 @@ from jaxpose.rig.recovered import RecoveredSession
 
 log = logging.getLogger(__name__)
 
-VERSION = 5  # bump when the prepared arrays change meaning (3: every instant, the split applied after reading; 4: warnings; 5: one recovered rig per session)
+VERSION = 6  # bump when the prepared arrays change meaning (3: every instant, the split applied after reading; 4: warnings; 5: one recovered rig per session; 6: each recovered rig names its world)
 PREFIX = "prepared-"
 PART = "instants"  # the prepared arrays' file prefix
 SELECTION = "rows-"  # a split's rows, written once inside the prepared folder

@@ -4,7 +4,8 @@
 The fields fall in three kinds: where the project and its cache are (`root`, `cache_dir`); the split into
 training and validation parts (`SPLIT_FIELDS`: row selections made after loading, `jaxpose.rig.split`);
 and everything else, which changes the prepared arrays (the cache's key: `jaxpose.rig.project`) and is
-what a run records (`recorded_settings`; its commands read it back with `with_recorded_settings`).
+what a run records (`recorded_settings`: the commands that use the run take it as their defaults, and
+say where a flag given differs, `differences`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ of the cache's key (a reconstruction takes every instant of every recording)."""
 NOT_PREPARED = ("root", "cache_dir", *SPLIT_FIELDS)
 """The fields that change no prepared array: where the project and its cache are, and the split."""
 _NOT_RECORDED = ("recordings", *SPLIT_FIELDS)  # which recordings a command reads is its own choice
+_PATHS = ("root", "calibration", "cache_dir")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,36 +97,32 @@ class RigProjectConfig:
         if self.train_stride < 1 or self.validation_stride < 1 or self.max_sync_offset < 0:
             raise ValueError("--data.train-stride and --data.validation-stride must be >= 1, --data.max-sync-offset >= 0")
 
+    def resolved(self) -> RigProjectConfig:
+        """The same settings with the paths absolute and resolved, as the commands take them: the project's
+        cache key and a run's record then name one project however the command line named it."""
+        return dataclasses.replace(self, **{name: getattr(self, name).resolve() for name in _PATHS if getattr(self, name) is not None})
+
     @property
     def cache(self) -> pathlib.Path:
         """The project's cache: --data.cache-dir, else PROJECT/.jaxpose_cache."""
         return self.cache_dir if self.cache_dir is not None else self.root / CACHE_DIR
 
 
-def recorded_settings(config: RigProjectConfig, layout: str) -> dict:
-    """The settings a run records of its project (`RunRecord.project`): every field but the recordings and
-    the split, JSON-ready, with the layout the loader resolved."""
-    settings = {field.name: getattr(config, field.name) for field in dataclasses.fields(config) if field.name not in _NOT_RECORDED}
-    settings["skeleton"] = layout
-    return {name: str(value) if isinstance(value, pathlib.Path) else list(value) if isinstance(value, tuple) else value for name, value in settings.items()}
+def recorded_settings(config: RigProjectConfig, layout: str) -> RigProjectConfig:
+    """The settings a run records of its project (`RunRecord.project`), and the defaults of the commands that
+    use the run: every field but the recordings and the split (left at their defaults: a command's own choice),
+    with the layout the loader resolved and the paths absolute and resolved (a run used from another working
+    directory, or naming the project by another path, reads the same project)."""
+    defaults = RigProjectConfig()
+    unrecorded = {name: getattr(defaults, name) for name in _NOT_RECORDED}
+    return dataclasses.replace(config.resolved(), skeleton=layout, **unrecorded)
 
 
-def with_recorded_settings(config: RigProjectConfig, recorded: dict, source: str) -> tuple[RigProjectConfig, list[str]]:
-    """`config` with each field left at its default taken from the run's recorded settings; and one line for
-    each field given that differs from the record (the given value is used)."""
-    defaults, changes, notes = RigProjectConfig(), {}, []
-    for field in dataclasses.fields(config):
-        if field.name not in recorded or field.name in _NOT_RECORDED:
-            continue
-        value = recorded[field.name]
-        if isinstance(value, list):
-            value = tuple(tuple(v) if isinstance(v, list) else v for v in value)
-        if field.name in ("root", "calibration", "cache_dir") and value is not None:
-            value = pathlib.Path(value)
-        given = getattr(config, field.name)
-        if given == getattr(defaults, field.name):
-            changes[field.name] = value
-        elif given != value:
-            flag = "--data." + field.name.replace("_", "-")
-            notes.append(f"{flag} {given} differs from the run's {value} ({source}): using {given}")
-    return dataclasses.replace(config, **changes), notes
+def differences(given: RigProjectConfig, trained: RigProjectConfig) -> list[str]:
+    """One line per setting the command line gives that differs from the run's (the given value is used)."""
+    return [
+        f"--data.{field.name.replace('_', '-')} {getattr(given, field.name)} given; the run was trained with {getattr(trained, field.name)}"
+        for field in dataclasses.fields(given)
+        if field.name not in _NOT_RECORDED and getattr(given, field.name) != getattr(trained, field.name)
+    ]
+

@@ -127,7 +127,7 @@ def _upright(calibration, detections, skeleton: Skeleton, height_mm: float | Non
     (`jaxpose.calibration.world`: +Y up, the floor at Y = 0, mm; scaled by `height_mm` where given), so that
     the project's motion stands on the floor; where the person does not show it (a `ValueError` of
     `world_frame`), view 0's frame is kept and the log says why."""
-    from jaxpose.calibration.world import WORLD_FRAME, cameras_to_world, world_frame
+    from jaxpose.calibration.world import WORLD_FRAME, to_world, world_frame
 
     names = calibration.camera_names
     rig = RigCalibration(camera_names=names, cameras=calibration.cameras, image_size=detections.image_size, source="recovered", unit="mm")
@@ -143,7 +143,7 @@ def _upright(calibration, detections, skeleton: Skeleton, height_mm: float | Non
     log.info(
         "recovered rig moved into the %s (up from the %s, scale from the %s, x%.3f)", WORLD_FRAME, world.up_source, world.scale_source, world.scale
     )
-    return dataclasses.replace(calibration, cameras=cameras_to_world(world, calibration.cameras))
+    return to_world(world, calibration)
 
 
 def ground_truth_into_recovered_world(target: np.ndarray, keypoints, confidence, rig: RigCalibration) -> np.ndarray:

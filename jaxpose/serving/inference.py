@@ -24,14 +24,15 @@ import functools
 import pathlib
 import sys
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, TypeVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import tyro
 
 from jaxpose.training import checkpoint
-from jaxpose.training.run_directory import RunDirectory, RunRecord, read_record
+from jaxpose.training.run_directory import RunDirectory, RunRecord, read_record, record_named_in
 from jaxpose.camera import Cameras, masked_median, normalize_keypoints, undistort_points
 from jaxpose.model import ModelConfig
 from jaxpose.chunks import map_in_chunks
@@ -55,8 +56,30 @@ the image is missing.  Detectors do place truncated joints a little past the bor
 pixels away is a detector failure (docs/robust_input.md)."""
 
 
+T = TypeVar("T")
+
+
+def parse_with_run(args_type: type[T], argv: Sequence[str] | None, description: str, prog: str) -> T:
+    """The command line of a command that lifts with a run (`jaxpose.predict`, `jaxpose.export`), its
+    --min-confidence defaulting to the threshold the run named by --checkpoint was trained with (its run.json;
+    `DEFAULT_MIN_CONFIDENCE` for a run without one), so that `--help` shows the value used and a value given
+    always wins; one given that differs from the run's is said in one line."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        run, record = record_named_in(argv)
+    except ValueError as error:
+        raise SystemExit(f"{prog}: error: {error}") from None
+    trained = None if record is None else record.min_confidence
+    required = {field.name: tyro.MISSING for field in dataclasses.fields(args_type) if field.default is dataclasses.MISSING}
+    default = args_type(**required, min_confidence=DEFAULT_MIN_CONFIDENCE if trained is None else trained)
+    args = tyro.cli(args_type, default=default, args=argv, description=description, prog=prog)
+    if trained is not None and args.min_confidence != trained:
+        print(f"--min-confidence {args.min_confidence:g} given; the run was trained with {trained:g} ({RunDirectory.of(run).record})", file=sys.stderr)
+    return args
+
+
 def score_threshold(lifter: "Lifter3D", given: float | None) -> float:
-    """--min-confidence of `jaxpose.predict` and `jaxpose.export`: the value given, else the threshold the
+    """--min-confidence of `jaxpose.export` (its run is a positional argument, not read before parsing): the value given, else the threshold the
     lifter's run recorded it was trained with (`Lifter3D.record`), else `DEFAULT_MIN_CONFIDENCE`; a value
     given that differs from the run's is said in one line."""
     trained = None if lifter.record is None else lifter.record.min_confidence

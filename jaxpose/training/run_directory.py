@@ -17,12 +17,13 @@ import logging
 import pathlib
 import shutil
 import time
-from collections.abc import Iterator, Mapping
-from typing import Any
+from collections.abc import Iterator, Mapping, Sequence
 
 import jax
 
+from jaxpose.formats.files import from_typed_json, typed_json
 from jaxpose.formats.outputs import atomic_output, exclusive_folder
+from jaxpose.rig.config import RigProjectConfig
 from jaxpose.training.experiment import ExperimentConfig, TrainConfig, dumps, to_json_dict
 
 log = logging.getLogger("jaxpose")
@@ -95,6 +96,12 @@ class RunDirectory:
         """The same session's rig as a Pose2Sim/Anipose calibration TOML (metres): recovered_sessions/SESSION.toml."""
         return self.path / RECOVERED_SESSIONS_DIR / f"{session}.toml"
 
+    def session_of(self, calibration: pathlib.Path) -> str | None:
+        """The session whose recovered rig `calibration` is (recovered_sessions/SESSION.json or .toml), or None."""
+        folder = (self.path / RECOVERED_SESSIONS_DIR).resolve()
+        calibration = calibration.resolve()
+        return calibration.stem if calibration.parent == folder and calibration.suffix in (".json", ".toml") else None
+
     @property
     def plots(self) -> pathlib.Path:
         return self.path / "plots"
@@ -113,18 +120,21 @@ class RunRecord:
     """Keypoints scored below this were missing in training (None: the data set's 2D taken as given)."""
     layout: str | None = None
     """The detector keypoint layout trained on (a `jaxpose.layouts` name; None: the data set's own joints)."""
-    project: Mapping[str, Any] | None = None
-    """A rig project's settings (`RigProjectConfig` as JSON, its split left out: sync, frame offsets,
-    calibration and its unit, score threshold, ...)."""
+    project: RigProjectConfig | None = None
+    """A rig project's settings (`jaxpose.rig.config.recorded_settings`: sync, frame offsets, calibration and
+    its unit, score threshold, ..., the paths resolved; its recordings and split left at their defaults)."""
+    sessions: Mapping[str, Sequence[str]] | None = None
+    """A rig project of several sessions without a calibration: each session's recordings, by session name
+    (its rig is `RunDirectory.recovered_session_toml`); None otherwise."""
 
 
 def write_record(run_dir: pathlib.Path, record: RunRecord) -> None:
     """Add `record` to the run's run.json (atomically: a failed write keeps the marker as it was)."""
     path = RunDirectory(run_dir).record
     content = json.loads(path.read_text()) if path.exists() else {"jaxpose_run": 1}
-    content["trained_on"] = dataclasses.asdict(record)
+    content["trained_on"] = typed_json(record)
     with atomic_output(path) as temporary:
-        temporary.write_text(json.dumps(content, indent=1, default=str) + "\n")
+        temporary.write_text(json.dumps(content, indent=1, default=str) + "\n")  # default: the paths as text
 
 
 def read_record(run_dir: pathlib.Path) -> RunRecord | None:
@@ -135,9 +145,24 @@ def read_record(run_dir: pathlib.Path) -> RunRecord | None:
         return None
     try:
         fields = json.loads(path.read_text()).get("trained_on")
-        return None if fields is None else RunRecord(**fields)
+        return None if fields is None else from_typed_json(RunRecord, fields)  # a record of before the codec reads so too
     except (ValueError, TypeError, AttributeError) as error:
         raise ValueError(f"{path}: not a run record jaxpose wrote ({error})") from None
+
+
+def record_named_in(argv: Sequence[str]) -> tuple[pathlib.Path | None, RunRecord | None]:
+    """(the run `--checkpoint RUN` names in a command line, its record): read before the command line is
+    parsed, because the run's settings are its defaults (`--help` shows them, every flag given wins).  (None,
+    None) without the flag; (RUN, None) for a run from before records.  Raises ValueError for an unreadable record."""
+    for index, argument in enumerate(argv):
+        if argument.startswith("--checkpoint="):
+            run = pathlib.Path(argument.split("=", 1)[1])
+        elif argument == "--checkpoint" and index + 1 < len(argv):
+            run = pathlib.Path(argv[index + 1])
+        else:
+            continue
+        return run, read_record(run)
+    return None, None
 
 
 # What a run writes into its folder, and what --run.overwrite may remove.

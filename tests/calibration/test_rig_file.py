@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from jaxpose.calibration import CalibrationConfig, calibrate, from_dataset
 from jaxpose.calibration.rig_file import SOURCE, write_recovered_rig
-from jaxpose.calibration.world import WORLD_FRAME, points_to_world, world_frame
+from jaxpose.calibration.world import WORLD_FRAME, points_to_world, to_world, world_frame
 from jaxpose.camera import Cameras, project
 from jaxpose.formats.anipose_toml import write_anipose_toml
 from jaxpose.formats.rig_cameras import RigCalibration
@@ -101,7 +101,7 @@ def test_the_rig_in_the_upright_world_projects_as_before(recovered, tmp_path):
     rig = dataset.rigs[0]
     points = dataset.samples.target3d[:300].astype(np.float64) @ np.asarray(rig.R[0], np.float64).T + np.asarray(rig.t[0], np.float64)
     frame = world_frame(points, np.ones(points.shape[:2], bool), dataset.skeleton, height_mm=1750.0)
-    path = write_recovered_rig(tmp_path / "upright.toml", calibration, frame, unit="mm")
+    path = write_recovered_rig(tmp_path / "upright.toml", to_world(frame, calibration), unit="mm")
     document = tomllib.loads(path.read_text(encoding="utf-8"))
     assert document["metadata"]["world"] == WORLD_FRAME and document["metadata"]["unit"] == "mm"
     assert document["metadata"]["scale"] == "the subject's height" and document["metadata"]["ankle_height_mm"] > 0
