@@ -30,18 +30,16 @@ import dataclasses
 import time
 import warnings
 
-import jax.numpy as jnp
 import numpy as np
 
 from jaxpose.calibration.bundle import bundle_adjust
 from jaxpose.calibration.compare import RigComparison, compare_rigs
-from jaxpose.calibration.initial import CalibrationError, initial_rig
+from jaxpose.calibration.initial import CalibrationError, initial_rig, triangulate_and_project
 from jaxpose.calibration.inputs import RigDetections, from_dataset, read_detections_npz
 from jaxpose.calibration.lens import INTRINSICS, LensConfig, LensEstimate, LensSetup, lens_setup
 from jaxpose.calibration.scale import DEFAULT_LIMB_LENGTHS_MM, MetricScale, metric_scale
 from jaxpose.calibration.world import WorldFrame
-from jaxpose.camera import Cameras, project_with_matrices, undistort_points
-from jaxpose.triangulation import triangulate
+from jaxpose.camera import Cameras, undistort_compiled
 
 __all__ = [
     "INTRINSICS", "Calibration", "CalibrationConfig", "CalibrationError", "LensConfig", "LensEstimate", "RigComparison",
@@ -158,8 +156,8 @@ def _initial_rig(pixels: np.ndarray, valid: np.ndarray, K: np.ndarray, detection
         config.min_frames, config.seed,
     )  # fmt: skip
     P = np.concatenate([R, t[..., None]], axis=-1)
-    points = triangulate(jnp.asarray(P), jnp.asarray(normalized), jnp.asarray(valid, jnp.float32), method="normal")
-    projected = np.asarray(project_with_matrices(jnp.asarray(P), points), np.float64)
+    _, projected = triangulate_and_project(P, normalized, valid.astype(np.float32), method="normal")
+    projected = np.asarray(projected, np.float64)
     depth = np.where(projected[..., 2:] > 1e-9, projected[..., 2:], np.nan)
     error = np.linalg.norm(projected[..., :2] / depth - normalized, axis=-1) * focal
     return R, t, float(np.nanmedian(np.where(valid, error, np.nan)))
@@ -217,10 +215,8 @@ def calibrate(detections: RigDetections, config: CalibrationConfig = Calibration
     lens = lens_setup(detections.K, detections.dist, detections.distortion_model, detections.image_size,
                       estimate_focal, config.lens, FOCAL_GUESS_PER_IMAGE_SIDE)  # fmt: skip
     # The first rig sees the detections through the starting lenses (the given ones, or no distortion).
-    start_lens = Cameras(K=jnp.asarray(lens.K), R=jnp.tile(jnp.eye(3), (len(lens.K), 1, 1)), t=jnp.zeros((len(lens.K), 3)),
-                    dist=jnp.asarray(lens.dist), distortion_model=lens.model)  # fmt: skip
     raw = np.where(valid[..., None], detections.keypoints[frames], 0.0)
-    pixels = np.asarray(undistort_points(start_lens[None], jnp.asarray(raw, jnp.float32)), np.float64)
+    pixels = np.asarray(undistort_compiled(lens.K, lens.dist, raw.astype(np.float32), model=lens.model), np.float64)
     _check_motion(pixels, valid, detections, config)
     R0, t0, lens = _initial_rig_and_focal(pixels, valid, lens, detections, config)
     adjusted = bundle_adjust(R0, t0, lens, raw.astype(np.float64), valid, rounds=config.robust_rounds)

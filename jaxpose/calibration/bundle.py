@@ -205,6 +205,14 @@ def _posterior(params, problem: _Problem, weights, joint_sigma, model: str):
     return covariance, variance, points3d, error
 
 
+@jax.jit
+def _rig(params, problem: _Problem):
+    """(R, t, theta, K, dist) of the adjusted parameters."""
+    R, t = _extrinsics(params, problem)
+    theta = _theta(params, problem)
+    return R, t, theta, *lens_from_theta(theta, problem.K0, problem.dist0)
+
+
 def _lens_sigma(covariance: np.ndarray, params: dict, free: np.ndarray) -> np.ndarray:
     """f64[C, 7] posterior 1-sigma of the lens offsets theta (0 where not free)."""
     sigma = np.zeros(free.shape)
@@ -235,18 +243,19 @@ def bundle_adjust(
     C = R.shape[0]
     # float64: the loss sums ~1e5 squared pixel residuals, whose float32 sum cannot resolve the
     # sub-pixel improvements that separate a 0.1 degree rotation error from a 1 degree one.
+    # Everything below is numpy between the compiled functions: run op by op, JAX would compile a
+    # program for every operation.
     with jax.enable_x64(True):
-        params = {"rotation": jnp.zeros((C - 1, 3), jnp.float64), "translation": jnp.asarray(t[1:], jnp.float64)}
+        params = {"rotation": np.zeros((C - 1, 3)), "translation": np.asarray(t[1:], np.float64)}
         if lens.any_free:
-            params["lens"] = jnp.zeros(int(lens.free.sum()), jnp.float64)  # the start
+            params["lens"] = np.zeros(int(lens.free.sum()))  # the start
         centre = np.broadcast_to(lens.K[None, :, None, :2, 2], pixels.shape)
         problem = _Problem(
-            R0=jnp.asarray(R, jnp.float64), t0=jnp.asarray(t, jnp.float64), K0=jnp.asarray(lens.K), dist0=jnp.asarray(lens.dist),
-            free_index=jnp.asarray(np.flatnonzero(lens.free)), active=jnp.ones(int(lens.free.sum()), bool),
-            held=jnp.zeros((C, 7), jnp.float64), prior_mean=jnp.asarray(lens.prior_mean),
-            prior_sigma=jnp.asarray(lens.prior_sigma),
+            R0=np.asarray(R, np.float64), t0=np.asarray(t, np.float64), K0=lens.K, dist0=lens.dist,
+            free_index=np.flatnonzero(lens.free), active=np.ones(int(lens.free.sum()), bool), held=np.zeros((C, 7)),
+            prior_mean=lens.prior_mean, prior_sigma=lens.prior_sigma,
             # An unobserved detection (weight 0) sits at the principal point, where undistortion is trivial.
-            pixels=jnp.asarray(np.where(observed[..., None], pixels, centre), jnp.float64), observed=jnp.asarray(observed),
+            pixels=np.where(observed[..., None], pixels, centre).astype(np.float64), observed=observed,
         )  # fmt: skip
         for _ in range(rounds):
             params, weights, joint_sigma = _reweight_and_solve(params, problem, max_steps, lens.model)
@@ -255,20 +264,15 @@ def bundle_adjust(
         at_prior = lens.free & (sigma >= PRIOR_DOMINATED * lens.prior_sigma)
         if at_prior.any():
             # Same shapes, so no new compilation: the parameters put back are masked, not removed.
-            problem = dataclasses.replace(
-                problem, active=jnp.asarray(~at_prior[lens.free]), held=jnp.asarray(np.where(at_prior, lens.prior_mean, 0.0))
-            )
+            problem = dataclasses.replace(problem, active=~at_prior[lens.free], held=np.where(at_prior, lens.prior_mean, 0.0))
             params, weights, joint_sigma = _reweight_and_solve(params, problem, max_steps, lens.model)
             # The 1-sigmas of the others keep the put-back parameters' prior uncertainty (k1's must
             # not pretend that k2 is known to be 0): the posterior with them free at their prior mean.
-            free_prior = jnp.asarray(lens.prior_mean[lens.free])
-            marginal = dict(params, lens=jnp.where(problem.active, params["lens"], free_prior))
-            everything = dataclasses.replace(problem, active=jnp.ones_like(problem.active))
+            marginal = dict(params, lens=np.where(problem.active, np.asarray(params["lens"]), lens.prior_mean[lens.free]))
+            everything = dataclasses.replace(problem, active=np.ones_like(problem.active))
             covariance, variance, points, error = _posterior(marginal, everything, weights, joint_sigma, lens.model)
             sigma = _lens_sigma(np.asarray(covariance), params, lens.free)
-        R_out, t_out = _extrinsics(params, problem)
-        theta = np.asarray(_theta(params, problem))
-        K_out, dist_out = lens_from_theta(jnp.asarray(theta), problem.K0, problem.dist0)
+        R_out, t_out, theta, K_out, dist_out = (np.asarray(a) for a in _rig(params, problem))
     if not all(np.all(np.isfinite(np.asarray(a))) for a in (R_out, t_out, K_out, dist_out)):
         raise CalibrationError("the bundle adjustment diverged (non-finite cameras); check the detections' views and names")
     state = np.where(lens.free, np.where(at_prior, AT_PRIOR, ESTIMATED), HELD)

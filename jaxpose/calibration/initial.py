@@ -12,8 +12,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import functools
+
 import cv2
-import jax.numpy as jnp
+import jax
 import numpy as np
 
 from jaxpose.camera import project_with_matrices
@@ -22,6 +24,15 @@ from jaxpose.triangulation import triangulate
 # Correspondences given to RANSAC at most (a random subset): enough for a stable estimate, bounded time.
 MAX_RANSAC_POINTS = 20_000
 RANSAC_CONFIDENCE = 0.999
+
+
+@functools.partial(jax.jit, static_argnames="method")
+def triangulate_and_project(P, points2d, weights, method: str = "svd"):
+    """Joints [F, J, 3] triangulated through P [C, 3, 4] from points2d [F, C, J, 2] under weights
+    [F, C, J], and their homogeneous projections [F, C, J, 3] (the depth last).  Compiled once per
+    shape: views left out have weight 0, so the views registered so far do not change the shape."""
+    points = triangulate(P, points2d, weights, method=method)
+    return points, project_with_matrices(P, points)
 
 
 class CalibrationError(ValueError):
@@ -113,13 +124,14 @@ def _triangulate_registered(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Joints triangulated from the registered views, and bool[F, J]: seen by >= 2 of them and
     re-projecting within 3 thresholds in every one (so a left/right swap does not become a point)."""
-    views = np.array(registered)
-    P = np.concatenate([R[views], t[views, :, None]], axis=-1)  # [V, 3, 4], normalized cameras
-    seen = valid[:, views]  # [F, V, J]
-    points = np.asarray(triangulate(jnp.asarray(P), jnp.asarray(normalized[:, views]), jnp.asarray(seen, jnp.float32)))
-    projected = np.asarray(project_with_matrices(jnp.asarray(P), jnp.asarray(points)))  # [F, V, J, 3]
-    depth = projected[..., 2]
-    error = np.linalg.norm(projected[..., :2] / np.where(depth > 0, depth, np.nan)[..., None] - normalized[:, views], axis=-1)
+    views = np.zeros(R.shape[0], bool)
+    views[registered] = True
+    # [C, 3, 4] normalized cameras; the views not yet placed (NaN) are zero and weigh nothing.
+    P = np.where(views[:, None, None], np.concatenate([R, t[:, :, None]], axis=-1), 0.0)
+    seen = valid & views[:, None]  # [F, C, J]
+    points, projected = (np.asarray(a) for a in triangulate_and_project(P, normalized, seen.astype(np.float32)))
+    depth = projected[..., 2]  # [F, C, J]
+    error = np.linalg.norm(projected[..., :2] / np.where(depth > 0, depth, np.nan)[..., None] - normalized, axis=-1)
     consistent = np.where(seen, (depth > 0) & (error < 3 * threshold), True).all(axis=1)
     return points, consistent & (seen.sum(1) >= 2)
 

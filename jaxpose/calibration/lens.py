@@ -135,9 +135,13 @@ def lens_from_theta(theta: jax.Array, K0: jax.Array, dist0: jax.Array) -> tuple[
     return K, dist
 
 
+# Compiled once per shape: run op by op, `lens_from_theta` compiles a program for every operation.
+_lens_from_theta_compiled = jax.jit(lens_from_theta)
+
+
 def theta_in_units(theta: np.ndarray, K0: np.ndarray, dist0: np.ndarray) -> np.ndarray:
     """f64[C, 7] the lens in `INTRINSICS` units (focal and principal point px, distortion as is)."""
-    K, dist = (np.asarray(a) for a in lens_from_theta(jnp.asarray(theta), jnp.asarray(K0), jnp.asarray(dist0)))
+    K, dist = (np.asarray(a) for a in _lens_from_theta_compiled(theta, K0, dist0))
     return np.concatenate([K[:, :1, 0], K[:, :2, 2], dist[:, :4]], axis=1)
 
 

@@ -28,6 +28,7 @@ from jaxpose.formats.camera_file import load_cameras, save_cameras
 from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.synthetic import SyntheticConfig, generate
 from jaxpose.skeleton import SKELETONS, H36M_17
+from compilations import compilations
 from help_text import assert_every_flag_documented
 import paths
 
@@ -104,6 +105,21 @@ def test_unknown_focal_lengths_are_estimated(synthetic_subject):
     np.testing.assert_allclose(calibration.cameras.K[:, 0, 0], np.asarray(rig.K)[:, 0, 0], rtol=0.02)
     comparison = compare_rigs(calibration.cameras.R, calibration.cameras.t, np.asarray(rig.R), np.asarray(rig.t))
     assert comparison.rotation_deg.max() < 1.5
+
+
+def test_a_calibration_compiles_at_most_30_programs(synthetic_subject):
+    """Fixed shapes in calibration as on the loading path: a call compiles a few whole programs (the
+    undistortion, the triangulation, the adjustment's round and posterior), not one per operation run
+    eagerly (~230 before), nor one per view registered; the same call again compiles nothing."""
+    detections = from_dataset(synthetic_subject, "S2", NAMES, np.full((4, 2), 1000)).without_intrinsics()
+    config = dataclasses.replace(FAST, max_frames=80, robust_rounds=1)  # a frame count no other test compiles for
+    with compilations() as first:
+        calibrate(detections, config)
+    with compilations() as again:
+        calibrate(detections, config)
+    print(f"compilations of a calibration {first}, of the same one again {again}")
+    assert first["compiled"] <= 30 and first["lowered"] <= 30, first
+    assert again["compiled"] == 0, again
 
 
 def test_two_views_with_occluded_joints(synthetic_subject):

@@ -2,8 +2,6 @@
 not grow with the recordings, the prepared project cached and memory-mapped, a calibration's unit
 checked against the people in view, and one-line refusals of folder names and links that break loading."""
 
-import collections
-import contextlib
 import dataclasses
 import os
 import pathlib
@@ -14,6 +12,7 @@ import jax
 import numpy as np
 import pytest
 
+from compilations import compilations
 from jaxpose.training import pseudo_labelling
 from jaxpose.training.config import PseudoLabelConfig
 from jaxpose.formats.errors import DataFormatError
@@ -39,29 +38,14 @@ def small(tmp_path_factory):
     return _project(tmp_path_factory.mktemp("two") / "project", 2, (60, 45))
 
 
-# Programs lowered and compiled: lowering precedes every compilation, also one that JAX's persistent
-# cache then serves from disk.
-_COUNTED = {"/jax/core/compile/jaxpr_to_mlir_module_duration": "lowered", "/jax/core/compile/backend_compile_duration": "compiled"}
-_counts = collections.Counter()
-jax.monitoring.register_event_duration_secs_listener(lambda event, _, **__: _counts.update([_COUNTED[event]]) if event in _COUNTED else None)
-
-
-@contextlib.contextmanager
-def _compilations():
-    """{"lowered": n, "compiled": n} while the block runs."""
-    start, found = dict(_counts), {}
-    yield found
-    found.update({name: _counts[name] - start.get(name, 0) for name in _COUNTED.values()})
-
-
 def test_loading_compiles_no_more_for_more_and_longer_recordings(small, tmp_path):
     """After a project of 2 recordings, one of 8 recordings of other lengths (and other counts of people
     per frame) compiles at most 10 programs anew: loading (frame offsets estimated) compiles a fixed set
     of programs, not one per recording and shape, so a fresh run of either compiles as much (within 10)."""
     many = _project(tmp_path / "eight", 8, (30, 35, 41, 46, 52, 57, 63, 68))
-    with _compilations() as two:
+    with compilations() as two:
         load_rig_project(RigProjectConfig(root=small, sync="auto", max_sync_offset=3), progress=False)
-    with _compilations() as eight:
+    with compilations() as eight:
         data = load_rig_project(RigProjectConfig(root=many, sync="auto", max_sync_offset=3), progress=False)
     assert len(data.recordings) == 8
     print(f"compilations of 2 recordings {two}, then of 8 recordings {eight}")
@@ -254,7 +238,7 @@ def test_a_one_step_run_compiles_as_much_for_eight_recordings_as_for_two(small, 
         recordings = sorted(p.name for p in root.iterdir() if p.is_dir() and not p.name.startswith("."))
         split = ["--data.validation-recordings", *recordings[:held]] if held_out == "recordings" else []
         jax.clear_caches()
-        with _compilations() as found:
+        with compilations() as found:
             rig.main([
                 "--data.root", str(root), "--run.run-dir", str(tmp_path / f"run_{name}"), "--train.max-steps", "1",
                 "--model.width", "64", "--train.batch-size", "16", "--run.no-progress", "--run.plot-samples", "0",
