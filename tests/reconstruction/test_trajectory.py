@@ -165,7 +165,7 @@ def test_the_banded_solve_is_the_dense_least_squares_minimum(seed):
     points = truth + rng.normal(0, 10, truth.shape)
     provenance = np.full((F, J), Provenance.TRIANGULATED, np.int8)
     points[5:7, 2], covariance[5:7, 2], provenance[5:7, 2] = np.nan, np.nan, Provenance.NONE
-    config = TrajectoryConfig(acceleration_mm_s2=20000.0, limb_sigma_mm=5.0, robust_sigmas=1e9, iterations=30)
+    config = TrajectoryConfig(acceleration_mm_s2=20000.0, acceleration_dof=float("inf"), limb_sigma_mm=5.0, robust_sigmas=1e9, iterations=30)
     track = solve_trajectory(points, covariance, provenance, bones, FPS, config)
     lengths = limb_lengths(points, provenance, bones)
     has = provenance != Provenance.NONE
