@@ -55,6 +55,12 @@ from jaxpose.rig.config import RigProjectConfig, with_recorded_settings
 from jaxpose.training.run_directory import RECORD_FILE, RunRecord, read_record
 from jaxpose.rig.recordings import find_project
 
+# The fastest rig worth reconstructing (high-speed sport cameras; a detector per frame beyond it is not how
+# such footage is read): a larger --fps is a typo or frames numbered in another unit, and its prior would
+# allow a body no acceleration over the whole recording (a line through a walk).
+MAX_FPS = 10000.0
+
+
 @dataclasses.dataclass(frozen=True)
 class ReconstructArgs:
     """The command's flags."""
@@ -100,6 +106,8 @@ def run(args: ReconstructArgs) -> dict:
     """The whole command; returns the report (as report.json holds it)."""
     if not 0 < args.fps < float("inf"):
         raise ValueError(f"--fps must be a positive finite number, got {args.fps}")
+    if args.fps > MAX_FPS:
+        raise ValueError(f"--fps {args.fps:g}: frames per second of the recordings, at most {MAX_FPS:g} (a typo, or frames numbered in another unit?)")
     if args.max_gap < 0:
         raise ValueError(f"--max-gap must be >= 0 frames, got {args.max_gap}")
     if args.c3d:
@@ -139,7 +147,7 @@ def run(args: ReconstructArgs) -> dict:
         written = motion_files.write_motion(args.output, motion, lifter.joint_names, args.fps, up_axis, args.c3d)
         files += [str(path) for path in written]
         quality = motion_summary(motion.points, lifter.skeleton.bones, lifter.joint_names, inputs.target3d)
-        rows.append(recording_summary(motion) | quality | {"files": [path.name for path in written]})
+        rows.append(recording_summary(motion, lifter.joint_names) | quality | {"files": [path.name for path in written]})
     left = sorted(str(path) for path in set(earlier) - {pathlib.Path(file) for file in files})
     if left:  # as jaxpose.predict does: an earlier run's segments that this run has not
         print(f"files of an earlier run not written now, left as they were: {', '.join(left)}", file=sys.stderr)
@@ -198,9 +206,17 @@ def check_outputs(args: ReconstructArgs, names: Sequence[str]) -> list[pathlib.P
     return earlier
 
 
-def recording_summary(motion: recording.RecordingMotion) -> dict:
-    """One recording's counts for the report."""
+def recording_summary(motion: recording.RecordingMotion, joint_names: Sequence[str]) -> dict:
+    """One recording's counts for the report; with the trajectory its motion prior (mm/s^2 per joint, null
+    where not solved) and its impacts (accelerations the Student-t prior weighted below 0.5)."""
     cells = np.bincount(motion.provenance.ravel(), minlength=len(Provenance))
+    smoothed = {}
+    if motion.acceleration_mm_s2 is not None:
+        smoothed = {
+            "motion_prior_mm_s2": {name: None if np.isnan(value) else round(float(value), 1)
+                                   for name, value in zip(joint_names, motion.acceleration_mm_s2)},
+            "impacts": int((motion.impact_weight < 0.5).sum()),
+        }  # fmt: skip
     return {
         "recording": motion.name,
         "frames": len(motion.frames),
@@ -210,7 +226,7 @@ def recording_summary(motion: recording.RecordingMotion) -> dict:
         "interpolated_frames": motion.interpolated_frames,
         "segments": len(motion.segments),
         "dropped_frames": motion.dropped_frames,
-    }
+    } | smoothed
 
 
 def report_markdown(report: dict) -> str:
@@ -242,10 +258,13 @@ def report_markdown(report: dict) -> str:
     lines += [
         "",
         f"The motion, {smoothing}: its mean acceleration (mm/frame^2), each limb's length spread over time (std, mm;"
-        " report.json has every limb's) and, with ground truth, the acceleration error (mm/frame^2).",
+        " report.json has every limb's) and, with ground truth, the acceleration error (mm/frame^2); with the"
+        " trajectory, the process noise of its motion prior over the joints (mm/s^2, median (range); report.json"
+        " has every joint's) and its impacts (accelerations the heavy-tailed prior let through: weight below 0.5).",
         "",
-        "| recording | mean acceleration | mean limb length std | largest limb length std | acceleration error |",
-        "|---|---|---|---|---|",
+        "| recording | mean acceleration | mean limb length std | largest limb length std | acceleration error"
+        " | process noise, median (range) | impacts |",
+        "|---|---|---|---|---|---|---|",
     ]
     for row in (row for row in report["recordings"] if "skipped" not in row):
         spreads = {name: value for name, value in row["limb_length_std_mm"].items() if value is not None}
@@ -253,9 +272,15 @@ def report_markdown(report: dict) -> str:
         cells = [
             _number(row["mean_acceleration_mm_per_frame2"], 2), _number(row["mean_limb_length_std_mm"], 1),
             f"{spreads[largest]:.1f} ({largest})" if spreads else "-", _number(row.get("acceleration_error_mm_per_frame2"), 2),
+            _noise(row.get("motion_prior_mm_s2")), str(row["impacts"]) if "impacts" in row else "-",
         ]  # fmt: skip
         lines.append(f"| {row['recording']} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def _noise(per_joint: dict | None) -> str:
+    values = [value for value in (per_joint or {}).values() if value is not None]
+    return f"{np.median(values):.0f} ({min(values):.0f}-{max(values):.0f})" if values else "-"
 
 
 def _number(value: float | None, digits: int) -> str:

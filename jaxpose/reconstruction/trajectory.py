@@ -70,9 +70,9 @@ CG_MAX_STEPS = 500
 NOISE_GRID_MM_S2 = np.geomspace(100.0, 1e6, 13)  # from a body at rest to the peaks of sprinting and punching
 POOL_ACCELERATIONS = 20.0  # a joint's estimate weighs as much as this many 3D accelerations of the body's mean
 # The per-frame process noise is held at least this fraction of the evidence's own noise per axis (the median
-# over the joint's cells): tighter, float64's Cholesky loses the evidence against the prior (at --fps 1e9 every
-# point came out 0), while the track is a constant-velocity line to within this fraction of the evidence's noise
-# over the ~1/sqrt(fraction) frames such a prior bends over.  Reached only above ~1000 fps.
+# over the joint's cells): tighter (--fps 1e5..1e9), float64's banded Cholesky loses the evidence against the
+# prior and fails as not positive definite, while the track is a constant-velocity line to within this fraction
+# of the evidence's noise over the ~1/sqrt(fraction) frames such a prior bends over.  Reached only above ~1000 fps.
 MIN_NOISE_FRACTION = 1e-4
 # Re-weightings of the evidence alone before the accelerations' (EM) weights join in: from the Gaussian prior's
 # track an outlier instant looks as much like three sharp accelerations as like a bad detection, and the
