@@ -82,8 +82,9 @@ SETTLE_ITERATIONS = 2
 
 @dataclasses.dataclass(frozen=True)
 class TrajectoryConfig:
-    """The trajectory's model (module docstring); chosen on the Human3.6M development split's training
-    recordings (docs/reconstruction.md), not on the reported ones."""
+    """The trajectory's model (module docstring): the acceleration's degrees of freedom chosen on CMU subject
+    02's motion, the other settings on the Human3.6M development split's training recordings (with the
+    process noise fixed at 3000 mm/s^2 then; docs/reconstruction.md), not on the reported ones."""
 
     acceleration_mm_s2: float | None = None
     """The motion prior's process noise: a joint's acceleration, scale per axis (mm/s^2); None: estimated
