@@ -37,6 +37,12 @@ joint's own system (its evidence, its motion prior and its limbs' diagonal block
 diagonal in the order (frame, axis), Cholesky-factored by `scipy.linalg.cholesky_banded`): linear in
 the frames and joints; the cameras were already reduced per joint by the fusion.
 
+A recording longer than `WINDOW_FRAMES` + 2 `CONTEXT_FRAMES` frames is solved in windows of
+`WINDOW_FRAMES` frames, each with `CONTEXT_FRAMES` frames of its neighbours on either side (solved and
+dropped): the same track to ~0.001 mm where the prior is fixed and the smoother's reach (`CONTEXT_FRAMES`)
+short against the context, each window's estimated prior its own (`Trajectory.acceleration_mm_s2` then the
+frame-weighted geometric mean), memory flat in the recording's length.
+
 Uncertainty (`Trajectory.sigma`): sqrt(trace) of each cell's marginal posterior covariance under each
 joint's own system (the other joints held where they are), from the banded factor by the selected
 inversion (Takahashi's recurrence), O(F) per joint.
@@ -74,6 +80,13 @@ POOL_ACCELERATIONS = 20.0  # a joint's estimate weighs as much as this many 3D a
 # prior and fails as not positive definite, while the track is a constant-velocity line to within this fraction
 # of the evidence's noise over the ~1/sqrt(fraction) frames such a prior bends over.  Reached only above ~1000 fps.
 MIN_NOISE_FRACTION = 1e-4
+# A long recording is solved in windows of this many frames, each with this many frames of context on either
+# side (solved, then dropped): the normal equations' memory (~42 KB a frame of 17 joints) stays that of one
+# window.  The smoother reaches ~(sigma / q-per-frame)^(1/2) frames (sigma the evidence's noise), its influence
+# falling as exp(-frames / (1.4 reach)): ~16 frames at 50 fps and the grid's bottom, 100 mm/s^2, with 10 mm
+# evidence, and the context is 25 such reaches; a gap of at most --max-gap frames adds its length.
+WINDOW_FRAMES = 2000
+CONTEXT_FRAMES = 400
 # Re-weightings of the evidence alone before the accelerations' (EM) weights join in: from the Gaussian prior's
 # track an outlier instant looks as much like three sharp accelerations as like a bad detection, and the
 # re-weighting would keep it half way; once the outliers have their low weights an impact is one acceleration.
@@ -267,12 +280,37 @@ def solve_trajectory(
     noise:      [J] mm/s^2, each joint's process noise where estimated on more than these frames; None:
                 `config.acceleration_mm_s2`, or where that is None estimated from this evidence (first
                 with every cell's weight 1, again with the robust weights of the first solve).
+
+    A recording longer than `WINDOW_FRAMES` + 2 `CONTEXT_FRAMES` is solved window by window (module docstring).
     """
     points, covariance = _checked(points, covariance, provenance, fps)
+    provenance = np.asarray(provenance)
+    F, J, _ = points.shape
+    lengths = limb_lengths(points, provenance, bones) if lengths is None else np.asarray(lengths, np.float64)
+    if F <= WINDOW_FRAMES + 2 * CONTEXT_FRAMES:
+        return _solve_window(points, covariance, provenance, bones, fps, config, lengths, noise)
+    parts = []
+    for start in range(0, F, WINDOW_FRAMES):
+        stop = min(start + WINDOW_FRAMES, F)
+        first, last = max(start - CONTEXT_FRAMES, 0), min(stop + CONTEXT_FRAMES, F)
+        window = slice(first, last)
+        solved = _solve_window(points[window], covariance[window], provenance[window], bones, fps, config, lengths, noise)
+        core = slice(start - first, stop - first)
+        parts.append((stop - start, solved.points[core], solved.sigma[core], solved.weight[core], solved.acceleration_mm_s2, solved.impact_weight[core]))
+    frames = np.array([part[0] for part in parts], np.float64)[:, None]
+    with np.errstate(invalid="ignore"):  # a joint solved in no window: NaN
+        noise = np.exp(np.nansum(frames * np.log(np.stack([part[4] for part in parts])), 0) / np.sum(frames * np.isfinite(np.stack([part[4] for part in parts])), 0))
+    return Trajectory(
+        *(np.concatenate([part[k] for part in parts]) for k in (1, 2, 3)), lengths.astype(np.float32), noise.astype(np.float32),
+        np.concatenate([part[5] for part in parts]),
+    )
+
+
+def _solve_window(points, covariance, provenance, bones, fps, config, lengths, noise) -> Trajectory:
+    """`solve_trajectory` of a recording (or a window of one) in one system."""
     F, J, _ = points.shape
     evidence = _evidence(points, covariance, provenance, config)
     solved, has, dummy = evidence.solved, evidence.has, evidence.dummy
-    lengths = limb_lengths(points, provenance, bones) if lengths is None else np.asarray(lengths, np.float64)
     limbs = [(b, c, p) for b, (c, p) in enumerate(bones) if np.isfinite(lengths[b]) and solved[c] and solved[p]]
     system = _System(evidence.precision, evidence.observed, has, 1.0 / config.limb_sigma_mm**2)
 
