@@ -164,30 +164,23 @@ def limb_lengths(points: np.ndarray, provenance: np.ndarray, bones: Sequence[tup
 @dataclasses.dataclass(frozen=True)
 class _Evidence:
     """The evidence as the solve weighs it: precision [F, J, 3, 3] (LIFTED cells' scaled; a unit dummy for
-    the joints not solved), observed [F, J, 3] (0 where none), has [F, J], solved [J]."""
+    the joints not solved), observed [F, J, 3] (0 where none), has [F, J], solved [J], and floor [J] mm/frame^2:
+    `MIN_NOISE_FRACTION` of each joint's median evidence noise per axis."""
 
     precision: np.ndarray
     observed: np.ndarray
     has: np.ndarray
     solved: np.ndarray
+    floor: np.ndarray
 
     @property
     def dummy(self) -> np.ndarray:
         """bool[F, J]: the cells of the joints not solved, held at 0 by unit weights so that their systems stay regular."""
         return np.broadcast_to(~self.solved, self.has.shape)
 
-    def noise_floor(self) -> np.ndarray:
-        """f64[J] mm/frame^2: `MIN_NOISE_FRACTION` of each joint's median evidence noise per axis."""
-        variance = np.full(self.has.shape, np.nan)
-        variance[self.has] = np.trace(np.linalg.inv(self.precision[self.has]), axis1=-2, axis2=-1) / 3.0
-        counted = self.has.any(0)
-        median = np.ones(len(counted))
-        median[counted] = np.nanmedian(variance[:, counted], axis=0)
-        return MIN_NOISE_FRACTION * np.sqrt(median)
-
     def per_frame(self, noise_mm_s2: np.ndarray, fps: float) -> np.ndarray:
         """f64[J] mm/frame^2: the process noise per frame, held at the floor (`MIN_NOISE_FRACTION`)."""
-        return np.maximum(np.asarray(noise_mm_s2, np.float64) / fps**2, self.noise_floor())
+        return np.maximum(np.asarray(noise_mm_s2, np.float64) / fps**2, self.floor)
 
 
 def _evidence(points, covariance, provenance, config: TrajectoryConfig) -> _Evidence:
@@ -198,7 +191,11 @@ def _evidence(points, covariance, provenance, config: TrajectoryConfig) -> _Evid
     precision[has] = np.linalg.inv(covariance[has] * scale[has][:, None, None])
     solved = has.sum(0) >= MIN_EVIDENCE_CELLS  # [J]
     precision[:, ~solved] = np.eye(3)  # a dummy system for the joints left as they are, replaced below
-    return _Evidence(precision, np.where(has[..., None], points, 0.0), has, solved)
+    variance = np.full((F, J), np.nan)
+    variance[has] = np.trace(covariance[has] * scale[has][:, None, None], axis1=-2, axis2=-1) / 3.0
+    median = np.ones(J)
+    median[has.any(0)] = np.nanmedian(variance[:, has.any(0)], axis=0)
+    return _Evidence(precision, np.where(has[..., None], points, 0.0), has, solved, MIN_NOISE_FRACTION * np.sqrt(median))
 
 
 def _checked(points, covariance, provenance, fps):
