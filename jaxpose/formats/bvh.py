@@ -87,12 +87,13 @@ def _rotation(axis: str, degrees: np.ndarray) -> np.ndarray:
     return np.stack([np.stack(row, -1) for row in rows], -2)
 
 
-def world_joints(bvh: BvhFile, mm_per_unit: float, frames: slice | np.ndarray = slice(None)) -> np.ndarray:
-    """float64[F, J, 3] every joint's position in the file's world frame, in mm, for the chosen `frames`.
+def forward_kinematics(bvh: BvhFile, mm_per_unit: float, frames: slice | np.ndarray = slice(None)) -> tuple[np.ndarray, np.ndarray]:
+    """(float64[F, J, 3] every joint's position in the file's world frame in mm, float64[F, J, 3, 3] its
+    world rotation: a point p in the joint's frame is at position + rotation @ p) for the chosen `frames`.
 
-    Forward kinematics: a joint's world rotation is its parent's times its own channels' rotations composed
-    in the file's order; its world position is the parent's plus the parent's world rotation applied to
-    (OFFSET + its position channels).  The axes are the file's (CMU: Y up, in the mocap studio's frame).
+    A joint's world rotation is its parent's times its own channels' rotations composed in the file's
+    order; its world position is the parent's plus the parent's world rotation applied to (OFFSET + its
+    position channels).  The axes are the file's (CMU: Y up, in the mocap studio's frame).
     """
     motion = bvh.motion[frames]
     count = len(motion)
@@ -114,7 +115,12 @@ def world_joints(bvh: BvhFile, mm_per_unit: float, frames: slice | np.ndarray = 
         else:
             rotations[:, joint] = rotations[:, parent] @ local
             positions[:, joint] = positions[:, parent] + np.einsum("fij,fj->fi", rotations[:, parent], translation)
-    return positions * mm_per_unit
+    return positions * mm_per_unit, rotations
+
+
+def world_joints(bvh: BvhFile, mm_per_unit: float, frames: slice | np.ndarray = slice(None)) -> np.ndarray:
+    """float64[F, J, 3] every joint's position in the file's world frame, in mm (`forward_kinematics`)."""
+    return forward_kinematics(bvh, mm_per_unit, frames)[0]
 
 
 def _fail(path: Path, expected: str, found: str, line: int | None = None) -> DataFormatError:
