@@ -4,17 +4,16 @@ and fixed process noises.
 
     python -m experiments.motion_prior ../shared/data/cmu_mocap/05/*.bvh ../shared/data/cmu_mocap/06/*.bvh --fps 30
 
-Per file: its joints (the CMU skeleton, 1 unit = 0.05644 m, Y up turned to Z up) placed on Human3.6M's 17
-(`CMU_JOINTS`; the head is the end of CMU's Head, the thorax the base of its neck), taken every 120/fps-th
-frame (at most --max-seconds), seen by `jaxpose.synthetic.rig.make_rig`'s cameras (--views) and the simulated
+Per file: its joints placed on Human3.6M's 17 (`jaxpose.formats.bvh`, `jaxpose.synthetic.mocap`), taken every
+120/fps-th frame (at most --max-seconds), seen by `jaxpose.synthetic.rig.make_rig`'s cameras (--views) and the simulated
 detector (`simulate_detector`: per-joint noise of 3-8 px, 2% outliers, 1% left/right swaps), each view's lift
 the true root-relative pose in the camera's axes plus --lift-noise-mm per axis (a lifter's error), fused per
 instant (`fuse`), then solved by `solve_trajectory` (each --configs entry).  World MPJPE (mm) and the
 acceleration error (mm/frame^2) against the mocap, the mean over --seeds rigs and detector draws (the spread
 is their standard deviation).  The kind of a file is its name's subject and number (`KINDS`).
 
-A minimal BVH reader of its own (hierarchy, offsets, rotation channels in their order, forward kinematics):
-to be replaced by `jaxpose.formats.bvh` once that exists.
+`benchmarks.motion` scores the default against the peers through a trained lifter; this one needs none (the
+lifts simulated), to study the trajectory's settings quickly.
 """
 
 from __future__ import annotations
@@ -26,21 +25,16 @@ import sys
 import numpy as np
 
 from jaxpose.camera import Cameras
+from jaxpose.formats.bvh import read_bvh
 from jaxpose.reconstruction.fusion import FusionConfig, fuse
 from jaxpose.reconstruction.motion_quality import acceleration_error
 from jaxpose.reconstruction.trajectory import TrajectoryConfig, solve_trajectory
 from jaxpose.skeleton import H36M_17
 from jaxpose.synthetic.config import SyntheticConfig
 from jaxpose.synthetic.detector import simulate_detector
+from jaxpose.synthetic.mocap import mocap_keypoints
 from jaxpose.synthetic.rig import make_rig, project_points
 
-CMU_UNIT_MM = 56.44
-CMU_JOINTS = {
-    "Hip": "Hips", "RHip": "RightUpLeg", "RKnee": "RightLeg", "RFoot": "RightFoot", "LHip": "LeftUpLeg",
-    "LKnee": "LeftLeg", "LFoot": "LeftFoot", "Spine": "Spine", "Thorax": "Neck", "Neck/Nose": "Neck1",
-    "Head": "Head/end", "LShoulder": "LeftArm", "LElbow": "LeftForeArm", "LWrist": "LeftHand",
-    "RShoulder": "RightArm", "RElbow": "RightForeArm", "RWrist": "RightHand",
-}  # fmt: skip
 KINDS = {"02_01": "walk", "02_02": "walk", "02_03": "jog", "05": "dance", "06": "basketball", "02": "subject 02, other"}
 CONFIGS = {
     "default": TrajectoryConfig(),
@@ -53,77 +47,14 @@ CONFIGS = {
 }
 
 
-def read_bvh(path: pathlib.Path) -> tuple[list[str], np.ndarray, float]:
-    """(joint names, f64[F, N, 3] world positions in BVH units, frames per second); an end site is named
-    after its joint + "/end"."""
-    words = path.read_text().split()
-    names, parents, offsets, channels, stack, i = [], [], [], [], [], 0
-    while words[i] != "MOTION":
-        word = words[i]
-        if word in ("ROOT", "JOINT", "End"):
-            names.append(words[i + 1] if word != "End" else names[stack[-1]] + "/end")
-            parents.append(stack[-1] if stack else -1)
-            if word == "End":
-                channels.append([])
-            i += 2
-        elif word == "HIERARCHY":
-            i += 1
-        elif word == "{":
-            stack.append(len(names) - 1)
-            i += 1
-        elif word == "}":
-            stack.pop()
-            i += 1
-        elif word == "OFFSET":
-            offsets.append(np.array(words[i + 1 : i + 4], float))
-            i += 4
-        elif word == "CHANNELS":
-            count = int(words[i + 1])
-            channels.append(words[i + 2 : i + 2 + count])
-            i += 2 + count
-        else:
-            raise ValueError(f"{path}: unexpected {word!r} in the hierarchy")
-    frames, frame_time = int(words[i + 2]), float(words[i + 5])
-    values = np.array(words[i + 6 :], float).reshape(frames, -1)
-    rotation, position, column = np.zeros((frames, len(names), 3, 3)), np.zeros((frames, len(names), 3)), 0
-    for joint, parent in enumerate(parents):
-        local, translation = np.broadcast_to(np.eye(3), (frames, 3, 3)), np.broadcast_to(offsets[joint], (frames, 3)).copy()
-        for channel in channels[joint]:
-            axis = "XYZ".index(channel[0])
-            if channel.endswith("position"):
-                translation[:, axis] = values[:, column]
-            else:  # intrinsic: each rotation about the axes already turned by the ones before
-                local = local @ _axis_rotation(axis, np.radians(values[:, column]))
-            column += 1
-        if parent < 0:
-            rotation[:, joint], position[:, joint] = local, translation
-        else:
-            rotation[:, joint] = rotation[:, parent] @ local
-            position[:, joint] = position[:, parent] + np.einsum("fab,fb->fa", rotation[:, parent], translation)
-    return names, position, 1.0 / frame_time
-
-
-def _axis_rotation(axis: int, angle: np.ndarray) -> np.ndarray:
-    c, s = np.cos(angle), np.sin(angle)
-    first, second = [k for k in range(3) if k != axis]
-    matrix = np.zeros(angle.shape + (3, 3))
-    matrix[..., axis, axis] = 1.0
-    matrix[..., first, first], matrix[..., second, second] = c, c
-    matrix[..., first, second], matrix[..., second, first] = -s, s
-    return matrix
-
-
 def cmu_motion(path: pathlib.Path, fps: float, seconds: float) -> np.ndarray:
-    """f64[F, 17, 3] world mm, Z up, the body's mean ground position at the origin, its lowest point at 0."""
-    names, position, native = read_bvh(path)
-    step = native / fps
+    """f64[F, 17, 3] H36M_17 keypoints of a CMU take (`jaxpose.synthetic.mocap`), world mm, z up, every
+    120/fps-th frame, at most `seconds`."""
+    bvh = read_bvh(path)
+    step = 1.0 / (bvh.frame_time * fps)
     if abs(step - round(step)) > 1e-3:  # a frame time written with 7 digits
-        raise ValueError(f"{path}: {native:g} fps is not a multiple of --fps {fps:g}")
-    points = position[:, [names.index(CMU_JOINTS[name]) for name in H36M_17.joint_names]][:: int(round(step))]
-    points = points[: int(seconds * fps)] * CMU_UNIT_MM @ np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]).T  # Y up -> Z up
-    points[..., :2] -= points[:, :1, :2].mean(0)
-    points[..., 2] -= points[..., 2].min()
-    return points
+        raise ValueError(f"{path}: {1 / bvh.frame_time:g} fps is not a multiple of --fps {fps:g}")
+    return mocap_keypoints(bvh, "h36m17")[:: int(round(step))][: int(seconds * fps)]
 
 
 def seen(truth: np.ndarray, seed: int, views: int, lift_noise_mm: float):
