@@ -184,6 +184,7 @@ class _Evidence:
 
 
 def _evidence(points, covariance, provenance, config: TrajectoryConfig) -> _Evidence:
+    """The evidence's precisions (the LIFTED cells' scaled), the cells that have some, the joints solved."""
     F, J, _ = points.shape
     has = np.isfinite(points).all(-1) & np.isfinite(covariance).all((-1, -2))
     scale = np.where(provenance == Provenance.LIFTED, config.lifted_sigma_scale**2, 1.0)
@@ -199,6 +200,7 @@ def _evidence(points, covariance, provenance, config: TrajectoryConfig) -> _Evid
 
 
 def _checked(points, covariance, provenance, fps):
+    """The evidence as float64 arrays, refused in one line where its shapes or the frame rate are wrong."""
     points = np.asarray(points, np.float64)
     covariance = np.asarray(covariance, np.float64)
     F, J, _ = points.shape
@@ -224,6 +226,7 @@ def process_noise(
 
 
 def _estimated_noise(evidence: _Evidence, weight: np.ndarray, fps: float) -> np.ndarray:
+    """`process_noise` of the evidence with its cells weighted by `weight` [F, J] (the robust weights)."""
     F, J = weight.shape
     if F < 3 or not evidence.solved.any():  # no acceleration to measure
         return np.where(evidence.solved, NOISE_GRID_MM_S2[len(NOISE_GRID_MM_S2) // 2], np.nan)
