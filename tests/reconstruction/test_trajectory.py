@@ -250,8 +250,8 @@ def test_a_recording_is_solved_apart_across_a_long_absence():
 
 
 def run(seed: int, fps: float, seconds: float = 3.0) -> Walk:
-    """A run: the simulated walk (~1 m/s) played 4 times as fast, ~4 m/s with accelerations of ~40 m/s^2
-    (median) to ~250 m/s^2 (99th percentile), as seen at `fps`."""
+    """A run: the simulated walk (~1 m/s) played 4 times as fast, ~4 m/s with accelerations of 40-60 m/s^2
+    (median) to 230-290 m/s^2 (99th percentile; seed 0, at 30 and 120 fps), as seen at `fps`."""
     return walk(seed, frames=int(seconds * fps), fps=fps / 4.0)
 
 
@@ -292,8 +292,8 @@ def test_the_estimated_noise_follows_the_motion():
 
 def test_the_frame_rate_changes_the_noise_per_frame_not_per_second():
     """The same run seen at 30 and at 120 fps: the per-frame noise q / fps^2 differs 16-fold, the estimate in
-    mm/s^2 by less than 2.5 (the 120 fps evidence holds the sharper peaks that 30 fps averages out: the truth's
-    99th-percentile acceleration is 290 against 230 m/s^2)."""
+    mm/s^2 by less than 2.5 (the 120 fps evidence holds sharper peaks that 30 fps averages out: on seed 0's
+    run the truth's 99th-percentile acceleration is 290 m/s^2 at 120 fps against 230 at 30)."""
     estimates = []
     for fps in (30.0, 120.0):
         scene = run(2, fps, seconds=2.0)
