@@ -25,16 +25,31 @@ report.md / report.json, what was done per recording.  docs/reconstruction.md: t
 measured accuracy, when to trust a lifted-only joint.
 
 No file is written over without --overwrite, all checked before any work; each is written to a
-temporary name renamed into place (`jaxpose.formats.outputs`).
+temporary name renamed into place (`jaxpose.formats.outputs`).  One reconstruct at a time writes into DIR
+(a second stops at once, naming the first), so its report lists every file there; after Ctrl-C each
+recording's files are whole and the report lists them and the recordings not done (exit code 130).
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import os
 import pathlib
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
 from typing import Annotated, Literal
+
+
+def _interrupted_while_starting(number, frame):
+    print("jaxpose.reconstruct: interrupted (Ctrl-C) while starting: nothing written", file=sys.stderr, flush=True)
+    os._exit(128 + number)  # at once: an exception raised inside the imports can be swallowed by them
+
+
+if __name__ == "__main__" and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+    signal.signal(signal.SIGINT, _interrupted_while_starting)  # the imports below take seconds: no traceback from them
 
 import numpy as np
 import tyro
@@ -44,13 +59,13 @@ from jaxpose.serving import inference
 from jaxpose.training.checkpoint import CheckpointError
 from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.formats.errors import DataFormatError
-from jaxpose.formats.outputs import OutputError, check_output_folder, check_report, write_report
+from jaxpose.formats.outputs import OutputError, check_output_folder, check_report, exclusive_folder, write_report
 from jaxpose.logs import show_logs
 from jaxpose.reconstruction import motion_files, recording
 from jaxpose.reconstruction.fusion import FusionConfig, Provenance
 from jaxpose.reconstruction.gaps import DEFAULT_MAX_GAP
 from jaxpose.reconstruction.motion_quality import motion_summary
-from jaxpose.reconstruction.trajectory import TrajectoryConfig
+from jaxpose.reconstruction.trajectory import MIN_LENGTH_INSTANTS, TrajectoryConfig, limb_lengths
 from jaxpose.rig.config import RigProjectConfig, with_recorded_settings
 from jaxpose.training.run_directory import RECORD_FILE, RunRecord, read_record
 from jaxpose.rig.recordings import find_project
@@ -59,7 +74,9 @@ from jaxpose.rig.recordings import find_project
 # such footage is read): a larger --fps is a typo or frames numbered in another unit, and its prior would
 # allow a body no acceleration over the whole recording (a line through a walk).
 MAX_FPS = 10000.0
-
+LOCK_FILE = "reconstruct.lock"
+"""Held in --output while a reconstruct writes there (`exclusive_folder`), removed at its end."""
+INTERRUPTED_EXIT = 128 + signal.SIGINT  # the shell's code for a command ended by Ctrl-C: 130
 
 @dataclasses.dataclass(frozen=True)
 class ReconstructArgs:
@@ -115,8 +132,16 @@ def run(args: ReconstructArgs) -> dict:
             import ezc3d  # noqa: F401 - missing, refused before any work
         except ImportError:
             raise ImportError("--c3d needs ezc3d: pip install 'jaxpose[reconstruct]' (or pip install ezc3d)") from None
-    args = with_the_runs_settings(args, read_record(args.checkpoint))  # before the outputs are checked: the record may name the project
-    found = find_project(args.data.root, args.data.recordings, args.data.calibration)
+    with _CtrlC() as ctrl_c:
+        args = with_the_runs_settings(args, read_record(args.checkpoint))  # before the outputs are checked: the record may name the project
+        found = find_project(args.data.root, args.data.recordings, args.data.calibration)
+        check_output_folder(args.output, _inputs(args))
+        with exclusive_folder(args.output, LOCK_FILE, "--output", "jaxpose.reconstruct"):  # one report per folder
+            return _reconstruct(args, found, ctrl_c)
+
+
+def _reconstruct(args: ReconstructArgs, found, ctrl_c: _CtrlC) -> dict:
+    """`run` once the output folder is this process's."""
     earlier = check_outputs(args, found.names)
     lifter = inference.load(args.checkpoint)
     project = recording.load_every_instant(args.data, args.checkpoint, args.progress, found)
@@ -131,25 +156,37 @@ def run(args: ReconstructArgs) -> dict:
         up_axis = motion_files.camera_up_axis(dataset.rigs)
         print(f"up axis {up_axis}, from the cameras (--up-axis to name it)", file=sys.stderr)
     rows, files = [], []
-    bar = tqdm(recording.recording_inputs(dataset), total=len(project.recordings), desc="recordings", unit="recording",
-               disable=not args.progress)  # fmt: skip
-    for inputs in bar:
-        bar.set_postfix_str(inputs.name)
-        if not inputs.seen.any():  # nothing to fuse or lift: said, listed, and the other recordings go on
-            print(f"recording {inputs.name}: no camera detects the person at any instant (scores below --data.min-confidence"
-                  f" {args.data.min_confidence:g}, or no detection): no file written", file=sys.stderr)  # fmt: skip
-            rows.append({"recording": inputs.name, "frames": len(inputs.frames), "skipped": "no detection", "files": []})
-            continue
-        trajectory = args.trajectory if args.smoothing else None
-        motion, _ = recording.lift_and_reconstruct(
-            lifter, inputs, args.fusion, args.max_gap, args.bridge_lifted, trajectory=trajectory, fps=args.fps
-        )
-        written = motion_files.write_motion(args.output, motion, lifter.joint_names, args.fps, up_axis, args.c3d)
-        files += [str(path) for path in written]
-        quality = motion_summary(motion.points, lifter.skeleton.bones, lifter.joint_names, inputs.target3d)
-        rows.append(recording_summary(motion, lifter.joint_names) | quality | {"files": [path.name for path in written]})
+    names = [loaded.name for loaded in project.recordings]
+    try:
+        bar = tqdm(recording.recording_inputs(dataset), total=len(project.recordings), desc="recordings", unit="recording",
+                   disable=not args.progress)  # fmt: skip
+        for inputs in bar:
+            ctrl_c.check()
+            bar.set_postfix_str(inputs.name)
+            if not inputs.seen.any():  # nothing to fuse or lift: said, listed, and the other recordings go on
+                print(f"recording {inputs.name}: no camera detects the person at any instant (scores below --data.min-confidence"
+                      f" {args.data.min_confidence:g}, or no detection): no file written", file=sys.stderr)  # fmt: skip
+                rows.append({"recording": inputs.name, "frames": len(inputs.frames), "skipped": "no detection", "files": []})
+                continue
+            trajectory = args.trajectory if args.smoothing else None
+            motion, _ = recording.lift_and_reconstruct(
+                lifter, inputs, args.fusion, args.max_gap, args.bridge_lifted, trajectory=trajectory, fps=args.fps
+            )
+            quality = motion_summary(motion.points, lifter.skeleton.bones, lifter.joint_names, inputs.target3d)
+            held = _limbs_held(motion, lifter.skeleton.bones, lifter.joint_names) if args.smoothing else {}
+            if held and not held["limbs_held"]:
+                print(f"recording {inputs.name}: no limb measured at {MIN_LENGTH_INSTANTS} instants ({len(inputs.frames)} frames):"
+                      " smoothed without limb lengths, as the report says", file=sys.stderr)  # fmt: skip
+            with ctrl_c.deferred():  # a recording's files are all written and listed, or none of them
+                written = motion_files.write_motion(args.output, motion, lifter.joint_names, args.fps, up_axis, args.c3d)
+                files += [str(path) for path in written]
+                rows.append(recording_summary(motion, lifter.joint_names) | quality | held | {"files": [path.name for path in written]})
+        interrupted = None
+    except KeyboardInterrupt:
+        done = {row["recording"] for row in rows}
+        interrupted = {"after": len(rows), "of": len(names), "not_reconstructed": [name for name in names if name not in done]}
     left = sorted(str(path) for path in set(earlier) - {pathlib.Path(file) for file in files})
-    if left:  # as jaxpose.predict does: an earlier run's segments that this run has not
+    if left and interrupted is None:  # as jaxpose.predict does: an earlier run's segments that this run has not
         print(f"files of an earlier run not written now, left as they were: {', '.join(left)}", file=sys.stderr)
     report = {
         "checkpoint": str(args.checkpoint),
@@ -160,16 +197,69 @@ def run(args: ReconstructArgs) -> dict:
         "bridge_lifted": args.bridge_lifted,
         "smoothing": args.smoothing,
         "trajectory": dataclasses.asdict(args.trajectory) if args.smoothing else None,
+        "min_length_instants": MIN_LENGTH_INSTANTS if args.smoothing else None,
         "up_axis": up_axis,
         "trc_axes": motion_files.rotation_note(motion_files.opensim_rotation(up_axis), up_axis),
         "joint_names": list(lifter.joint_names),
         "fusion": dataclasses.asdict(args.fusion),
         "recordings": rows,
         "earlier_files_left": left,
+        "interrupted": interrupted,
     }
-    markdown = report_markdown(report)
-    write_report(args.output, report, markdown)
+    write_report(args.output, report, report_markdown(report), echo=interrupted is None)
+    if interrupted is not None:
+        raise Interrupted(f"{interrupted['after']} of {interrupted['of']} recordings written (each whole), listed in {args.output / 'report.md'}")
     return report
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C, once the report of what was written is: the message says what is there."""
+
+
+class _CtrlC:
+    """Ctrl-C (SIGINT) in the main thread while the command runs: a KeyboardInterrupt where it is pressed, except
+    inside `deferred` (at its end then); and remembered, so that one Python drops (raised inside a garbage
+    collector's callback, as JAX's) still ends the work at the next `check`.  Elsewhere (another thread, SIGINT
+    ignored or the caller's own handler) nothing is changed."""
+
+    def __init__(self):
+        self.pressed = self.deferring = self.installed = False
+
+    def _handler(self, number, frame) -> None:
+        self.pressed = True
+        if not self.deferring:
+            raise KeyboardInterrupt
+
+    def __enter__(self) -> _CtrlC:
+        if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            signal.signal(signal.SIGINT, self._handler)
+            self.installed = True
+        return self
+
+    def __exit__(self, *exception) -> None:
+        if self.installed:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    def check(self) -> None:
+        if self.pressed:
+            raise KeyboardInterrupt
+
+    @contextlib.contextmanager
+    def deferred(self) -> Iterator[None]:
+        self.deferring = True
+        try:
+            yield
+        finally:
+            self.deferring = False
+        self.check()
+
+
+def _limbs_held(motion: recording.RecordingMotion, bones: Sequence[tuple[int, int]], joint_names: Sequence[str]) -> dict:
+    """Which limbs the trajectory held at a constant length: those measured at `MIN_LENGTH_INSTANTS` instants or
+    more (`limb_lengths` of the recording's evidence, as `smooth_recording` takes them); the others were free."""
+    lengths = limb_lengths(motion.fusion.points, motion.fusion.provenance, bones)
+    free = [f"{joint_names[parent]}-{joint_names[child]}" for (child, parent), length in zip(bones, lengths) if not np.isfinite(length)]
+    return {"limbs_held": int(np.isfinite(lengths).sum()), "limbs_free": free}
 
 
 def with_the_runs_settings(args: ReconstructArgs, record: RunRecord | None) -> ReconstructArgs:
@@ -186,11 +276,13 @@ def with_the_runs_settings(args: ReconstructArgs, record: RunRecord | None) -> R
     return dataclasses.replace(args, data=data)
 
 
+def _inputs(args: ReconstructArgs) -> list[pathlib.Path]:
+    return [args.data.root, args.checkpoint, *([args.data.calibration] if args.data.calibration else [])]
+
+
 def check_outputs(args: ReconstructArgs, names: Sequence[str]) -> list[pathlib.Path]:
     """Refuse, before any work, to write over an earlier run's files without --overwrite; returns them
     (with --overwrite, those this run does not write again are named after it, and left as they were)."""
-    inputs = [args.data.root, args.checkpoint, *([args.data.calibration] if args.data.calibration else [])]
-    check_output_folder(args.output, inputs)
     colliding = motion_files.colliding_names(names)
     if colliding:
         first, second = colliding
@@ -254,7 +346,16 @@ def report_markdown(report: dict) -> str:
             f"| {row['recording']} | {row['frames']} | {row['instants_seen']} | {counts} | {row['interpolated_frames']}"
             f" | {row['segments']} | {row['dropped_frames']} |"
         )
-    smoothing = "solved over time (the trajectory)" if report["smoothing"] else "each instant alone (--no-smoothing)"
+    if report["smoothing"]:
+        smoothing = (
+            "solved over time (the trajectory), each limb held at its median length where both its joints are measured at"
+            f" {report['min_length_instants']} instants or more and free otherwise (limbs held)"
+        )
+    else:
+        smoothing = "each instant alone (--no-smoothing)"
+    columns = ["recording", *(["limbs held"] if report["smoothing"] else []), "mean acceleration", "mean limb length std",
+               "largest limb length std", "acceleration error",
+               *(["process noise, median (range)", "impacts"] if report["smoothing"] else [])]  # fmt: skip
     lines += [
         "",
         f"The motion, {smoothing}: its mean acceleration (mm/frame^2), each limb's length spread over time (std, mm;"
@@ -262,9 +363,8 @@ def report_markdown(report: dict) -> str:
         " trajectory, the process noise of its motion prior over the joints (mm/s^2, median (range); report.json"
         " has every joint's) and its impacts (accelerations the heavy-tailed prior let through: weight below 0.5).",
         "",
-        "| recording | mean acceleration | mean limb length std | largest limb length std | acceleration error"
-        " | process noise, median (range) | impacts |",
-        "|---|---|---|---|---|---|---|",
+        "| " + " | ".join(columns) + " |",
+        "|---" * len(columns) + "|",
     ]
     for row in (row for row in report["recordings"] if "skipped" not in row):
         spreads = {name: value for name, value in row["limb_length_std_mm"].items() if value is not None}
@@ -272,9 +372,21 @@ def report_markdown(report: dict) -> str:
         cells = [
             _number(row["mean_acceleration_mm_per_frame2"], 2), _number(row["mean_limb_length_std_mm"], 1),
             f"{spreads[largest]:.1f} ({largest})" if spreads else "-", _number(row.get("acceleration_error_mm_per_frame2"), 2),
-            _noise(row.get("motion_prior_mm_s2")), str(row["impacts"]) if "impacts" in row else "-",
         ]  # fmt: skip
+        if report["smoothing"]:
+            count = row["limbs_held"] + len(row["limbs_free"])
+            none = f" (no limb measured at {report['min_length_instants']} instants: smoothed without limb lengths)"
+            cells.insert(0, f"{row['limbs_held']} of {count}" + ("" if row["limbs_held"] else none))
+            cells += [_noise(row.get("motion_prior_mm_s2")), str(row["impacts"]) if "impacts" in row else "-"]
         lines.append(f"| {row['recording']} | " + " | ".join(cells) + " |")
+    interrupted = report.get("interrupted")
+    if interrupted:
+        lines += [
+            "",
+            f"**Interrupted (Ctrl-C)** after {interrupted['after']} of {interrupted['of']} recordings; not reconstructed:"
+            f" {', '.join(interrupted['not_reconstructed']) or '-'}.  Written, each file complete:"
+            f" {', '.join(name for row in report['recordings'] for name in row['files']) or 'nothing'}.",
+        ]
     return "\n".join(lines) + "\n"
 
 
@@ -296,7 +408,15 @@ def main(argv: Sequence[str] | None = None) -> dict:
         return run(args)
     except (ValueError, FileNotFoundError, ImportError, CheckpointError, DataFormatError) as error:
         raise SystemExit(f"jaxpose.reconstruct: error: {error}") from None
+    except Interrupted as stop:
+        print(f"jaxpose.reconstruct: interrupted (Ctrl-C): {stop}", file=sys.stderr)
+        raise SystemExit(INTERRUPTED_EXIT) from None
+    except KeyboardInterrupt:
+        print(f"jaxpose.reconstruct: interrupted (Ctrl-C) before any recording was written: nothing written to --output {args.output}", file=sys.stderr)
+        raise SystemExit(INTERRUPTED_EXIT) from None
 
 
 if __name__ == "__main__":
+    if signal.getsignal(signal.SIGINT) is _interrupted_while_starting:
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # started: main reports a Ctrl-C
     main()

@@ -21,6 +21,17 @@ Each case failed before its fix.  Issue 42's cases, and where each is tested her
 | 10 an offset of 100,000, limbs of 22 m | test_what_loading_finds_suspect_is_in_the_report |
 | 10 "(770 steps)" despite --train.max-steps | test_the_training_line_says_where_max_steps_stops_it |
 | 10 the shared compilation cache | test_a_compilation_cache_written_without_a_size_limit_fails_no_later_write, test_a_compilation_cache_that_cannot_take_a_program_is_one_line_not_one_per_compilation |
+
+Issue 52's cases here:
+
+| Case | Tests |
+|---|---|
+| 5 the C3D first frame wraps at 65536 | test_a_c3d_first_frame_past_16_bits_is_not_wrapped |
+| 8 two reconstructs into one --output lose a report | test_two_reconstructs_into_one_output_keep_its_report_whole |
+| 11 a session's recording lacks a camera | test_a_session_whose_recording_lacks_a_camera_is_named_with_the_way_out |
+| 11 a typo in --data.sessions | test_a_session_naming_a_recording_the_project_lacks_is_refused_with_the_closest_name |
+| 11 under 10 frames: no limb constraint | test_a_recording_too_short_for_limb_lengths_is_reported_as_smoothed_without_them |
+| 11 Ctrl-C during reconstruct | test_ctrl_c_during_reconstruct_is_one_line_and_a_report_of_what_was_written |
 """
 
 from __future__ import annotations
@@ -800,3 +811,185 @@ def test_what_loading_finds_suspect_is_in_the_report(small_project, tmp_path):
     assert "**Warnings of loading**" in notes and f"- {sanity}" in notes and f"- walking01: {lone}" in notes
     assert load_rig_project(config, progress=False).warnings == loaded.warnings  # kept with the prepared project
     assert _snapshot(project) == before
+
+
+def _c3d_integer_parameters(path: pathlib.Path) -> dict[str, list[int]]:
+    """Every 16-bit integer parameter of an Intel C3D file, as GROUP:NAME -> its values read unsigned, parsed
+    from the bytes (the C3D user guide's layout): the oracle for what ezc3d wrote."""
+    data = path.read_bytes()
+    start = (data[0] - 1) * 512 + 4  # header word 1, first byte: the parameter section's first block
+    groups, parameters, at = {}, {}, start
+    while True:
+        length, index = (int(v) for v in np.frombuffer(data[at : at + 2], np.int8))
+        if length == 0:
+            return {f"{groups[group]}:{name}": values for (group, name), values in parameters.items()}
+        name = data[at + 2 : at + 2 + abs(length)].decode()
+        following = at + 2 + abs(length)
+        step = int(np.frombuffer(data[following : following + 2], np.int16)[0])
+        if index < 0:
+            groups[-index] = name
+        elif data[following + 2] == 2:  # type int16
+            dims = data[following + 4 : following + 4 + data[following + 3]]
+            count = int(np.prod(list(dims)))
+            values = np.frombuffer(data[following + 4 + len(dims) :][: 2 * count], np.uint16)
+            parameters[(index, name)] = [int(v) for v in values]
+        if step == 0:
+            return {f"{groups[group]}:{name}": values for (group, name), values in parameters.items()}
+        at = following + step
+
+
+@pytest.mark.parametrize("first_frame", [5, 65530, 70000])
+def test_a_c3d_first_frame_past_16_bits_is_not_wrapped(tmp_path, first_frame):
+    """Issue 52 defect 5: frames 70000-70149 were written with the header's first frame 4464 (70000 + 1 wrapped
+    at 65536) beside the .trc's OrigDataStartFrame 70000.  The range is in TRIAL:ACTUAL_START_FIELD /
+    ACTUAL_END_FIELD (two 16-bit words, low first; C3D counts from 1), and the header holds the true first frame
+    when the last fits 16 bits, else the range 1..N as the C3D user guide advises: never a wrapped number."""
+    ezc3d = pytest.importorskip("ezc3d")
+    from jaxpose.formats.c3d import write_c3d
+
+    frames = 150
+    path = write_c3d(tmp_path / "walk.c3d", np.zeros((frames, 2, 3)), ["A", "B"], 50.0, "mm", first_frame)
+    words = [int(w) for w in np.frombuffer(path.read_bytes()[:12], np.uint16)]  # header words 1-6: 4 and 5 the range
+    fits = first_frame + frames <= 0xFFFF
+    assert (words[3], words[4]) == ((first_frame + 1, first_frame + frames) if fits else (1, frames))
+    parameters = _c3d_integer_parameters(path)
+    start, end = parameters["TRIAL:ACTUAL_START_FIELD"], parameters["TRIAL:ACTUAL_END_FIELD"]
+    assert start[0] + 65536 * start[1] == first_frame + 1 and end[0] + 65536 * end[1] == first_frame + frames
+    read = ezc3d.c3d(str(path))  # the reader agrees with the bytes
+    assert read["header"]["points"]["first_frame"] == words[3] - 1
+    assert [v & 0xFFFF for v in read["parameters"]["TRIAL"]["ACTUAL_START_FIELD"]["value"]] == start
+
+
+def _reconstruct_argv(rig_run, project, output, *extra) -> list[str]:
+    return ["--checkpoint", str(rig_run.run_dir), "--data.root", str(project), "--output", str(output), "--fps", "50", "--no-progress", *extra]
+
+
+def _files_and_report(output: pathlib.Path) -> tuple[set[str], set[str]]:
+    """The recordings' files in `output` and those its report.json lists."""
+    report = json.loads((output / "report.json").read_text())
+    present = {path.name for path in output.iterdir() if path.name not in ("report.md", "report.json")}
+    return present, {name for row in report["recordings"] for name in row["files"]}
+
+
+@pytest.mark.trains  # the shared rig run (tests/conftest.py)
+@pytest.mark.processes
+def test_two_reconstructs_into_one_output_keep_its_report_whole(rig_run, tmp_path, monkeypatch):
+    """Issue 52 defect 8: two reconstructs of different recordings into one --output at once both exited 0 and
+    report.md listed one recording.  Here a second process starts while this one writes its first file: it
+    stops in one line naming the holder, and the folder's report lists every file in the folder."""
+    from jaxpose import reconstruct
+    from python_process import run_python
+
+    output, second = tmp_path / "motion", []
+    write_motion = reconstruct.motion_files.write_motion
+
+    def write_while_another_starts(*args, **kwargs):
+        if not second:
+            argv = _reconstruct_argv(rig_run, rig_run.project, output, "--data.recordings", "walking01")
+            second.append(run_python(f"from jaxpose import reconstruct; reconstruct.main({argv!r})", tmp_path))
+        return write_motion(*args, **kwargs)
+
+    monkeypatch.setattr(reconstruct.motion_files, "write_motion", write_while_another_starts)
+    reconstruct.main(_reconstruct_argv(rig_run, rig_run.project, output, "--data.recordings", "reaching02"))
+    (other,) = second
+    last = other.stderr.strip().splitlines()[-1]
+    assert other.returncode != 0 and "Traceback" not in other.stderr, other.stderr
+    assert re.fullmatch(rf"--output {output} is in use by another jaxpose.reconstruct \(process {os.getpid()} on .*\); wait for it to end, or choose another --output", last), last
+    present, listed = _files_and_report(output)
+    assert present == listed and {"reaching02.csv", "reaching02.npz", "reaching02.trc"} <= listed
+    assert not any(name.startswith("walking01") for name in present)
+
+
+@pytest.mark.trains
+def test_ctrl_c_during_reconstruct_is_one_line_and_a_report_of_what_was_written(rig_run, tmp_path, monkeypatch, capsys):
+    """Issue 52 defect 11: Ctrl-C printed a traceback and left files without a report.  Pressed while the first
+    recording's files are written, they are finished, the report lists them and the recording not done, the
+    command says so in one line and exits 130 (the shell's code for Ctrl-C)."""
+    import signal
+
+    from jaxpose import reconstruct
+
+    write_motion = reconstruct.motion_files.write_motion
+
+    def pressed_while_writing(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGINT)
+        return write_motion(*args, **kwargs)
+
+    monkeypatch.setattr(reconstruct.motion_files, "write_motion", pressed_while_writing)
+    output = tmp_path / "motion"
+    try:
+        reconstruct.main(_reconstruct_argv(rig_run, rig_run.project, output))
+        pytest.fail("Ctrl-C was not seen")
+    except KeyboardInterrupt:
+        pytest.fail("Ctrl-C came out of the command as a traceback")
+    except SystemExit as stop:
+        assert stop.code == 130
+    (line,) = [line for line in capsys.readouterr().err.splitlines() if "Ctrl-C" in line]
+    assert line == f"jaxpose.reconstruct: interrupted (Ctrl-C): 1 of 2 recordings written (each whole), listed in {output / 'report.md'}"
+    present, listed = _files_and_report(output)  # reaching02 first: its gap splits it in two segments
+    assert present == listed == {"reaching02.csv", "reaching02.npz", "reaching02.trc", "reaching02.seg1.trc"}
+    report = json.loads((output / "report.json").read_text())
+    assert report["interrupted"] == {"after": 1, "of": 2, "not_reconstructed": ["walking01"]}
+    assert "**Interrupted (Ctrl-C)** after 1 of 2 recordings; not reconstructed: walking01." in (output / "report.md").read_text()
+
+
+@pytest.mark.trains
+def test_a_recording_too_short_for_limb_lengths_is_reported_as_smoothed_without_them(rig_run, tmp_path):
+    """Issue 52 defect 11: a recording of under 10 frames got no limb constraint (no limb measured at
+    `MIN_LENGTH_INSTANTS` instants) while the report said "solved over time" as for the others; the report says
+    how many limbs the trajectory held, per recording: none for 8 frames, every one for 160."""
+    from jaxpose import reconstruct
+    from jaxpose.reconstruction.trajectory import MIN_LENGTH_INSTANTS
+
+    project = _copy_project(rig_run.project, tmp_path / "project")
+    for frame in project.glob("walking01/*_json/*.json"):
+        if int(re.search(r"_(\d{12})_keypoints", frame.name)[1]) >= 8:
+            frame.unlink()
+    report = reconstruct.main(_reconstruct_argv(rig_run, project, tmp_path / "motion"))
+    rows = {row["recording"]: row for row in report["recordings"]}
+    limbs = len(rows["reaching02"]["limb_length_std_mm"])
+    assert 8 < MIN_LENGTH_INSTANTS and rows["walking01"]["frames"] == 8
+    assert rows["walking01"]["limbs_held"] == 0 and len(rows["walking01"]["limbs_free"]) == limbs
+    assert rows["reaching02"]["limbs_held"] == limbs and rows["reaching02"]["limbs_free"] == []
+    markdown = (tmp_path / "motion" / "report.md").read_text()
+    assert f"| walking01 | 0 of {limbs} (no limb measured at {MIN_LENGTH_INSTANTS} instants: smoothed without limb lengths) |" in markdown
+    assert f"| reaching02 | {limbs} of {limbs} |" in markdown
+
+
+@pytest.fixture(scope="module")
+def uncalibrated_project(tmp_path_factory):
+    """The example project of 2 recordings of 60 frames, walking01 and waving02, without its calibration.toml:
+    the rig is recovered (walking01 first: the person walks through the scene)."""
+    config = ExampleProjectConfig(recordings=2, frames_per_recording=60, motions=("walking", "waving"))
+    project = write_rig_project(tmp_path_factory.mktemp("uncalibrated") / "project", config)
+    (project / "calibration.toml").unlink()
+    return project
+
+
+def test_a_session_naming_a_recording_the_project_lacks_is_refused_with_the_closest_name(uncalibrated_project, tmp_path):
+    """Issue 52 defect 11: `--data.sessions b=walkng03` (a typo) was taken for a recording left out by
+    --data.recordings and session b vanished; a name no recording of the project has is refused in one line
+    naming it and the closest recording, before any calibration."""
+    project = _copy_project(uncalibrated_project, tmp_path / "project")
+    config = RigProjectConfig(root=project, recordings=("walking01",), sessions=("a=walking01", "b=wavng02"), image_size=(1920, 1080))
+    with pytest.raises(ValueError) as error:
+        load_rig_project(config, progress=False)
+    assert str(error.value) == f"--data.sessions b=wavng02: {project} has no recording 'wavng02'; the closest is 'waving02' (its recordings: walking01, waving02)"
+
+
+def test_a_session_whose_recording_lacks_a_camera_is_named_with_the_way_out(uncalibrated_project, tmp_path):
+    """Issue 52 defect 11: a session whose recording has no folder for one camera stopped with "view cam03 cannot
+    be placed in the rig: it sees only 0 of the joints", naming neither the session nor the recording; the
+    line names them, the camera they lack, and what to do."""
+    project = _copy_project(uncalibrated_project, tmp_path / "project")
+    shutil.rmtree(project / "walking01" / "cam03_json")
+    config = RigProjectConfig(root=project, sessions=("a=waving02", "b=walking01"), image_size=(1920, 1080))  # walking01's first
+    with pytest.raises(ValueError) as error:
+        load_rig_project(config, progress=False)
+    message = str(error.value)
+    assert "\n" not in message
+    assert message.startswith("session b (recordings walking01, as --data.sessions gives it): its rig cannot be recovered: view cam03 cannot be placed")
+    assert message.endswith(
+        "; recording walking01 has no detections of camera cam03; give every camera's detections, leave such a recording out"
+        " (--data.recordings) or give it a calibration file"
+    )

@@ -9,15 +9,20 @@ folder of outputs.  `atomic_output` gives a temporary path beside the output,
 with the same suffix (writers such as `np.savez` and matplotlib choose the format by it), and
 renames it into place only when the writer finished: an interrupted or failed write leaves the
 previous file, if any, as it was.  `check_report` and `write_report` do both for the report.md / report.json
-pair of the commands and studies that write one.
+pair of the commands and studies that write one.  `exclusive_folder` holds a folder of outputs for one
+process: two commands writing one folder at once would each write a report of its own files, the last
+one replacing the other's.
 """
 
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import os
+import socket
 import sys
+import time
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
@@ -92,12 +97,53 @@ def check_report(folder: Path, overwrite: bool, flag: str = "--output") -> None:
         check_output(folder / name, overwrite, flag=flag)
 
 
-def write_report(folder: Path, report: dict, markdown: str) -> None:
-    """report.json and report.md in `folder` (made if absent), each written atomically; the markdown also to
-    stderr, where the command's log goes."""
+def write_report(folder: Path, report: dict, markdown: str, echo: bool = True) -> None:
+    """report.json and report.md in `folder` (made if absent), each written atomically; with `echo` the
+    markdown also to stderr, where the command's log goes."""
     folder.mkdir(parents=True, exist_ok=True)
     with atomic_output(folder / "report.json") as temporary:
         temporary.write_text(json.dumps(report, indent=2, default=float))
     with atomic_output(folder / "report.md") as temporary:
         temporary.write_text(markdown)
-    print(markdown, file=sys.stderr)
+    if echo:
+        print(markdown, file=sys.stderr)
+
+
+@contextlib.contextmanager
+def exclusive_folder(folder: Path, lock_file: str, flag: str, holder: str) -> Iterator[None]:
+    """Hold `folder` for this process: a second one to ask for it stops at once, in one line naming the
+    first (`holder` says what holds such a folder: "run", "jaxpose.reconstruct").
+
+    The lock is an OS lock on `folder/lock_file` (released by the kernel if the process dies, so a killed
+    process never leaves the folder locked); the file names the holder for the message and is removed at the
+    end.  A folder (and parents) made only to hold the lock is removed again if nothing else was written.
+    """
+    made = [entry for entry in (folder, *folder.parents) if not entry.exists()]  # deepest first
+    path = folder / lock_file
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        descriptor = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as error:
+        raise SystemExit(f"{flag} {folder}: cannot be written ({error.strerror})") from None
+    try:
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            if os.fstat(descriptor).st_ino != os.stat(path).st_ino:  # the holder removed it as we opened it
+                raise BlockingIOError
+        except (BlockingIOError, FileNotFoundError):
+            named = os.pread(descriptor, 512, 0).decode(errors="replace").strip() or "another process"
+            raise SystemExit(
+                f"{flag} {folder} is in use by another {holder} ({named}); wait for it to end, or choose another {flag}"
+            ) from None
+        os.ftruncate(descriptor, 0)
+        os.pwrite(descriptor, f"process {os.getpid()} on {socket.gethostname()}, started {time.strftime('%Y-%m-%d %H:%M:%S')}".encode(), 0)
+        try:
+            yield
+        finally:
+            os.unlink(path)
+            for entry in made:
+                if any(entry.iterdir()):
+                    break
+                entry.rmdir()
+    finally:
+        os.close(descriptor)

@@ -26,6 +26,7 @@ pooled (`recover_rig`), each into its own upright metric world.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import logging
 import pathlib
 import re
@@ -38,7 +39,7 @@ from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.formats.rig_folder import GROUND_TRUTH_NPZ
 from jaxpose.rig.geometry import triangulate_rows, undistort_views
-from jaxpose.rig.recordings import one_person
+from jaxpose.rig.recordings import one_person, recording_folders
 from jaxpose.rotations import similarity
 from jaxpose.skeleton import Skeleton
 
@@ -196,10 +197,11 @@ class RecoveredSession:
         return {"name": self.name, "recordings": list(self.recordings), "reprojection_px": self.reprojection_px, "found": self.found}
 
 
-def parse_sessions(entries: Sequence[str], names: Sequence[str]) -> dict[str, str]:
+def parse_sessions(entries: Sequence[str], names: Sequence[str], root: pathlib.Path) -> dict[str, str]:
     """--data.sessions entries SESSION=REC1,REC2 as {recording: session} over the recordings `names`
-    loaded; every recording must be named exactly once (names of recordings not loaded, e.g. left out
-    by --data.recordings, are passed over)."""
+    loaded; every recording must be named exactly once (names of the project's recordings not loaded, e.g.
+    left out by --data.recordings, are passed over; a name the project `root` has no recording of is refused,
+    with the closest one: a typo would otherwise drop its session without a word)."""
     labels: dict[str, str] = {}
     unknown = []
     for entry in entries:
@@ -212,6 +214,15 @@ def parse_sessions(entries: Sequence[str], names: Sequence[str]) -> dict[str, st
             labels[member] = session
             if member not in names:
                 unknown.append(member)
+    if unknown:
+        existing = [folder.name for folder in recording_folders(root)]
+        for member in unknown:
+            if member not in existing:
+                (closest,) = difflib.get_close_matches(member, existing, n=1, cutoff=0.0)
+                raise ValueError(
+                    f"--data.sessions {labels[member]}={member}: {root} has no recording {member!r}; the closest is {closest!r}"
+                    f" (its recordings: {', '.join(existing)})"
+                )
     missing = [name for name in names if name not in labels]
     if missing:
         raise ValueError(f"--data.sessions names no session for the recordings {missing} (every recording needs one)")
@@ -266,12 +277,14 @@ def recover_sessions(
     """Each session's rig, recovered from its recordings pooled on at most `max_frames` instants
     (`sessions`: --data.sessions entries, else grouped as `group_recordings` says); and every recording's rig
     by name.  `known` and `aligned`: each recording's known cameras and keypoints (`rig_detections`')."""
+    from jaxpose.calibration import CalibrationError  # the calibrate extra
+
     names = list(names)
     detections = {
         name: rig_detections([name], [cameras], [part], camera_order, skeleton, image_size=image_size, root=root)
         for name, cameras, part in zip(names, known, aligned)
     }
-    labels = parse_sessions(sessions, names) if sessions else None
+    labels = parse_sessions(sessions, names, root) if sessions else None
     grouping = group_recordings(detections, labels, find, root)
     if len(grouping.sessions) > 1 or grouping.method != "one":
         log.info("sessions (%s): %s", grouping.method, "; ".join(f"{s.name}: {', '.join(s.recordings)}" for s in grouping.sessions))
@@ -281,12 +294,33 @@ def recover_sessions(
         pooled = rig_detections(
             [names[i] for i in members], [known[i] for i in members], [aligned[i] for i in members], camera_order, skeleton, image_size=image_size, root=root
         )
-        rig, calibration = recover_rig(pooled, max_frames=max_frames, height_mm=height_mm)
+        try:
+            rig, calibration = recover_rig(pooled, max_frames=max_frames, height_mm=height_mm)
+        except CalibrationError as error:
+            raise ValueError(_unrecoverable(session.name, session.recordings, detections, grouping.method, error)) from None
         reprojection = float(np.max(calibration.reprojection_median_px))
         result.append(RecoveredSession(session.name, session.recordings, reprojection, grouping.method, calibration))
         rigs.update(dict.fromkeys(session.recordings, rig))
         log.info("session %s: rig recovered from %d recordings, worst camera's median re-projection %.2f px", session.name, len(members), reprojection)
     return tuple(result), rigs
+
+
+def _unrecoverable(name: str, recordings: Sequence[str], detections: Mapping[str, object], method: str, error: Exception) -> str:
+    """Why the session's rig could not be recovered, in one line: the session and its recordings, the
+    calibration's reason, the recordings lacking a camera's detections altogether (the usual cause: a camera
+    folder missing), and what to do."""
+    lacking = []
+    for recording in recordings:
+        rows = detections[recording]
+        absent = [camera for c, camera in enumerate(rows.camera_names) if not (rows.confidence[:, c] > 0).any()]
+        lacking += [f"recording {recording} has no detections of camera {camera}" for camera in absent]
+    how = "as --data.sessions gives it" if method == "labels" else "as found from the data"
+    way_out = "leave such a recording out (--data.recordings) or give it a calibration file"
+    return (
+        f"session {name} (recordings {', '.join(recordings)}, {how}): its rig cannot be recovered: {error}"
+        + "".join(f"; {line}" for line in lacking)
+        + (f"; give every camera's detections, {way_out}" if lacking else f"; {way_out}")
+    )
 
 
 def _spread(detections, count: int):

@@ -12,20 +12,17 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import fcntl
 import json
 import logging
-import os
 import pathlib
 import shutil
-import socket
 import time
 from collections.abc import Iterator, Mapping
 from typing import Any
 
 import jax
 
-from jaxpose.formats.outputs import atomic_output
+from jaxpose.formats.outputs import atomic_output, exclusive_folder
 from jaxpose.training.experiment import ExperimentConfig, TrainConfig, dumps, to_json_dict
 
 log = logging.getLogger("jaxpose")
@@ -219,42 +216,14 @@ def check_resumable(config: ExperimentConfig) -> None:
 
 @contextlib.contextmanager
 def exclusive(run_dir: pathlib.Path) -> Iterator[None]:
-    """Hold the run directory for one run: a second run started on it stops at once, naming the first.
-
-    The lock is an OS lock on `run_dir/run.lock` (released by the kernel if the process dies, so a
-    killed run never leaves the directory locked); the file names the holder for the message.  A
-    directory (and parents) made only to hold the lock is removed again if the run ends before writing anything
-    (a data file that fails to load leaves no run directory behind).
-    """
+    """Hold the run directory for one run: a second run started on it stops at once, naming the first
+    (`exclusive_folder`, on `run_dir/run.lock`).  A directory made only to hold the lock is removed again if
+    the run ends before writing anything (a data file that fails to load leaves no run directory behind)."""
     if jax.process_index() != 0:  # one lock per run: process 0 writes the directory
         yield
         return
-    made = [folder for folder in (run_dir, *run_dir.parents) if not folder.exists()]  # deepest first
-    try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        descriptor = os.open(run_dir / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
-    except OSError as error:
-        raise SystemExit(f"--run.run-dir {run_dir}: cannot be written ({error.strerror})") from None
-    try:
-        try:
-            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(descriptor, 512, 0).decode(errors="replace").strip() or "another process"
-            raise SystemExit(
-                f"--run.run-dir {run_dir} is in use by another run ({holder}); wait for it to end, or choose another --run.run-dir"
-            ) from None
-        os.ftruncate(descriptor, 0)
-        os.pwrite(descriptor, f"process {os.getpid()} on {socket.gethostname()}, started {time.strftime('%Y-%m-%d %H:%M:%S')}".encode(), 0)
-        try:
-            yield
-        finally:
-            os.unlink(run_dir / LOCK_FILE)
-            for folder in made:
-                if any(folder.iterdir()):
-                    break
-                folder.rmdir()
-    finally:
-        os.close(descriptor)
+    with exclusive_folder(run_dir, LOCK_FILE, "--run.run-dir", "run"):
+        yield
 
 
 def prepare_run_dir(config: ExperimentConfig) -> pathlib.Path:

@@ -53,16 +53,20 @@ def rig_of(project, recording: str):
     return np.asarray(project.train.rigs.R[index], np.float64), np.asarray(project.train.rigs.t[index], np.float64)
 
 
-def test_session_entries_are_parsed_and_checked():
-    assert parse_sessions(["day1=a1,a2", "day2=b1"], ["a1", "a2", "b1"]) == {"a1": "day1", "a2": "day1", "b1": "day2"}
-    assert parse_sessions(["day1=a1,a2,z9", "day2=b1"], ["a1", "b1"]) == {"a1": "day1", "b1": "day2"}  # z9, a2 not loaded
+def test_session_entries_are_parsed_and_checked(tmp_path):
+    root = tmp_path / "project"
+    write_project(root, frames=10)
+    assert parse_sessions(["day1=a1,a2", "day2=b1"], ["a1", "a2", "b1"], root) == {"a1": "day1", "a2": "day1", "b1": "day2"}
+    assert parse_sessions(["day1=a1,a2", "day2=b1"], ["a1", "b1"], root) == {"a1": "day1", "b1": "day2"}  # a2 not loaded
+    with pytest.raises(ValueError, match=r"--data.sessions day1=z9: .* has no recording 'z9'; the closest is"):
+        parse_sessions(["day1=a1,a2,z9", "day2=b1"], ["a1", "b1"], root)  # z9 in no folder: a typo, not left out
     with pytest.raises(ValueError, match=r"no session for the recordings \['b1'\]"):
-        parse_sessions(["day1=a1,a2"], ["a1", "a2", "b1"])
+        parse_sessions(["day1=a1,a2"], ["a1", "a2", "b1"], root)
     with pytest.raises(ValueError, match="'a1' is in sessions 'day1' and 'day2'"):
-        parse_sessions(["day1=a1", "day2=a1,b1"], ["a1", "b1"])
+        parse_sessions(["day1=a1", "day2=a1,b1"], ["a1", "b1"], root)
     for entry in ("a1,a2", "day 1=a1", "../x=a1", "day1="):
         with pytest.raises(ValueError, match="SESSION=RECORDING"):
-            parse_sessions([entry], ["a1"])
+            parse_sessions([entry], ["a1"], root)
 
 
 @pytest.mark.slow  # three loads (the sessions found, the cache, one rig): 2.9-7.2 min on 2 shared cores
