@@ -46,7 +46,9 @@ class TuningArgs:
     data: RigProjectConfig = RigProjectConfig()
     """The rig project, calibrated, with ground_truth.npz; its held-out part (--data.validation-*) is tuned on."""
     acceleration_mm_s2: tuple[float, ...] = (1000.0, 3000.0, 10000.0, 30000.0)
-    """The process noises scanned."""
+    """The process noises scanned (each fixed for every joint; the default estimates it per recording)."""
+    acceleration_dof: tuple[float, ...] = (2.0, 8.0, float("inf"))
+    """The acceleration's Student-t degrees of freedom scanned (inf: Gaussian)."""
     limb_sigma_mm: tuple[float, ...] = (3.0, 10.0, 30.0, 1e6)
     """The limb-length sigmas scanned (1e6: no limb term)."""
     robust_sigmas: tuple[float, ...] = (1.5, 3.0, 6.0, 1e6)
@@ -65,7 +67,7 @@ def grid(args: TuningArgs) -> dict[str, TrajectoryConfig | None]:
     """The per-instant fusion (None), the default, and the default with one setting changed at a time."""
     default = TrajectoryConfig()
     configs: dict[str, TrajectoryConfig | None] = {"per-instant fusion": None, "default": default}
-    for name in ("acceleration_mm_s2", "limb_sigma_mm", "robust_sigmas", "lifted_sigma_scale"):
+    for name in ("acceleration_mm_s2", "acceleration_dof", "limb_sigma_mm", "robust_sigmas", "lifted_sigma_scale"):
         for value in getattr(args, name):
             if value != getattr(default, name):
                 configs[f"{name} {value:g}"] = dataclasses.replace(default, **{name: value})

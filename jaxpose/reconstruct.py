@@ -72,6 +72,10 @@ from jaxpose.rig.config import RigProjectConfig, differences
 from jaxpose.training.run_directory import RunDirectory, record_named_in
 from jaxpose.rig.recordings import find_project
 
+# The fastest rig worth reconstructing (high-speed sport cameras; a detector per frame beyond it is not how
+# such footage is read): a larger --fps is a typo or frames numbered in another unit, and its prior would
+# allow a body no acceleration over the whole recording (a line through a walk).
+MAX_FPS = 10000.0
 LOCK_FILE = "reconstruct.lock"
 """Held in --output while a reconstruct writes there (`exclusive_folder`), removed at its end."""
 INTERRUPTED_EXIT = 128 + signal.SIGINT  # the shell's code for a command ended by Ctrl-C: 130
@@ -121,6 +125,8 @@ def run(args: ReconstructArgs) -> dict:
     """The whole command; returns the report (as report.json holds it)."""
     if not 0 < args.fps < float("inf"):
         raise ValueError(f"--fps must be a positive finite number, got {args.fps}")
+    if args.fps > MAX_FPS:
+        raise ValueError(f"--fps {args.fps:g}: frames per second of the recordings, at most {MAX_FPS:g} (a typo, or frames numbered in another unit?)")
     if args.max_gap < 0:
         raise ValueError(f"--max-gap must be >= 0 frames, got {args.max_gap}")
     if args.c3d:
@@ -175,7 +181,7 @@ def _reconstruct(args: ReconstructArgs, found, ctrl_c: _CtrlC) -> dict:
             with ctrl_c.deferred():  # a recording's files are all written and listed, or none of them
                 written = motion_files.write_motion(args.output, motion, lifter.joint_names, args.fps, up_axis, args.c3d)
                 files += [str(path) for path in written]
-                rows.append(recording_summary(motion) | quality | held | {"files": [path.name for path in written]})
+                rows.append(recording_summary(motion, lifter.joint_names) | quality | held | {"files": [path.name for path in written]})
         interrupted = None
     except KeyboardInterrupt:
         done = {row["recording"] for row in rows}
@@ -319,9 +325,17 @@ def check_outputs(args: ReconstructArgs, names: Sequence[str]) -> list[pathlib.P
     return earlier
 
 
-def recording_summary(motion: recording.RecordingMotion) -> dict:
-    """One recording's counts for the report."""
+def recording_summary(motion: recording.RecordingMotion, joint_names: Sequence[str]) -> dict:
+    """One recording's counts for the report; with the trajectory its motion prior (mm/s^2 per joint, null
+    where not solved) and its impacts (accelerations the Student-t prior weighted below 0.5)."""
     cells = np.bincount(motion.provenance.ravel(), minlength=len(Provenance))
+    smoothed = {}
+    if motion.acceleration_mm_s2 is not None:
+        smoothed = {
+            "motion_prior_mm_s2": {name: None if np.isnan(value) else round(float(value), 1)
+                                   for name, value in zip(joint_names, motion.acceleration_mm_s2)},
+            "impacts": int((motion.impact_weight < 0.5).sum()),
+        }  # fmt: skip
     return {
         "recording": motion.name,
         "frames": len(motion.frames),
@@ -331,7 +345,7 @@ def recording_summary(motion: recording.RecordingMotion) -> dict:
         "interpolated_frames": motion.interpolated_frames,
         "segments": len(motion.segments),
         "dropped_frames": motion.dropped_frames,
-    }
+    } | smoothed
 
 
 def report_markdown(report: dict) -> str:
@@ -367,11 +381,14 @@ def report_markdown(report: dict) -> str:
     else:
         smoothing = "each instant alone (--no-smoothing)"
     columns = ["recording", *(["limbs held"] if report["smoothing"] else []), "mean acceleration", "mean limb length std",
-               "largest limb length std", "acceleration error"]  # fmt: skip
+               "largest limb length std", "acceleration error",
+               *(["process noise, median (range)", "impacts"] if report["smoothing"] else [])]  # fmt: skip
     lines += [
         "",
         f"The motion, {smoothing}: its mean acceleration (mm/frame^2), each limb's length spread over time (std, mm;"
-        " report.json has every limb's) and, with ground truth, the acceleration error (mm/frame^2).",
+        " report.json has every limb's) and, with ground truth, the acceleration error (mm/frame^2); with the"
+        " trajectory, the process noise of its motion prior over the joints (mm/s^2, median (range); report.json"
+        " has every joint's) and its impacts (accelerations the heavy-tailed prior let through: weight below 0.5).",
         "",
         "| " + " | ".join(columns) + " |",
         "|---" * len(columns) + "|",
@@ -387,6 +404,7 @@ def report_markdown(report: dict) -> str:
             count = row["limbs_held"] + len(row["limbs_free"])
             none = f" (no limb measured at {report['min_length_instants']} instants: smoothed without limb lengths)"
             cells.insert(0, f"{row['limbs_held']} of {count}" + ("" if row["limbs_held"] else none))
+            cells += [_noise(row.get("motion_prior_mm_s2")), str(row["impacts"]) if "impacts" in row else "-"]
         lines.append(f"| {row['recording']} | " + " | ".join(cells) + " |")
     interrupted = report.get("interrupted")
     if interrupted:
@@ -397,6 +415,11 @@ def report_markdown(report: dict) -> str:
             f" {', '.join(name for row in report['recordings'] for name in row['files']) or 'nothing'}.",
         ]
     return "\n".join(lines) + "\n"
+
+
+def _noise(per_joint: dict | None) -> str:
+    values = [value for value in (per_joint or {}).values() if value is not None]
+    return f"{np.median(values):.0f} ({min(values):.0f}-{max(values):.0f})" if values else "-"
 
 
 def _number(value: float | None, digits: int) -> str:

@@ -8,7 +8,7 @@ Keypoints: per-camera OpenPose JSON frame folders and COCO results (`keypoint_fi
 `fast_json` and `coco_results` in a process pool (`file_pool`), cached by `file_cache`), the one
 rule for detector scores (`confidences`), a recording's multi-view `detections_npz`,
 and a file of poses to lift one at a time (`detection_file`).
-Poses out: `pose_files` (JSON, npz, CSV, TRC) over `trc` (OpenSim markers).
+Poses out: `pose_files` (JSON, npz, CSV, TRC) over `trc` (OpenSim markers).  Motion capture in: `bvh`.
 The rig project folder's file names (`rig_folder`), outputs that never destroy anything (`outputs`),
 and the small readers and the one error they share (`files`, `errors`).
 Nothing here imports a data set, the rig project or training (tests/test_layering.py).

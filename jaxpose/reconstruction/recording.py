@@ -253,6 +253,10 @@ class RecordingMotion:
     views:       i8[F, J] detections that agree with the joint.
     segments:    i64[S, 2] (start, stop) frame indices, half-open, of the complete runs: one output file each.
     fusion:      the fusion before gap filling (with each view's placement).
+    acceleration_mm_s2: f32[J] the motion prior's process noise per joint (mm/s^2; over the parts solved
+                 apart, their geometric mean weighted by frames), or None without the trajectory.
+    impact_weight: f32[F, J] the trajectory's Student-t weight of each acceleration (below 0.5: an impact;
+                 NaN where not solved), or None without the trajectory.
     """
 
     name: str
@@ -264,6 +268,8 @@ class RecordingMotion:
     segments: np.ndarray
     seen: np.ndarray
     fusion: Fusion
+    acceleration_mm_s2: np.ndarray | None = None
+    impact_weight: np.ndarray | None = None
 
     @property
     def interpolated_frames(self) -> int:
@@ -410,18 +416,23 @@ def smooth_recording(
     is the smoother's bridge (INTERPOLATED), and a longer gap splits the recording as `fill_recording`
     does.  The parts a gap of more than `max_gap` frames without any evidence separates are solved apart
     (nothing is bridged across it; a bridge of thousands of frames would only slow the solve), with the
-    limb lengths of the whole recording.  The uncertainty is the trajectory's posterior RMS error,
-    bridges included."""
+    limb lengths of the whole recording, each with its own motion prior (`TrajectoryConfig.acceleration_mm_s2`
+    None: estimated on that part).  The uncertainty is the trajectory's posterior RMS error, bridges included."""
     missing = fusion.provenance == Provenance.NONE
     lengths = limb_lengths(fusion.points, fusion.provenance, bones)
     points = np.full(fusion.points.shape, np.nan, np.float32)
     sigma = np.full(missing.shape, np.nan, np.float32)
+    impact = np.full(missing.shape, np.nan, np.float32)
+    log_noise, solved_frames = np.zeros(missing.shape[1]), np.zeros(missing.shape[1])
     evidence = ~missing.all(-1)  # [F] frames with something to go by
     bridgeable = fill_gaps(np.where(evidence, 0.0, np.nan)[:, None, None], max_gap).filled[:, 0]
     for start, stop in complete_segments(evidence | bridgeable):
         part = slice(start, stop)
         solved = solve_trajectory(fusion.points[part], fusion.covariance[part], fusion.provenance[part], bones, fps, config, lengths)
-        points[part], sigma[part] = solved.points, solved.sigma
+        points[part], sigma[part], impact[part] = solved.points, solved.sigma, solved.impact_weight
+        counted = np.isfinite(solved.acceleration_mm_s2)
+        log_noise[counted] += (stop - start) * np.log(solved.acceleration_mm_s2[counted])
+        solved_frames[counted] += stop - start
     bridged = fill_gaps(np.where(missing[..., None], np.nan, fusion.points), max_gap).filled
     kept = ~missing | bridged
     return RecordingMotion(
@@ -434,4 +445,6 @@ def smooth_recording(
         complete_segments(kept.all(-1)),
         inputs.seen,
         fusion,
+        np.where(solved_frames > 0, np.exp(log_noise / np.maximum(solved_frames, 1)), np.nan).astype(np.float32),
+        np.where(np.isfinite(sigma), impact, np.nan).astype(np.float32),
     )

@@ -5,13 +5,23 @@ posterior covariance S_tj (`Fusion.covariance`), which already weighs the rays a
 whole recording's track x_tj (world mm) is the minimum of
 
     sum_tj  w_tj (x_tj - y_tj)^T S_tj^-1 (x_tj - y_tj)                 the evidence, robustly weighted
-  + sum_tj  |x_t+1,j - 2 x_tj + x_t-1,j|^2 / q^2                       a constant-velocity prior
+  + sum_tj  u_tj |x_t+1,j - 2 x_tj + x_t-1,j|^2 / q_j^2                a constant-velocity prior
   + sum_tb  (|x_tc - x_tp| - L_b)^2 / limb_sigma^2                     each limb b = (c, p) of length L_b
 
-- The motion prior: the acceleration (second difference) is white noise of `acceleration_mm_s2` per
-  axis, q = acceleration_mm_s2 / fps^2 in mm per frame^2.  Where no evidence is (no camera sees the
-  person), the minimum is the smoothest bridge between the ends, and its uncertainty grows toward the
-  middle of the gap (a cubic spline's, not a straight line's held certainty).
+- The motion prior: each joint's acceleration (second difference) is white noise of q_j mm/s^2 per
+  axis, q_j / fps^2 in mm per frame^2: in physical units, so that the frame rate changes nothing but
+  the noise per frame.  Where no evidence is (no camera sees the person), the minimum is the smoothest
+  bridge between the ends, and its uncertainty grows toward the middle of the gap (a cubic spline's,
+  not a straight line's held certainty).
+- The prior set by the recording (`acceleration_mm_s2` None, the default; a number fixes it for every
+  joint): q_j maximises the marginal likelihood of joint j's evidence under the linear-Gaussian
+  state-space model (the evidence y_tj ~ N(x_tj, S_tj), the second differences ~ N(0, q_j^2 / fps^4)
+  per axis, the first two frames free), `process_noise`.  A recording of walking gets a few m/s^2, a
+  jog or a dance tens to hundreds: one number chosen on slow motion lags fast motion and cuts its peaks.
+- Heavy tails where bodies have them (a foot strike, a punch): each acceleration is Student-t with
+  `acceleration_dof` degrees of freedom, solved by EM: u_tj = (nu + 3) / (nu + |a_tj|^2 / q_j^2),
+  recomputed with the evidence's weights at every iteration, so that one sharp acceleration is not
+  spread over its neighbours (`Trajectory.impact_weight`: below 0.5 an impact).
 - The limbs: L_b is the median length over the instants where two or more views triangulate both
   joints (the recording's own body, not a generic one); over those where both are at least fused
   where fewer than `MIN_LENGTH_INSTANTS` are; a limb never seen so is left free.
@@ -27,9 +37,24 @@ joint's own system (its evidence, its motion prior and its limbs' diagonal block
 diagonal in the order (frame, axis), Cholesky-factored by `scipy.linalg.cholesky_banded`): linear in
 the frames and joints; the cameras were already reduced per joint by the fusion.
 
+A recording longer than `WINDOW_FRAMES` + 2 `CONTEXT_FRAMES` frames is solved in windows of
+`WINDOW_FRAMES` frames, each with `CONTEXT_FRAMES` frames of its neighbours on either side (solved and
+dropped): the same track to ~0.001 mm where the prior is fixed and the smoother's reach (`CONTEXT_FRAMES`)
+short against the context, each window's estimated prior its own (`Trajectory.acceleration_mm_s2` then the
+frame-weighted geometric mean), memory flat in the recording's length.
+
 Uncertainty (`Trajectory.sigma`): sqrt(trace) of each cell's marginal posterior covariance under each
 joint's own system (the other joints held where they are), from the banded factor by the selected
 inversion (Takahashi's recurrence), O(F) per joint.
+
+The marginal likelihood of joint j's evidence, up to a constant (the prior on the first two frames flat):
+
+    log p(y | q) = -1/2 min_x [evidence + motion terms] - 1/2 log det A(q) - 3 (F - 2) log(q / fps^2)
+
+with A(q) the joint's own system (no limbs), both from its banded Cholesky factor: O(F) per joint and
+value of q, evaluated on `NOISE_GRID_MM_S2`, refined by a parabola in log q about the best value, each
+joint's estimate then pooled toward the joints' mean with the weight of `POOL_ACCELERATIONS` accelerations
+(a joint seen at few instants takes the body's).
 """
 
 from __future__ import annotations
@@ -48,15 +73,37 @@ MIN_EVIDENCE_CELLS = 2  # a joint with fewer cells of evidence keeps its per-ins
 BAND = 8  # the upper bandwidth of one joint's system in the order (frame, axis): 2 frames of 3 axes, +2 within one
 CG_TOLERANCE = 1e-9  # relative residual of the conjugate gradients
 CG_MAX_STEPS = 500
+NOISE_GRID_MM_S2 = np.geomspace(100.0, 1e6, 13)  # from a body at rest to the peaks of sprinting and punching
+POOL_ACCELERATIONS = 20.0  # a joint's estimate weighs as much as this many 3D accelerations of the body's mean
+# The per-frame process noise is held at least this fraction of the evidence's own noise per axis (the median
+# over the joint's cells): tighter (--fps 1e5..1e9), float64's banded Cholesky loses the evidence against the
+# prior and fails as not positive definite, while the track is a constant-velocity line to within this fraction
+# of the evidence's noise over the ~1/sqrt(fraction) frames such a prior bends over.  Reached only above ~1000 fps.
+MIN_NOISE_FRACTION = 1e-4
+# A long recording is solved in windows of this many frames, each with this many frames of context on either
+# side (solved, then dropped): the normal equations' memory (~42 KB a frame of 17 joints) stays that of one
+# window.  The smoother reaches ~(sigma / q-per-frame)^(1/2) frames (sigma the evidence's noise), its influence
+# falling as exp(-frames / (1.4 reach)): ~16 frames at 50 fps and the grid's bottom, 100 mm/s^2, with 10 mm
+# evidence, and the context is 25 such reaches; a gap of at most --max-gap frames adds its length.
+WINDOW_FRAMES = 2000
+CONTEXT_FRAMES = 400
+# Re-weightings of the evidence alone before the accelerations' (EM) weights join in: from the Gaussian prior's
+# track an outlier instant looks as much like three sharp accelerations as like a bad detection, and the
+# re-weighting would keep it half way; once the outliers have their low weights an impact is one acceleration.
+SETTLE_ITERATIONS = 2
 
 
 @dataclasses.dataclass(frozen=True)
 class TrajectoryConfig:
-    """The trajectory's model (module docstring); chosen on the Human3.6M development split's training
-    recordings (docs/reconstruction.md), not on the reported ones."""
+    """The trajectory's model (module docstring): the acceleration's degrees of freedom chosen on CMU subject
+    02's motion, the other settings on the Human3.6M development split's training recordings (with the
+    process noise fixed at 3000 mm/s^2 then; docs/reconstruction.md), not on the reported ones."""
 
-    acceleration_mm_s2: float = 3000.0
-    """The motion prior's process noise: a joint's acceleration, standard deviation per axis (mm/s^2)."""
+    acceleration_mm_s2: float | None = None
+    """The motion prior's process noise: a joint's acceleration, scale per axis (mm/s^2); None: estimated
+    from each recording per joint (`process_noise`), a number: that one for every recording and joint."""
+    acceleration_dof: float = 4.0
+    """The Student-t degrees of freedom of the acceleration (heavy tails at impacts); inf: Gaussian."""
     limb_sigma_mm: float = 10.0
     """How far a limb's length may stray from its median over the recording (mm)."""
     robust_sigmas: float = 3.0
@@ -70,7 +117,9 @@ class TrajectoryConfig:
     def __post_init__(self):
         for field in dataclasses.fields(self):
             value = getattr(self, field.name)
-            if not (np.isfinite(value) and value > 0):
+            if field.name == "acceleration_mm_s2" and value is None:
+                continue
+            if not (isinstance(value, (int, float)) and value > 0 and (np.isfinite(value) or field.name == "acceleration_dof")):
                 raise ValueError(f"TrajectoryConfig.{field.name} must be a positive number, got {value!r}")
         if not isinstance(self.iterations, int):
             raise ValueError(f"TrajectoryConfig.iterations must be a whole number, got {self.iterations!r}")
@@ -80,17 +129,23 @@ class TrajectoryConfig:
 class Trajectory:
     """A recording's track of F frames and J joints.
 
-    points:       f32[F, J, 3] world mm at every frame (the bridge where there is no evidence; a joint
-                  with fewer than `MIN_EVIDENCE_CELLS` cells of evidence: its input values).
-    sigma:        f32[F, J] mm, the posterior RMS 3D error (module docstring); NaN where not solved.
-    weight:       f32[F, J] each cell's final robust weight; 0 where it had no evidence.
-    limb_lengths: f32[B] mm, the length each limb (`bones`' order) was held to; NaN where free.
+    points:             f32[F, J, 3] world mm at every frame (the bridge where there is no evidence; a joint
+                        with fewer than `MIN_EVIDENCE_CELLS` cells of evidence: its input values).
+    sigma:              f32[F, J] mm, the posterior RMS 3D error (module docstring); NaN where not solved.
+    weight:             f32[F, J] each cell's final robust weight; 0 where it had no evidence.
+    limb_lengths:       f32[B] mm, the length each limb (`bones`' order) was held to; NaN where free.
+    acceleration_mm_s2: f32[J] the process noise each joint was solved with (mm/s^2, per axis); NaN where
+                        not solved.
+    impact_weight:      f32[F, J] the final Student-t weight u_tj of the acceleration at each frame (1 at the
+                        first and last frames and where not solved): below 0.5, an impact the prior let through.
     """
 
     points: np.ndarray
     sigma: np.ndarray
     weight: np.ndarray
     limb_lengths: np.ndarray
+    acceleration_mm_s2: np.ndarray
+    impact_weight: np.ndarray
 
 
 def limb_lengths(points: np.ndarray, provenance: np.ndarray, bones: Sequence[tuple[int, int]]) -> np.ndarray:
@@ -106,6 +161,102 @@ def limb_lengths(points: np.ndarray, provenance: np.ndarray, bones: Sequence[tup
     return lengths
 
 
+@dataclasses.dataclass(frozen=True)
+class _Evidence:
+    """The evidence as the solve weighs it: precision [F, J, 3, 3] (LIFTED cells' scaled; a unit dummy for
+    the joints not solved), observed [F, J, 3] (0 where none), has [F, J], solved [J], and floor [J] mm/frame^2:
+    `MIN_NOISE_FRACTION` of each joint's median evidence noise per axis."""
+
+    precision: np.ndarray
+    observed: np.ndarray
+    has: np.ndarray
+    solved: np.ndarray
+    floor: np.ndarray
+
+    @property
+    def dummy(self) -> np.ndarray:
+        """bool[F, J]: the cells of the joints not solved, held at 0 by unit weights so that their systems stay regular."""
+        return np.broadcast_to(~self.solved, self.has.shape)
+
+    def per_frame(self, noise_mm_s2: np.ndarray, fps: float) -> np.ndarray:
+        """f64[J] mm/frame^2: the process noise per frame, held at the floor (`MIN_NOISE_FRACTION`)."""
+        return np.maximum(np.asarray(noise_mm_s2, np.float64) / fps**2, self.floor)
+
+
+def _evidence(points, covariance, provenance, config: TrajectoryConfig) -> _Evidence:
+    """The evidence's precisions (the LIFTED cells' scaled), the cells that have some, the joints solved."""
+    F, J, _ = points.shape
+    has = np.isfinite(points).all(-1) & np.isfinite(covariance).all((-1, -2))
+    scale = np.where(provenance == Provenance.LIFTED, config.lifted_sigma_scale**2, 1.0)
+    precision = np.zeros((F, J, 3, 3))
+    precision[has] = np.linalg.inv(covariance[has] * scale[has][:, None, None])
+    solved = has.sum(0) >= MIN_EVIDENCE_CELLS  # [J]
+    precision[:, ~solved] = np.eye(3)  # a dummy system for the joints left as they are, replaced below
+    variance = np.full((F, J), np.nan)
+    variance[has] = np.trace(covariance[has] * scale[has][:, None, None], axis1=-2, axis2=-1) / 3.0
+    median = np.ones(J)
+    median[has.any(0)] = np.nanmedian(variance[:, has.any(0)], axis=0)
+    return _Evidence(precision, np.where(has[..., None], points, 0.0), has, solved, MIN_NOISE_FRACTION * np.sqrt(median))
+
+
+def _checked(points, covariance, provenance, fps):
+    """The evidence as float64 arrays, refused in one line where its shapes or the frame rate are wrong."""
+    points = np.asarray(points, np.float64)
+    covariance = np.asarray(covariance, np.float64)
+    F, J, _ = points.shape
+    if points.shape[-1] != 3 or covariance.shape != (F, J, 3, 3) or np.shape(provenance) != (F, J):
+        raise ValueError(
+            f"solve_trajectory: points [F, J, 3], covariance [F, J, 3, 3] and provenance [F, J] expected, got"
+            f" {points.shape}, {covariance.shape}, {np.shape(provenance)}"
+        )
+    if not 0 < fps < np.inf:
+        raise ValueError(f"solve_trajectory: fps must be a positive finite number, got {fps}")
+    return points, covariance
+
+
+def process_noise(
+    points: np.ndarray, covariance: np.ndarray, provenance: np.ndarray, fps: float, config: TrajectoryConfig = TrajectoryConfig()
+) -> np.ndarray:
+    """f64[J] mm/s^2: each joint's process noise estimated from its evidence (module docstring: the
+    marginal likelihood on `NOISE_GRID_MM_S2`, a parabola in log q, pooled toward the joints' mean);
+    NaN for a joint with fewer than `MIN_EVIDENCE_CELLS` cells.  Arguments as `solve_trajectory`'s."""
+    points, covariance = _checked(points, covariance, provenance, fps)
+    evidence = _evidence(points, covariance, provenance, config)
+    return _estimated_noise(evidence, evidence.has.astype(np.float64), fps)
+
+
+def _estimated_noise(evidence: _Evidence, weight: np.ndarray, fps: float) -> np.ndarray:
+    """`process_noise` of the evidence with its cells weighted by `weight` [F, J] (the robust weights)."""
+    F, J = weight.shape
+    if F < 3 or not evidence.solved.any():  # no acceleration to measure
+        return np.where(evidence.solved, NOISE_GRID_MM_S2[len(NOISE_GRID_MM_S2) // 2], np.nan)
+    weight = np.where(evidence.dummy, 1.0, weight)
+    blocks = weight[..., None, None] * evidence.precision
+    rhs = np.einsum("fjab,fjb->fja", blocks, evidence.observed)
+    fit = np.einsum("fja,fja->j", evidence.observed, rhs)  # y^T P y per joint
+    likelihood = []
+    for noise in NOISE_GRID_MM_S2:
+        per_frame = evidence.per_frame(np.full(J, noise), fps)
+        factors = _factors(blocks, np.broadcast_to(1.0 / per_frame**2, (F - 2, J)))
+        solved = cho_solve_banded((factors, False), rhs.swapaxes(0, 1).ravel(), check_finite=False).reshape(J, F * 3)
+        cost = fit - np.einsum("jn,jn->j", rhs.swapaxes(0, 1).reshape(J, -1), solved)
+        log_determinant = 2.0 * np.log(factors[BAND].reshape(J, -1)).sum(-1)
+        likelihood.append(-0.5 * cost - 0.5 * log_determinant - 3.0 * (F - 2) * np.log(per_frame))
+    likelihood = np.array(likelihood)  # [grid, J]
+    step = np.log(NOISE_GRID_MM_S2[1] / NOISE_GRID_MM_S2[0])
+    best = np.clip(np.argmax(likelihood, 0), 1, len(NOISE_GRID_MM_S2) - 2)
+    below, at, above = (likelihood[best + k, np.arange(J)] for k in (-1, 0, 1))
+    curvature = np.maximum(-(above - 2.0 * at + below) / step**2, 0.0)  # -d^2 log p / d(log q)^2
+    shift = np.where(curvature > 0, 0.5 * (above - below) / np.maximum(curvature * step, 1e-300), 0.0)
+    log_noise = np.log(NOISE_GRID_MM_S2[best]) + np.clip(shift, -step, step)
+    log_noise = np.clip(log_noise, np.log(NOISE_GRID_MM_S2[0]), np.log(NOISE_GRID_MM_S2[-1]))
+    # Pooled: 6 = -d^2/d(log q)^2 of one 3D acceleration seen exactly (2 per axis).
+    mean = log_noise[evidence.solved].mean()
+    prior = 6.0 * POOL_ACCELERATIONS
+    pooled = (curvature * log_noise + prior * mean) / (curvature + prior)
+    return np.where(evidence.solved, np.exp(pooled), np.nan)
+
+
 def solve_trajectory(
     points: np.ndarray,
     covariance: np.ndarray,
@@ -114,6 +265,7 @@ def solve_trajectory(
     fps: float,
     config: TrajectoryConfig = TrajectoryConfig(),
     lengths: np.ndarray | None = None,
+    noise: np.ndarray | None = None,
 ) -> Trajectory:
     """The track (module docstring) of one recording's per-instant evidence.
 
@@ -125,58 +277,100 @@ def solve_trajectory(
     fps:        frames per second (the process noise is per second^2).
     lengths:    [B] mm, the limbs' lengths (NaN: free) where measured on more than these frames (a part of
                 a recording); None: `limb_lengths` of this evidence.
-    """
-    points = np.asarray(points, np.float64)
-    covariance = np.asarray(covariance, np.float64)
-    F, J, _ = points.shape
-    if points.shape[-1] != 3 or covariance.shape != (F, J, 3, 3) or np.shape(provenance) != (F, J):
-        raise ValueError(
-            f"solve_trajectory: points [F, J, 3], covariance [F, J, 3, 3] and provenance [F, J] expected, got"
-            f" {points.shape}, {covariance.shape}, {np.shape(provenance)}"
-        )
-    if not fps > 0:
-        raise ValueError(f"solve_trajectory: fps must be positive, got {fps}")
-    has = np.isfinite(points).all(-1) & np.isfinite(covariance).all((-1, -2))
-    scale = np.where(provenance == Provenance.LIFTED, config.lifted_sigma_scale**2, 1.0)
-    precision = np.zeros((F, J, 3, 3))
-    precision[has] = np.linalg.inv(covariance[has] * scale[has][:, None, None])
-    observed = np.where(has[..., None], points, 0.0)
-    solved = has.sum(0) >= MIN_EVIDENCE_CELLS  # [J]
-    precision[:, ~solved] = np.eye(3)  # a dummy system for the joints left as they are, replaced below
-    lengths = limb_lengths(points, provenance, bones) if lengths is None else np.asarray(lengths, np.float64)
-    limbs = [(b, c, p) for b, (c, p) in enumerate(bones) if np.isfinite(lengths[b]) and solved[c] and solved[p]]
-    system = _System(precision, observed, has, 1.0 / (config.acceleration_mm_s2 / fps**2) ** 2, 1.0 / config.limb_sigma_mm**2)
+    noise:      [J] mm/s^2, each joint's process noise where estimated on more than these frames; None:
+                `config.acceleration_mm_s2`, or where that is None estimated from this evidence (first
+                with every cell's weight 1, again with the robust weights of the first solve).
 
-    dummy = np.broadcast_to(~solved, (F, J))  # held at 0 by unit weights, so that their systems stay regular
+    A recording longer than `WINDOW_FRAMES` + 2 `CONTEXT_FRAMES` is solved window by window (module docstring).
+    """
+    points, covariance = _checked(points, covariance, provenance, fps)
+    provenance = np.asarray(provenance)
+    F, J, _ = points.shape
+    lengths = limb_lengths(points, provenance, bones) if lengths is None else np.asarray(lengths, np.float64)
+    if F <= WINDOW_FRAMES + 2 * CONTEXT_FRAMES:
+        return _solve_window(points, covariance, provenance, bones, fps, config, lengths, noise)
+    parts = []
+    for start in range(0, F, WINDOW_FRAMES):
+        stop = min(start + WINDOW_FRAMES, F)
+        first, last = max(start - CONTEXT_FRAMES, 0), min(stop + CONTEXT_FRAMES, F)
+        window = slice(first, last)
+        solved = _solve_window(points[window], covariance[window], provenance[window], bones, fps, config, lengths, noise)
+        core = slice(start - first, stop - first)
+        parts.append((stop - start, solved.points[core], solved.sigma[core], solved.weight[core], solved.acceleration_mm_s2, solved.impact_weight[core]))
+    frames = np.array([part[0] for part in parts], np.float64)[:, None]
+    with np.errstate(invalid="ignore"):  # a joint solved in no window: NaN
+        noise = np.exp(np.nansum(frames * np.log(np.stack([part[4] for part in parts])), 0) / np.sum(frames * np.isfinite(np.stack([part[4] for part in parts])), 0))
+    return Trajectory(
+        *(np.concatenate([part[k] for part in parts]) for k in (1, 2, 3)), lengths.astype(np.float32), noise.astype(np.float32),
+        np.concatenate([part[5] for part in parts]),
+    )
+
+
+def _solve_window(points, covariance, provenance, bones, fps, config, lengths, noise) -> Trajectory:
+    """`solve_trajectory` of a recording (or a window of one) in one system."""
+    F, J, _ = points.shape
+    evidence = _evidence(points, covariance, provenance, config)
+    solved, has, dummy = evidence.solved, evidence.has, evidence.dummy
+    limbs = [(b, c, p) for b, (c, p) in enumerate(bones) if np.isfinite(lengths[b]) and solved[c] and solved[p]]
+    system = _System(evidence.precision, evidence.observed, has, 1.0 / config.limb_sigma_mm**2)
+
     weight = (has | dummy).astype(np.float64)
-    track = system.solve(weight, limbs, lengths, None)
-    for _ in range(config.iterations):
-        residual = observed - track
-        mahalanobis = np.sqrt(np.maximum(np.einsum("fja,fjab,fjb->fj", residual, precision, residual), 0.0))
+    estimate = noise is None and config.acceleration_mm_s2 is None
+    if noise is None:
+        noise = _estimated_noise(evidence, weight, fps) if estimate else np.full(J, config.acceleration_mm_s2)
+    noise = np.where(solved, noise, np.nanmean(noise) if solved.any() else 1.0)
+    per_frame = evidence.per_frame(noise, fps)
+    impact = np.ones((max(F - 2, 0), J))
+    track = system.solve(weight, impact / per_frame**2, limbs, lengths, None)
+    for iteration in range(config.iterations):
+        residual = evidence.observed - track
+        mahalanobis = np.sqrt(np.maximum(np.einsum("fja,fjab,fjb->fj", residual, evidence.precision, residual), 0.0))
         weight = np.where(dummy, 1.0, np.where(has, 1.0 / (1.0 + (mahalanobis / config.robust_sigmas) ** 2), 0.0))
-        track = system.solve(weight, limbs, lengths, track)
-    sigma = system.marginal_sigma(weight, limbs, track)
+        if estimate and iteration == 0:  # the outliers the first solve found no longer count as motion
+            noise = np.where(solved, _estimated_noise(evidence, weight, fps), noise)
+            per_frame = evidence.per_frame(noise, fps)
+        if iteration >= SETTLE_ITERATIONS:
+            impact = _impact_weights(track, per_frame, config.acceleration_dof)
+        track = system.solve(weight, impact / per_frame**2, limbs, lengths, track)
+    sigma = system.marginal_sigma(weight, impact / per_frame**2, limbs, track)
     track = np.where(solved[None, :, None], track, points)
+    impact_weight = np.ones((F, J))
+    impact_weight[1 : F - 1] = np.where(solved, impact, 1.0)[: max(F - 2, 0)]
     return Trajectory(
         track.astype(np.float32),
         np.where(solved[None], sigma, np.nan).astype(np.float32),
         np.where(has & solved[None], weight, 0.0).astype(np.float32),
         lengths.astype(np.float32),
+        np.where(solved, noise, np.nan).astype(np.float32),
+        impact_weight.astype(np.float32),
     )
 
 
-class _System:
-    """The normal equations of the module docstring, for given robust weights and a linearisation of the
-    limbs.  Unknowns x [F, J, 3] in the order (frame, joint, axis) as one vector of 3FJ."""
+def _impact_weights(track: np.ndarray, per_frame: np.ndarray, dof: float) -> np.ndarray:
+    """f64[F - 2, J]: the EM weight (nu + 3) / (nu + |a|^2 / q^2) of each acceleration a of the track
+    under the Student-t prior of scale q per axis (mm/frame^2) and nu degrees of freedom (inf: all 1)."""
+    acceleration = track[2:] - 2.0 * track[1:-1] + track[:-2]
+    if np.isinf(dof):
+        return np.ones(acceleration.shape[:2])
+    return (dof + 3.0) / (dof + np.einsum("fja,fja->fj", acceleration, acceleration) / per_frame**2)
 
-    def __init__(self, precision, observed, has, motion_weight: float, limb_weight: float):
+
+class _System:
+    """The normal equations of the module docstring, for given robust weights, motion weights and a
+    linearisation of the limbs.  Unknowns x [F, J, 3] in the order (frame, joint, axis) as one vector of 3FJ."""
+
+    def __init__(self, precision, observed, has, limb_weight: float):
         self.precision, self.observed, self.has = precision, observed, has
-        self.motion_weight, self.limb_weight = motion_weight, limb_weight
+        self.limb_weight = limb_weight
         F, J = has.shape
-        self.motion = scipy.sparse.csr_matrix((3 * F * J,) * 2)  # no second difference in fewer than 3 frames
+        self.second = scipy.sparse.csr_matrix((0, 3 * F * J))  # no second difference in fewer than 3 frames
         if F >= 3:
             second = scipy.sparse.diags([1.0, -2.0, 1.0], [0, 1, 2], shape=(F - 2, F))
-            self.motion = scipy.sparse.kron(motion_weight * (second.T @ second), scipy.sparse.identity(3 * J), "csr")
+            self.second = scipy.sparse.kron(second, scipy.sparse.identity(3 * J), "csr")  # rows (frame, joint, axis)
+
+    def _motion(self, motion_weight) -> scipy.sparse.csr_matrix:
+        """D^T diag(motion_weight) D: the motion prior's part, motion_weight [F - 2, J] 1 / (mm/frame^2)^2."""
+        return (self.second.T @ scipy.sparse.diags(np.repeat(np.ravel(motion_weight), 3)) @ self.second).tocsr()
 
     def _limb_rows(self, limbs, track) -> np.ndarray:
         """[L, F, 3]: sqrt(limb weight) u, u each limb's unit direction at `track` (0 where degenerate, and
@@ -198,7 +392,7 @@ class _System:
             blocks[:, parent] += outer
         return blocks
 
-    def _matrix(self, blocks, limbs, rows) -> scipy.sparse.csr_matrix:
+    def _matrix(self, blocks, motion_weight, limbs, rows) -> scipy.sparse.csr_matrix:
         """The whole normal matrix: the cells' blocks, the limbs' couplings -u u^T, the motion prior."""
         F, J = blocks.shape[:2]
         cell = np.arange(F * J).reshape(F, J)
@@ -213,9 +407,9 @@ class _System:
         rows_ = (3 * block_rows[:, None, None] + axis[None, :, None]).repeat(3, 2)
         columns = (3 * block_columns[:, None, None] + axis[None, None, :]).repeat(3, 1)
         evidence = scipy.sparse.coo_matrix((data.ravel(), (rows_.ravel(), columns.ravel())), shape=(3 * F * J,) * 2)
-        return evidence.tocsr() + self.motion
+        return evidence.tocsr() + self._motion(motion_weight)
 
-    def solve(self, weight, limbs, lengths, track) -> np.ndarray:
+    def solve(self, weight, motion_weight, limbs, lengths, track) -> np.ndarray:
         """[F, J, 3]: the minimum of the linearised problem (conjugate gradients, `_factors` preconditioning)."""
         rows = self._limb_rows(limbs, track)
         blocks = self._diagonal_blocks(weight, limbs, rows)
@@ -223,7 +417,7 @@ class _System:
         for (b, child, parent), row in zip(limbs, rows):
             rhs[:, child] += row * np.sqrt(self.limb_weight) * lengths[b]
             rhs[:, parent] -= row * np.sqrt(self.limb_weight) * lengths[b]
-        matrix, factors = self._matrix(blocks, limbs, rows), self._factors(blocks)
+        matrix, factors = self._matrix(blocks, motion_weight, limbs, rows), _factors(blocks, motion_weight)
         shape = rhs.shape
 
         def precondition(r):  # the joints' systems side by side: one banded matrix, joint-major
@@ -248,40 +442,45 @@ class _System:
             direction = z + (rz / previous) * direction
         return x.reshape(shape)
 
-    def _bands(self, blocks: np.ndarray) -> np.ndarray:
-        """[J, BAND + 1, 3F]: each joint's system (its blocks and the motion prior) in LAPACK's upper band
-        storage, ab[BAND + i - k, k] = A[i, k] for i <= k, unknowns in the order (frame, axis)."""
-        F, J = blocks.shape[:2]
-        ab = np.zeros((J, BAND + 1, 3 * F))
-        for a in range(3):
-            for b in range(a, 3):
-                ab[:, BAND + a - b, b::3] = blocks[:, :, a, b].T
-        # D^T D per axis: its diagonal and the two bands above it, 3 and 6 apart in the (frame, axis) order.
-        diagonal, first, second = np.zeros(F), np.zeros(max(F - 1, 0)), np.zeros(max(F - 2, 0))
-        if F >= 3:
-            stencil = np.array([1.0, -2.0, 1.0])
-            for i in range(3):
-                diagonal[i : F - 2 + i] += stencil[i] ** 2
-            for i in range(2):
-                first[i : F - 2 + i] += stencil[i] * stencil[i + 1]
-            second += stencil[0] * stencil[2]
-        for a in range(3):
-            ab[:, BAND, a::3] += self.motion_weight * diagonal
-            ab[:, BAND - 3, 3 + a :: 3] += self.motion_weight * first
-            ab[:, BAND - 6, 6 + a :: 3] += self.motion_weight * second
-        return ab
-
-    def _factors(self, blocks: np.ndarray) -> np.ndarray:
-        """[BAND + 1, 3FJ]: the banded Cholesky factor of every joint's system, joint after joint (block
-        diagonal: `_bands` leaves the entries above each joint's first rows 0, so one banded matrix holds all)."""
-        bands = self._bands(blocks)
-        return cholesky_banded(bands.swapaxes(0, 1).reshape(BAND + 1, -1), lower=False, check_finite=False)
-
-    def marginal_sigma(self, weight, limbs, track) -> np.ndarray:
+    def marginal_sigma(self, weight, motion_weight, limbs, track) -> np.ndarray:
         """f64[F, J]: sqrt(trace) of each cell's marginal covariance under its joint's own system."""
-        factors = self._factors(self._diagonal_blocks(weight, limbs, self._limb_rows(limbs, track)))
+        factors = _factors(self._diagonal_blocks(weight, limbs, self._limb_rows(limbs, track)), motion_weight)
         factors = factors.reshape(BAND + 1, len(weight[0]), -1).swapaxes(0, 1)  # [J, BAND + 1, 3F]
         return np.sqrt(np.trace(_selected_blocks(factors), axis1=-2, axis2=-1)).T
+
+
+def _bands(blocks: np.ndarray, motion_weight: np.ndarray) -> np.ndarray:
+    """[J, BAND + 1, 3F]: each joint's system (its blocks [F, J, 3, 3] and the motion prior of weights
+    [F - 2, J]) in LAPACK's upper band storage, ab[BAND + i - k, k] = A[i, k] for i <= k, unknowns in the
+    order (frame, axis)."""
+    F, J = blocks.shape[:2]
+    ab = np.zeros((J, BAND + 1, 3 * F))
+    for a in range(3):
+        for b in range(a, 3):
+            ab[:, BAND + a - b, b::3] = blocks[:, :, a, b].T
+    if F < 3:  # no second difference
+        return ab
+    # D^T W D per axis: its diagonal and the two bands above it, 3 and 6 apart in the (frame, axis) order.
+    w = np.asarray(motion_weight, np.float64).T  # [J, F - 2]
+    diagonal, first, second = np.zeros((J, F)), np.zeros((J, F - 1)), np.zeros((J, F - 2))
+    stencil = np.array([1.0, -2.0, 1.0])
+    for i in range(3):
+        diagonal[:, i : F - 2 + i] += stencil[i] ** 2 * w
+    for i in range(2):
+        first[:, i : F - 2 + i] += stencil[i] * stencil[i + 1] * w
+    second += stencil[0] * stencil[2] * w
+    for a in range(3):
+        ab[:, BAND, a::3] += diagonal
+        ab[:, BAND - 3, 3 + a :: 3] += first
+        ab[:, BAND - 6, 6 + a :: 3] += second
+    return ab
+
+
+def _factors(blocks: np.ndarray, motion_weight: np.ndarray) -> np.ndarray:
+    """[BAND + 1, 3FJ]: the banded Cholesky factor of every joint's system, joint after joint (block
+    diagonal: `_bands` leaves the entries above each joint's first rows 0, so one banded matrix holds all)."""
+    bands = _bands(blocks, motion_weight)
+    return cholesky_banded(bands.swapaxes(0, 1).reshape(BAND + 1, -1), lower=False, check_finite=False)
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> float:

@@ -63,6 +63,9 @@ def test_every_seen_instant_is_reconstructed_and_the_files_agree(project, run_di
         assert np.isfinite(saved["uncertainty_mm"][np.isfinite(points).all(-1)]).all()
         assert row["mean_acceleration_mm_per_frame2"] > 0 and row["acceleration_error_mm_per_frame2"] > 0
         assert len(row["limb_length_std_mm"]) == len(saved["joint_names"]) - 1  # a limb per joint but the root
+        # The motion prior this recording set, per joint, inside the estimator's grid (mm/s^2).
+        assert list(row["motion_prior_mm_s2"]) == [str(name) for name in saved["joint_names"]]
+        assert all(100.0 <= value <= 1e6 for value in row["motion_prior_mm_s2"].values()) and row["impacts"] >= 0
         # Near the ground truth (the detections alone triangulate to ~19 mm on this project).
         truth = np.load(project / row["recording"] / "ground_truth.npz")
         names = [str(name) for name in saved["joint_names"]]
@@ -84,6 +87,7 @@ def test_every_seen_instant_is_reconstructed_and_the_files_agree(project, run_di
             assert np.isfinite(trc.markers).all()
     assert "| triangulated | fused | lifted | interpolated | none |" in (out / "report.md").read_text()
     assert "solved over time (the trajectory)" in (out / "report.md").read_text()
+    assert "| process noise, median (range) | impacts |" in (out / "report.md").read_text()
 
     # A second run refuses before any work and changes nothing; --overwrite replaces.
     before = {path: path.read_bytes() for path in out.iterdir()}
@@ -250,3 +254,14 @@ def test_c3d_files_hold_the_trc_markers(project, run_dir, tmp_path):
     assert c3d["parameters"]["POINT"]["UNITS"]["value"] == ["mm"] and c3d["parameters"]["POINT"]["RATE"]["value"][0] == FPS
     assert c3d["header"]["points"]["first_frame"] == ours.frame_numbers[0]
     np.testing.assert_allclose(c3d["data"]["points"][:3].transpose(2, 1, 0), ours.markers * 1000.0, atol=1e-3)
+
+
+
+@pytest.mark.parametrize("fps", ["1e5", "1e9"])
+def test_a_frame_rate_no_rig_records_is_refused_in_one_line(fps, tmp_path):
+    """--fps 1e5..1e9 (a typo, or frames numbered in microseconds): refused before any work, naming the flag
+    and the largest rate taken (issue 52: every marker 0 at 1e9, the pelvis from 1592 to -522 mm at 1e5)."""
+    with pytest.raises(SystemExit, match=r"--fps .* at most 10000"):
+        reconstruct.main(["--checkpoint", str(tmp_path / "run"), "--data.root", str(tmp_path / "project"),
+                          "--output", str(tmp_path / "out"), "--fps", fps, "--no-progress"])  # fmt: skip
+    assert not (tmp_path / "out").exists()
