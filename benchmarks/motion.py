@@ -38,6 +38,7 @@ import tyro
 from benchmarks.peers import JAXPOSE_METHODS, PEER_METHODS, PeersArgs, peer_families, peer_python, run_peer, write_calibration
 from benchmarks.peers_scores import Scores
 from jaxpose.formats.bvh import read_bvh
+from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.outputs import check_report, write_report
 from jaxpose.layouts import lifting_skeleton, to_lifting_skeleton
 from jaxpose.reconstruction.recording import RecordingInput
@@ -125,11 +126,15 @@ def recordings(args: MotionArgs, rate: int, seed: int) -> dict[str, dict[str, Re
     found: dict[str, dict[str, RecordingInput]] = {}
     for key, (kind, names) in enumerate(takes(args).items()):
         for index, name in enumerate(names):
-            bvh = read_bvh(args.data / f"{name}.bvh")
+            path = args.data / f"{name}.bvh"
+            try:
+                bvh = read_bvh(path)
+                span = slice(0, None if args.full else args.max_frames, MOCAP_FPS // rate)
+                points = mocap_keypoints(bvh, "coco17", frames=span)
+            except (DataFormatError, ValueError) as error:
+                raise SystemExit(f"error: {error}" if isinstance(error, DataFormatError) else f"{path}: {error}") from None
             if abs(bvh.fps - MOCAP_FPS) > 0.1:
-                raise SystemExit(f"{args.data / name}.bvh: {bvh.fps:.2f} fps, expected {MOCAP_FPS}")
-            span = slice(0, None if args.full else args.max_frames, MOCAP_FPS // rate)
-            points = mocap_keypoints(bvh, "coco17", frames=span)
+                raise SystemExit(f"{path}: {bvh.fps:.2f} fps, expected {MOCAP_FPS}")
             found.setdefault(kind, {})[name] = seen_by_rig(name, points, args.cameras, rate, seed, 100 * key + index)
     return found
 
