@@ -38,7 +38,8 @@ import tyro
 from benchmarks.peers import JAXPOSE_METHODS, PEER_METHODS, PeersArgs, peer_families, peer_python, run_peer, write_calibration
 from benchmarks.peers_scores import Scores
 from jaxpose.formats.bvh import read_bvh
-from jaxpose.formats.outputs import check_report, write_report
+from jaxpose.formats.errors import DataFormatError
+from jaxpose.formats.outputs import OutputError, check_report, write_report
 from jaxpose.layouts import lifting_skeleton, to_lifting_skeleton
 from jaxpose.reconstruction.recording import RecordingInput
 from jaxpose.serving import inference
@@ -120,16 +121,18 @@ def seen_by_rig(name: str, points: np.ndarray, cameras: int, fps: float, seed: i
 
 def recordings(args: MotionArgs, rate: int, seed: int) -> dict[str, dict[str, RecordingInput]]:
     """kind -> take -> its recording at `rate` fps seen through the rig with detector seed `seed`."""
-    if MOCAP_FPS % rate:
-        raise SystemExit(f"--rates {rate}: expected a divisor of the mocap's {MOCAP_FPS} fps")
     found: dict[str, dict[str, RecordingInput]] = {}
     for key, (kind, names) in enumerate(takes(args).items()):
         for index, name in enumerate(names):
-            bvh = read_bvh(args.data / f"{name}.bvh")
+            path = args.data / f"{name}.bvh"
+            try:
+                bvh = read_bvh(path)
+                span = slice(0, None if args.full else args.max_frames, MOCAP_FPS // rate)
+                points = mocap_keypoints(bvh, "coco17", frames=span)
+            except (DataFormatError, ValueError) as error:
+                raise SystemExit(f"error: {error}" if isinstance(error, DataFormatError) else f"{path}: {error}") from None
             if abs(bvh.fps - MOCAP_FPS) > 0.1:
-                raise SystemExit(f"{args.data / name}.bvh: {bvh.fps:.2f} fps, expected {MOCAP_FPS}")
-            span = slice(0, None if args.full else args.max_frames, MOCAP_FPS // rate)
-            points = mocap_keypoints(bvh, "coco17", frames=span)
+                raise SystemExit(f"{path}: {bvh.fps:.2f} fps, expected {MOCAP_FPS}")
             found.setdefault(kind, {})[name] = seen_by_rig(name, points, args.cameras, rate, seed, 100 * key + index)
     return found
 
@@ -142,8 +145,16 @@ def score(points: np.ndarray, inputs: RecordingInput, scores: Scores) -> None:
 def run(args: MotionArgs) -> dict:
     if not 3 <= args.cameras <= 8:
         raise SystemExit(f"--cameras {args.cameras}: expected 3 to 8")
-    check_report(args.output, args.overwrite)
-    lifter = inference.load(args.checkpoint)
+    if any(MOCAP_FPS % rate for rate in args.rates):
+        raise SystemExit(f"--rates {' '.join(map(str, args.rates))}: expected divisors of the mocap's {MOCAP_FPS} fps")
+    try:
+        check_report(args.output, args.overwrite)
+    except OutputError as error:
+        raise SystemExit(f"error: {error}") from None
+    try:
+        lifter = inference.load(args.checkpoint)
+    except (FileNotFoundError, ValueError) as error:
+        raise SystemExit(f"error: --checkpoint: {error}") from None
     skeleton = lifting_skeleton("coco17")
     if tuple(lifter.joint_names) != skeleton.joint_names:
         raise SystemExit(f"--checkpoint {args.checkpoint}: lifts {tuple(lifter.joint_names)}, not COCO-17's lifting skeleton")

@@ -18,7 +18,8 @@ The modules, in the order the data is made: `config` (what to simulate, random s
 `motion`, `rig`, `detector`, `dataset` (`generate`); `project` writes an example rig project (a
 calibration file, OpenPose JSON frames, ground truth) from them, with `capture` (what the example
 simulates: its config, rig, passer-by and detector) and `keypoints` (a detector's keypoints on the
-body).  Their public names are re-exported here.
+body).  Their public names are re-exported here.  `mocap` (imported from its module) gives real motion
+capture (CMU BVH takes) as COCO-17 or H36M_17 keypoints.
 """
 
 import importlib

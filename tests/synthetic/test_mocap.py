@@ -93,3 +93,22 @@ def test_the_benchmark_on_one_short_take(tmp_path, rig_run):
     rows = [line for line in table if line.startswith("| jog |")]
     assert len(rows) == 2 and all(len(row.split("|")) == 10 and "±" in row for row in rows)
     assert json.loads((tmp_path / "out" / "report.json").read_text())["results"]["jog"]["30"]
+
+
+def test_a_bad_take_stops_the_benchmark_with_one_line_naming_it(tmp_path):
+    (tmp_path / "02").mkdir()
+    (tmp_path / "02" / "02_03.bvh").write_text("HIERARCHY\nROOT Hips\n{\n  OFFSET 0 0\n")
+    args = motion.MotionArgs(output=tmp_path / "out", checkpoint=tmp_path, data=tmp_path, peers=())
+    with pytest.raises(SystemExit) as raised:
+        motion.recordings(args, 30, 0)
+    message = str(raised.value)
+    assert "02_03.bvh" in message and "line 4" in message and "\n" not in message
+
+
+@pytest.mark.parametrize("flags, fault", [(["--cameras", "9"], "--cameras 9"), (["--rates", "50"], "--rates 50"),
+                                          (["--checkpoint", "no_such_run"], "no_such_run")])  # fmt: skip
+def test_bad_flags_stop_the_benchmark_with_one_line(tmp_path, flags, fault):
+    argv = ["--output", str(tmp_path / "out"), "--checkpoint", str(tmp_path / "run"), "--peers", *flags]
+    with pytest.raises(SystemExit) as raised:
+        motion.main(argv)
+    assert fault in str(raised.value) and "\n" not in str(raised.value)
