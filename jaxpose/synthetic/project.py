@@ -10,13 +10,19 @@ brings, so that the rig experiment runs with no download and the tests can drive
         ground_truth.npz          points3d f32[N, J', 3] world mm, frames int64[N], joint_names str[J']
       example_truth.json          what was simulated, for tests (see `write_rig_project`)
 
+With `people` P > 1, ground_truth.npz's points3d is f32[N, P, J', 3] (NaN while a person is out of the
+scene) and every frame file lists its detections in a random order; example_truth.json's "people_order"
+gives each file's entries in file order as codes: k >= 0 person k of that person axis, `FALSE_PERSON`
+(-1) a false detection, `PASSER_BY` (-2) the passer-by (in no ground truth).
+
 What is simulated, and how it mirrors real captures, is `jaxpose.synthetic.capture`'s (the rig, its
 lenses, the person and a passer-by, the detector) and `jaxpose.synthetic.keypoints`' (a detector's
 keypoints, COCO-17 or OpenPose BODY_25, on the simulated body).  This module writes it as a user's
 project, as real tools write it:
-- OpenPose's compact JSON frames; undetected keypoints are written 0, 0, 0 as OpenPose does.  Where a
-  camera sees both people, the passer-by is listed first in about `second_person_first_rate` of the
-  frames.
+- OpenPose's compact JSON frames; undetected keypoints are written 0, 0, 0 as OpenPose does.  With one
+  person, where a camera sees both the subject and the passer-by, the passer-by is listed first in
+  about `second_person_first_rate` of the frames; with several people (or false detections) every
+  frame's list is shuffled.
 - One camera out of sync: its file numbered f holds the instant of the other cameras' frame
   f + `desync_frames` (it started late for a positive offset); every camera's files are numbered
   0 .. frames_per_recording - 1.
@@ -268,7 +274,13 @@ def main(argv: Sequence[str] | None = None) -> Path:
             f"{camera} is {config.desync_frames} frames out of sync: pass"
             f" --data.frame-offsets {camera}={config.desync_frames} or --data.sync auto"
         )
-    print(f"train a lifter on it: python -m experiments.rig --data.root {root}")
+    if config.people == 1:
+        print(f"train a lifter on it: python -m experiments.rig --data.root {root}")
+    else:
+        print(
+            f"{config.people} people: ground_truth.npz holds points3d [N, {config.people}, J, 3];"
+            f" {EXAMPLE_TRUTH_JSON}'s people_order says who each listed detection is"
+        )
     return root
 
 

@@ -201,3 +201,19 @@ def test_single_person_project_unchanged(tmp_path, layout):
     assert read_ground_truth(root / "walking01" / "ground_truth.npz").points.shape[1] == 1
     with np.load(root / "walking01" / "ground_truth.npz") as data:
         assert data["points3d"].ndim == 3  # the file keeps the single-person layout [N, J, 3]
+
+
+def test_ground_truth_person_axis_read_and_checked(tmp_path):
+    from jaxpose.formats.errors import DataFormatError
+    from jaxpose.formats.rig_folder import write_ground_truth
+
+    points = np.arange(5 * 2 * 3 * 3, dtype=np.float32).reshape(5, 2, 3, 3)
+    write_ground_truth(tmp_path / "two.npz", points, np.arange(5), ["a", "b", "c"])
+    truth = read_ground_truth(tmp_path / "two.npz")
+    np.testing.assert_array_equal(truth.points, points)
+    write_ground_truth(tmp_path / "one.npz", points[:, 0], np.arange(5), ["a", "b", "c"])
+    np.testing.assert_array_equal(read_ground_truth(tmp_path / "one.npz").points, points[:, :1])
+    write_ground_truth(tmp_path / "bad.npz", points[..., None], np.arange(5), ["a", "b", "c"])
+    with pytest.raises(DataFormatError, match=r"bad.npz.*points3d \[N, J, 3\] or \[N, P, J, 3\]") as error:
+        read_ground_truth(tmp_path / "bad.npz")
+    assert "\n" not in str(error.value)
