@@ -15,6 +15,9 @@ keypoint layout (`detect`).
 - A second person (another body) walks past behind one of the cameras in about `second_person_rate`
   of each recording's frames: the camera it walks behind never sees it, the camera opposite sees it
   small in the background, those beside it at most at an image's edge.
+- With `people` > 1, further people in the scene (`people_poses`: apart by `min_distance`, or the
+  first two passing each other at `pass_each_other`; the last one out for `absent_frames`), optional
+  occlusion of one by another (`occlude`) and false detections seen by one camera (`false_people`).
 
 Every random draw comes from generators keyed by (seed, stream, recording, ...) (`ExampleStream`).
 numpy throughout, jax only to project.

@@ -217,3 +217,13 @@ def test_ground_truth_person_axis_read_and_checked(tmp_path):
     with pytest.raises(DataFormatError, match=r"bad.npz.*points3d \[N, J, 3\] or \[N, P, J, 3\]") as error:
         read_ground_truth(tmp_path / "bad.npz")
     assert "\n" not in str(error.value)
+
+
+def test_single_person_path_refuses_several_people_truth(three):
+    """The one-person rig loader cannot say which ground-truth person it follows: one line, not a guess."""
+    from jaxpose.formats.errors import DataFormatError
+    from jaxpose.rig.recordings import ground_truth_on_instants
+    from jaxpose.skeleton import COCO_17
+
+    with pytest.raises(DataFormatError, match="ground_truth.npz.*3 people"):
+        ground_truth_on_instants(three / THREE.recording_names[0], COCO_17, "coco17", np.arange(60))
