@@ -227,3 +227,21 @@ def test_single_person_path_refuses_several_people_truth(three):
 
     with pytest.raises(DataFormatError, match="ground_truth.npz.*3 people"):
         ground_truth_on_instants(three / THREE.recording_names[0], COCO_17, "coco17", np.arange(60))
+
+
+def test_person_0_is_the_single_person_projects_subject(three, tmp_path):
+    """Person 0's detections are those of the single-person project of the same config (one body, one
+    motion, one detector stream), so that a person reconstructed among others compares with it alone."""
+    alone = write_rig_project(tmp_path / "alone", dataclasses.replace(THREE, people=1, false_people_rate=0.0))
+    name = THREE.recording_names[0]
+    order = json.loads((three / "example_truth.json").read_text())["recordings"][name]["people_order"]
+    compared = 0
+    for camera in THREE.camera_names:
+        for codes, people, single in zip(order[camera], read_frames(three, name, camera), read_frames(alone, name, camera)):
+            if 0 in codes:
+                np.testing.assert_array_equal(people[codes.index(0)], single[0])
+                compared += 1
+    assert compared >= 0.9 * THREE.cameras * THREE.frames_per_recording
+    np.testing.assert_array_equal(
+        read_ground_truth(three / name / "ground_truth.npz").points[:, 0], read_ground_truth(alone / name / "ground_truth.npz").points[:, 0]
+    )
