@@ -9,9 +9,10 @@ writer (`jaxpose.synthetic.project`) writes, and the ground truth file, read and
         <camera>_json/            `json_folder(camera)`: OpenPose JSON frames of one camera
         ground_truth.npz          GROUND_TRUTH_NPZ, optional, evaluation only (`read_ground_truth`)
 
-``ground_truth.npz``: ``points3d`` f32[N, J, 3] world mm (the calibration's world frame), ``frames``
-int[N] (the detections' frame numbers), ``joint_names`` str[J] (matched to the detector's keypoints
-by name).
+``ground_truth.npz``: ``points3d`` f32[N, J, 3] (one person) or f32[N, P, J, 3] (P people, NaN while a
+person is out of the scene) world mm (the calibration's world frame), ``frames`` int[N] (the detections'
+frame numbers), ``joint_names`` str[J] (matched to the detector's keypoints by name).  The person axis
+is the people's identities, not the order in which any detection file lists them.
 """
 
 from __future__ import annotations
@@ -43,7 +44,8 @@ def folder_camera(folder_name: str) -> str:
 
 @dataclasses.dataclass(frozen=True)
 class GroundTruth:
-    """A recording's ``ground_truth.npz``: points f64[N, J, 3] world mm, frames int64[N], joint names [J]."""
+    """A recording's ``ground_truth.npz``: points f64[N, P, J, 3] world mm (P = 1 for a file without a
+    person axis), frames int64[N], joint names [J]."""
 
     points: np.ndarray
     frames: np.ndarray
@@ -55,18 +57,20 @@ def read_ground_truth(path: Path) -> GroundTruth:
     arrays = read_npz_arrays(path, "ground truth of one recording (evaluation only)")
     missing = [name for name in ("points3d", "frames", "joint_names") if name not in arrays]
     if missing:
-        raise DataFormatError(path, f"arrays {missing} (points3d [N, J, 3] mm, frames [N], joint_names [J])", f"only {sorted(arrays)}")
+        raise DataFormatError(path, f"arrays {missing} (points3d [N, (P,) J, 3] mm, frames [N], joint_names [J])", f"only {sorted(arrays)}")
     points = np.asarray(arrays["points3d"], np.float64)
     frames = np.asarray(arrays["frames"], np.int64)
     names = tuple(str(name) for name in np.atleast_1d(arrays["joint_names"]))
-    if points.ndim != 3 or points.shape[1:] != (len(names), 3) or frames.shape != (len(points),):
+    if points.ndim == 3:
+        points = points[:, None]  # one person
+    if points.ndim != 4 or points.shape[2:] != (len(names), 3) or frames.shape != (len(points),):
         raise DataFormatError(
-            path, "points3d [N, J, 3], frames [N], joint_names [J] of matching sizes",
+            path, "points3d [N, J, 3] or [N, P, J, 3], frames [N], joint_names [J] of matching sizes",
             f"points3d {points.shape}, frames {frames.shape}, {len(names)} joint names",
         )  # fmt: skip
     return GroundTruth(points=points, frames=frames, joint_names=names)
 
 
 def write_ground_truth(path: Path, points3d: np.ndarray, frames: np.ndarray, joint_names: Sequence[str]) -> None:
-    """Write a ``ground_truth.npz`` (points f32 world mm, frames int64)."""
+    """Write a ``ground_truth.npz`` (points f32[N, J, 3] or [N, P, J, 3] world mm, frames int64[N])."""
     np.savez(path, points3d=np.asarray(points3d, np.float32), frames=np.asarray(frames, np.int64), joint_names=np.array(joint_names))

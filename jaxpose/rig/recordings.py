@@ -282,8 +282,10 @@ def ground_truth_on_instants(folder: pathlib.Path, skeleton: Skeleton, layout: s
     if not path.is_file():
         return None, 0
     truth = read_ground_truth(path)
+    if truth.points.shape[1] != 1:
+        raise DataFormatError(path, "points3d of one person [N, J, 3] (this path follows one person)", f"{truth.points.shape[1]} people")
     root_from = DETECTOR_LAYOUTS[layout].root_from if layout in DETECTOR_LAYOUTS else None
-    matched = ground_truth.on_skeleton(truth.points, truth.joint_names, skeleton, root_from, f"{path}, array 'joint_names'")
+    matched = ground_truth.on_skeleton(truth.points[:, 0], truth.joint_names, skeleton, root_from, f"{path}, array 'joint_names'")
     target = np.full((len(instants), skeleton.num_joints, 3), np.nan, np.float32)
     _, rows, gt_rows = np.intersect1d(instants, truth.frames, return_indices=True)
     target[rows] = matched[gt_rows]

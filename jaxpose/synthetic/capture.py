@@ -15,6 +15,9 @@ keypoint layout (`detect`).
 - A second person (another body) walks past behind one of the cameras in about `second_person_rate`
   of each recording's frames: the camera it walks behind never sees it, the camera opposite sees it
   small in the background, those beside it at most at an image's edge.
+- With `people` > 1, further people in the scene (`people_poses`: apart by `min_distance`, or the
+  first two passing each other at `pass_each_other`; the last one out for `absent_frames`), optional
+  occlusion of one by another (`occlude`) and false detections seen by one camera (`false_people`).
 
 Every random draw comes from generators keyed by (seed, stream, recording, ...) (`ExampleStream`).
 numpy throughout, jax only to project.
@@ -58,6 +61,9 @@ class ExampleStream(enum.IntEnum):
     DETECTOR = 13
     SWAP = 14
     ORDER = 15
+    PEOPLE = 16
+    SHUFFLE = 17
+    FALSE_PEOPLE = 18
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,6 +122,20 @@ class ExampleProjectConfig:
     """Fraction of a person's detections in one view with left and right exchanged."""
     missing_rate: float = 0.01
     """Fraction of keypoint detections missing at random (besides those outside the image)."""
+    people: int = 1
+    """People in the scene, each with their own body and a motion of the recording's family (1-8); with
+    more than one, ground_truth.npz holds a person axis and every frame file lists its people shuffled."""
+    min_distance: float = 500.0
+    """Closest approach (mm, on the floor) of any two people's pelvises, except the pair passing each other."""
+    pass_each_other: float = 0.0
+    """> 0: the first two people walk straight across the room towards each other on parallel lines this
+    far apart (mm) and pass at mid-recording, in the scene only while on their line (needs people >= 2)."""
+    false_people_rate: float = 0.0
+    """Chance, per camera and frame, of a false detection: a plausible skeleton seen by that camera only."""
+    occlusion: bool = False
+    """Hide a person's keypoints in a view where they fall in a nearer person's box (its keypoints' extent)."""
+    absent_frames: int = 0
+    """The last person leaves the scene for this many frames mid-recording (not detected, NaN ground truth)."""
 
     def __post_init__(self):
         if self.recordings < 1 or self.frames_per_recording < 10:
@@ -128,7 +148,15 @@ class ExampleProjectConfig:
             )
         if abs(self.desync_frames) >= self.frames_per_recording // 2:
             raise ValueError(f"desync_frames {self.desync_frames} must be smaller than half a recording")
-        for name in ("second_person_rate", "second_person_first_rate"):
+        if not 1 <= self.people <= 8:
+            raise ValueError(f"people must lie in 1..8, got {self.people}")
+        if self.min_distance < 0.0 or self.pass_each_other < 0.0:
+            raise ValueError(f"min_distance and pass_each_other must be >= 0 mm, got {self.min_distance}, {self.pass_each_other}")
+        if self.pass_each_other > 0.0 and self.people < 2:
+            raise ValueError(f"pass_each_other needs people >= 2, got people {self.people}")
+        if not 0 <= self.absent_frames <= self.frames_per_recording - 10:
+            raise ValueError(f"absent_frames must lie in 0..frames_per_recording - 10, got {self.absent_frames}")
+        for name in ("second_person_rate", "second_person_first_rate", "false_people_rate"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must lie in [0, 1], got {getattr(self, name)}")
         unknown = [motion for motion in self.motions if motion not in MOTION_FAMILIES]
@@ -162,6 +190,12 @@ class ExampleProjectConfig:
 
     def motion(self, recording: int) -> str:
         return self.motions[recording % len(self.motions)]
+
+    @property
+    def shuffled(self) -> bool:
+        """Whether frame files list their people in a random order (several people or false detections):
+        the single-person project keeps its own order (the passer-by first in some frames)."""
+        return self.people > 1 or self.false_people_rate > 0.0
 
     def frame_offsets(self) -> np.ndarray:
         """int[C]: camera c's file f holds the instant of the synchronized cameras' frame f + offset[c]."""
@@ -253,20 +287,157 @@ def passer_by_poses(
     length = int(np.clip(round(config.second_person_rate * instants), 2, instants))
     start = int(rng.integers(0, instants - length + 1))
     walk = sample_motion(rng, "walking", bones, length, synthetic).poses.astype(np.float64)
-    # Re-lay the walk along a straight line: keep its stride (arc length) and its pelvis' sway.
-    root = walk[:, 0]
-    step = np.gradient(root[:, :2], axis=0)
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(root[:, :2], axis=0), axis=1))])
+    arc = _arc_length(walk)
     camera = int(rng.integers(config.cameras))
     centre = camera_centres(rig.R[camera], rig.t[camera])
     outward = centre[:2] / np.linalg.norm(centre[:2], axis=-1, keepdims=True)
     across = np.array([-outward[1], outward[0]]) * rng.choice([-1.0, 1.0])
     distance = np.linalg.norm(centre[:2]) + rng.uniform(800.0, 2000.0)  # behind that camera
     start_xy = outward * distance + across * (rng.uniform(-1500.0, 1500.0) - arc[-1] / 2.0)
-    turn = np.degrees(np.arctan2(across[1], across[0]) - np.arctan2(step[:, 1], step[:, 0]))
+    return _along_line(walk, start_xy, across, arc), bones, start
+
+
+def _arc_length(walk: np.ndarray) -> np.ndarray:
+    """f64[T] distance the pelvis of poses f64[T, 17, 3] has walked on the floor since the first instant."""
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(walk[:, 0, :2], axis=0), axis=1))])
+
+
+def _along_line(walk: np.ndarray, origin: np.ndarray, direction: np.ndarray, along: np.ndarray) -> np.ndarray:
+    """Re-lay a walk f64[T, 17, 3] on the straight line origin + along[t] * direction (unit, floor plane):
+    keep its stride and its pelvis' height, turn each pose to face `direction`."""
+    root = walk[:, 0]
+    step = np.gradient(root[:, :2], axis=0)
+    turn = np.degrees(np.arctan2(direction[1], direction[0]) - np.arctan2(step[:, 1], step[:, 0]))
     relative = np.einsum("tij,tkj->tki", axis_rotation(2, turn), walk - root[:, None])
-    path = np.concatenate([start_xy + arc[:, None] * across, root[:, 2:]], axis=1)
-    return relative + path[:, None], bones, start
+    path = np.concatenate([origin + along[:, None] * direction, root[:, 2:]], axis=1)
+    return relative + path[:, None]
+
+
+def people_bones(config: ExampleProjectConfig) -> list[np.ndarray]:
+    """Each person's bone lengths f64[17]: person 0 is the single-person project's subject; body 1 is
+    the passer-by's, so person p > 0 gets body p + 1."""
+    synthetic = config.synthetic_config()
+    return [sample_bone_lengths(stream_rng(synthetic, Stream.BODY, 0 if p == 0 else p + 1)) for p in range(config.people)]
+
+
+def pelvis_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """f64[T] floor distance (mm) of two people's pelvises from poses [T, 17, 3]; NaN where either is absent."""
+    return np.linalg.norm(np.asarray(a, np.float64)[:, 0, :2] - np.asarray(b, np.float64)[:, 0, :2], axis=-1)
+
+
+def _crossing_walks(config: ExampleProjectConfig, recording: int, bones: list[np.ndarray], instants: int) -> list[np.ndarray]:
+    """People 0 and 1 walking towards each other on parallel lines `pass_each_other` mm apart through the
+    room's centre, level at instant T // 2; each is in the scene (else NaN) within capture_area / 2 of it."""
+    synthetic = config.synthetic_config()
+    rng = config.rng(ExampleStream.PEOPLE, recording, 0)
+    angle = rng.uniform(0.0, 2.0 * np.pi)
+    direction = np.array([np.cos(angle), np.sin(angle)])
+    across = np.array([-direction[1], direction[0]])
+    walks = []
+    for person, sign in ((0, 1.0), (1, -1.0)):
+        walk = sample_motion(config.rng(ExampleStream.PEOPLE, recording, 1 + person), "walking", bones[person], instants, synthetic)
+        walk = walk.poses.astype(np.float64)
+        along = _arc_length(walk)
+        along = along - along[instants // 2]
+        poses = _along_line(walk, sign * config.pass_each_other / 2.0 * across, sign * direction, along)
+        poses[np.abs(along) > config.capture_area / 2.0] = np.nan  # walked out of the room
+        walks.append(poses)
+    return walks
+
+
+# Draws of a person's motion tried before giving up on keeping `min_distance` from the others.
+_PLACEMENT_TRIES = 200
+
+
+def people_poses(config: ExampleProjectConfig, recording: int, bones: list[np.ndarray], instants: int) -> list[np.ndarray]:
+    """Every person's H36M_17 poses f[T, 17, 3] world mm, NaN while out of the scene.
+
+    Person 0 is the single-person project's subject (the same motion), unless the first two pass each
+    other (`_crossing_walks`).  Each further person draws a motion of the recording's family, turned a
+    random number of quarter turns about the room's vertical axis (the capture square maps onto itself)
+    and moved at random within the square (no further than it must when already touching it), until its pelvis keeps `min_distance` from everyone placed before at every instant both are in the
+    scene.  Then the last person leaves for `absent_frames` instants around the recording's middle."""
+    synthetic = config.synthetic_config()
+    family = config.motion(recording)
+    if config.pass_each_other > 0.0:
+        placed = _crossing_walks(config, recording, bones, instants)
+    else:
+        placed = [sample_motion(config.rng(ExampleStream.MOTION, recording), family, bones[0], instants, synthetic).poses]
+    for person in range(len(placed), config.people):
+        for attempt in range(_PLACEMENT_TRIES):
+            rng = config.rng(ExampleStream.PEOPLE, recording, 1 + person, attempt)
+            poses = sample_motion(rng, family, bones[person], instants, synthetic).poses.astype(np.float64)
+            quarter = [(1, 0), (0, 1), (-1, 0), (0, -1)][int(rng.integers(4))]
+            turn = np.array([[quarter[0], -quarter[1], 0], [quarter[1], quarter[0], 0], [0, 0, 1]], np.float64)
+            poses = poses @ turn.T
+            # Anywhere in the capture square: in-place motions are drawn near its centre.
+            low, high = poses[..., :2].min(axis=(0, 1)), poses[..., :2].max(axis=(0, 1))
+            half = config.capture_area / 2.0
+            poses[..., :2] += rng.uniform(np.minimum(-half - low, 0.0), np.maximum(half - high, 0.0))
+            gaps = [pelvis_distance(poses, other) for other in placed]
+            if all(np.nanmin(gap, initial=np.inf) >= config.min_distance for gap in gaps):
+                placed.append(poses)
+                break
+        else:
+            raise ValueError(
+                f"could not place person {person + 1} of {config.people} {config.min_distance:g} mm from the others"
+                f" in a {config.capture_area:g} mm capture area ({family}); lower people or min_distance, or widen capture_area"
+            )
+    if config.absent_frames:
+        start = instants // 2 - config.absent_frames // 2
+        placed[-1] = np.array(placed[-1], copy=True)
+        placed[-1][start : start + config.absent_frames] = np.nan
+    return placed
+
+
+def false_people(
+    config: ExampleProjectConfig, rig: RigCalibration, max_radius2: np.ndarray, points: np.ndarray, recording: int
+) -> list[Person]:
+    """Per camera, its false detections: in about `false_people_rate` of the instants a skeleton (a pose
+    of keypoints f[T, K, 3], one person's, at a random instant) turned and put at a random place of the
+    capture area, detected by that camera only."""
+    present = np.flatnonzero(np.isfinite(points).all(axis=(1, 2)))
+    T = len(points)
+    half = config.capture_area / 2.0
+    found = []
+    for camera in range(config.cameras):
+        rng = config.rng(ExampleStream.FALSE_PEOPLE, recording, camera)
+        seen = np.flatnonzero(rng.random(T) < config.false_people_rate)
+        pose = np.asarray(points[rng.choice(present, len(seen))], np.float64)
+        centre = pose.mean(1, keepdims=True) * np.array([1.0, 1.0, 0.0])
+        turned = np.einsum("nij,nkj->nki", axis_rotation(2, rng.uniform(0.0, 360.0, len(seen))), pose - centre)
+        false = np.full((T, points.shape[1], 3), np.nan)
+        false[seen] = turned + np.concatenate([rng.uniform(-half, half, (len(seen), 2)), np.zeros((len(seen), 1))], 1)[:, None]
+        person = detect(config, rig, max_radius2, false, (recording, 100 + camera))
+        only_here = np.arange(config.cameras) == camera
+        found.append(dataclasses.replace(person, listed=person.listed & only_here))
+    return found
+
+
+def occlude(rig: RigCalibration, people: list[Person]) -> list[Person]:
+    """Hide each person's keypoints, in each view, that lie inside a nearer person's box (the extent of
+    its projected keypoints) and behind that person's mean keypoint depth; unlist views left with fewer
+    than `MIN_KEYPOINTS`.  A box is a body's silhouette, generously."""
+    projected = []
+    for person in people:
+        present = np.isfinite(person.points).all(axis=(1, 2))
+        pixels, depth, _ = _project(rig.cameras, np.where(present[:, None, None], person.points, 0.0))
+        projected.append((present, pixels, depth))
+    hidden_people = []
+    for p, person in enumerate(people):
+        _, pixels, depth = projected[p]
+        hidden = np.zeros(person.scores.shape, bool)  # [T, C, K]
+        for q, (present, other, other_depth) in enumerate(projected):
+            if q == p:
+                continue
+            low, high = other.min(axis=2, keepdims=True), other.max(axis=2, keepdims=True)  # [T, C, 1, 2]
+            inside = ((pixels >= low) & (pixels <= high)).all(-1)
+            hidden |= present[:, None, None] & inside & (depth > other_depth.mean(-1, keepdims=True))
+        keypoints = np.where(hidden[..., None], 0.0, person.keypoints)
+        scores = np.where(hidden, 0.0, person.scores)
+        listed = person.listed & ((scores > 0).sum(-1) >= MIN_KEYPOINTS)
+        hidden_people.append(Person(points=person.points, keypoints=keypoints, scores=scores, listed=listed))
+    return hidden_people
 
 
 def detect(

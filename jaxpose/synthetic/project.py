@@ -10,13 +10,19 @@ brings, so that the rig experiment runs with no download and the tests can drive
         ground_truth.npz          points3d f32[N, J', 3] world mm, frames int64[N], joint_names str[J']
       example_truth.json          what was simulated, for tests (see `write_rig_project`)
 
+With `people` P > 1, ground_truth.npz's points3d is f32[N, P, J', 3] (NaN while a person is out of the
+scene) and every frame file lists its detections in a random order; example_truth.json's "people_order"
+gives each file's entries in file order as codes: k >= 0 person k of that person axis, `FALSE_PERSON`
+(-1) a false detection, `PASSER_BY` (-2) the passer-by (in no ground truth).
+
 What is simulated, and how it mirrors real captures, is `jaxpose.synthetic.capture`'s (the rig, its
 lenses, the person and a passer-by, the detector) and `jaxpose.synthetic.keypoints`' (a detector's
 keypoints, COCO-17 or OpenPose BODY_25, on the simulated body).  This module writes it as a user's
 project, as real tools write it:
-- OpenPose's compact JSON frames; undetected keypoints are written 0, 0, 0 as OpenPose does.  Where a
-  camera sees both people, the passer-by is listed first in about `second_person_first_rate` of the
-  frames.
+- OpenPose's compact JSON frames; undetected keypoints are written 0, 0, 0 as OpenPose does.  With one
+  person, where a camera sees both the subject and the passer-by, the passer-by is listed first in
+  about `second_person_first_rate` of the frames; with several people (or false detections) every
+  frame's list is shuffled.
 - One camera out of sync: its file numbered f holds the instant of the other cameras' frame
   f + `desync_frames` (it started late for a positive offset); every camera's files are numbered
   0 .. frames_per_recording - 1.
@@ -40,17 +46,18 @@ import tyro
 from jaxpose.formats.anipose_toml import write_anipose_toml
 from jaxpose.formats.rig_folder import CALIBRATION_TOML, GROUND_TRUTH_NPZ, json_folder, write_ground_truth
 from jaxpose.skeleton import COCO_17
-from jaxpose.synthetic.body import sample_bone_lengths
 from jaxpose.synthetic.capture import (
-    MIN_KEYPOINTS, ExampleProjectConfig, ExampleStream, Person, detect, field_radius2, passer_by_poses, rig_calibration,
+    MIN_KEYPOINTS, ExampleProjectConfig, ExampleStream, Person, detect, false_people, field_radius2, occlude, passer_by_poses,
+    people_bones, people_poses, rig_calibration,
 )  # fmt: skip
-from jaxpose.synthetic.config import Stream, stream_rng
-from jaxpose.synthetic.keypoints import ground_truth_names, keypoints3d
-from jaxpose.synthetic.motion import sample_motion
+from jaxpose.synthetic.keypoints import ground_truth_names, keypoints3d, openpose_names
 
 __all__ = ["EXAMPLE_TRUTH_JSON", "ExampleProjectConfig", "main", "write_rig_project"]
 
 EXAMPLE_TRUTH_JSON = "example_truth.json"
+# example_truth.json's "people_order" codes besides a person's index on ground_truth.npz's person axis.
+FALSE_PERSON = -1
+PASSER_BY = -2
 # example_truth.json's frame lists, per recording and camera (in the camera's file numbers).
 _FRAME_LISTS = ("second_person_frames", "second_person_first_frames", "subject_undetected_frames")
 
@@ -101,31 +108,50 @@ def _write_camera(
     folder: Path,
     prefix: str,
     rows: np.ndarray,
-    subject: Person,
-    passer: Person | None,
-    passer_first: np.ndarray,
+    detected: list[tuple[int, Person]],
+    order: np.ndarray | np.random.Generator,
     c: int,
-) -> dict[str, list[int]]:
-    """Write camera c's frame files (file f holds instant index rows[f]); returns its `_FRAME_LISTS`."""
+) -> dict[str, list]:
+    """Write camera c's frame files (file f holds instant index rows[f]) listing the people `detected`
+    (each with its code: a person index, `FALSE_PERSON` or `PASSER_BY`); returns its `_FRAME_LISTS` and, where `order` is a generator (the people
+    shuffled in every frame), "people_order": each file's codes in file order.  A boolean array
+    `order` [T, C] instead lists the passer-by before the subject where it is true."""
     folder.mkdir(parents=True)
-    lists: dict[str, list[int]] = {key: [] for key in _FRAME_LISTS}
+    lists: dict[str, list] = {key: [] for key in _FRAME_LISTS}
+    shuffle = isinstance(order, np.random.Generator)
+    if shuffle:
+        lists["people_order"] = []
     for frame, i in enumerate(rows):
-        people = []
-        if subject.listed[i, c]:
-            people.append(_person_json(subject.keypoints[i, c], subject.scores[i, c]))
-        else:
+        entries = [(code, person) for code, person in detected if person.listed[i, c]]
+        if shuffle:
+            entries = [entries[j] for j in order.permutation(len(entries))]
+        elif len(entries) == 2 and order[i, c]:  # the subject and the passer-by
+            entries.reverse()
+        codes = [code for code, _ in entries]
+        if shuffle:
+            lists["people_order"].append(codes)
+        if 0 not in codes:
             lists["subject_undetected_frames"].append(frame)
-        if passer is not None and passer.listed[i, c]:
-            entry = _person_json(passer.keypoints[i, c], passer.scores[i, c])
+        if PASSER_BY in codes:
             lists["second_person_frames"].append(frame)
-            if people and passer_first[i, c]:
-                people.insert(0, entry)
+            if codes[0] == PASSER_BY and len(codes) > 1:
                 lists["second_person_first_frames"].append(frame)
-            else:
-                people.append(entry)
+        people = [_person_json(person.keypoints[i, c], person.scores[i, c]) for _, person in entries]
         with open(folder / f"{prefix}_{frame:012d}_keypoints.json", "w", encoding="utf-8") as file:
             file.write('{"version":1.3,"people":[' + ",".join(people) + "]}")
     return lists
+
+
+def _layout_points(poses: np.ndarray, bones: np.ndarray, layout: str) -> np.ndarray:
+    """A person's keypoints f[T, K, 3] (`keypoints3d`) from H36M_17 poses f[T, 17, 3]; NaN while absent."""
+    present = np.isfinite(poses).all(axis=(1, 2))
+    if present.all():
+        return keypoints3d(poses, bones, layout)
+    if not present.any():
+        return np.full((len(poses), len(openpose_names(layout)), 3), np.nan)
+    stand_in = poses[np.argmax(present)]  # any real pose where absent: no degenerate (zero) bones
+    points = keypoints3d(np.where(present[:, None, None], poses, stand_in), bones, layout)
+    return np.where(present[:, None, None], points, np.nan)
 
 
 def write_rig_project(root: str | Path, config: ExampleProjectConfig = ExampleProjectConfig()) -> Path:
@@ -146,34 +172,44 @@ def write_rig_project(root: str | Path, config: ExampleProjectConfig = ExamplePr
     rig = rig_calibration(config)
     write_anipose_toml(root / CALIBRATION_TOML, rig, unit="m")
     max_radius2 = field_radius2(rig.cameras, config.image_size)
-    bones = sample_bone_lengths(stream_rng(config.synthetic_config(), Stream.BODY, 0))
     N, C = config.frames_per_recording, config.cameras
     offsets = config.frame_offsets()
     first_instant = int(min(offsets.min(), 0))  # instants simulated: first_instant .. first_instant + T - 1
     T = N + int(offsets.max() - first_instant)
     rows = np.arange(N)[None, :] + offsets[:, None] - first_instant  # [C, N] instant index of each file
     recordings = {}
+    bodies = people_bones(config)
     for r, name in enumerate(config.recording_names):
-        motion = sample_motion(config.rng(ExampleStream.MOTION, r), config.motion(r), bones, T, config.synthetic_config())
-        subject_points = keypoints3d(motion.poses, bones, config.layout)
-        subject = detect(config, rig, max_radius2, subject_points, (r, 0))
-        passer = None
+        points = [
+            _layout_points(poses, bones, config.layout)
+            for poses, bones in zip(people_poses(config, r, bodies, T), bodies)
+        ]
+        detected = [(p, detect(config, rig, max_radius2, person_points, (r, 0 if p == 0 else p + 1))) for p, person_points in enumerate(points)]
         if config.second_person_rate > 0.0:
             walk, passer_bones, start = passer_by_poses(config, rig.cameras, r, T)
-            points = np.full(subject_points.shape, np.nan)
-            points[start : start + len(walk)] = keypoints3d(walk, passer_bones, config.layout)
-            passer = detect(config, rig, max_radius2, points, (r, 1))
+            passer_points = np.full(points[0].shape, np.nan)
+            passer_points[start : start + len(walk)] = keypoints3d(walk, passer_bones, config.layout)
+            detected.append((PASSER_BY, detect(config, rig, max_radius2, passer_points, (r, 1))))
+        if config.occlusion:
+            detected = list(zip([code for code, _ in detected], occlude(rig, [person for _, person in detected])))
+        if config.false_people_rate > 0.0:
+            detected += [(FALSE_PERSON, person) for person in false_people(config, rig, max_radius2, points[0], r)]
         passer_first = config.rng(ExampleStream.ORDER, r).random((T, C)) < config.second_person_first_rate
         record = {"motion": config.motion(r)} | {key: {} for key in _FRAME_LISTS}
+        if config.shuffled:
+            record["people_order"] = {}
         for c, camera in enumerate(config.camera_names):
             folder = root / name / json_folder(camera)
-            lists = _write_camera(folder, f"{name}_{camera}", rows[c], subject, passer, passer_first, c)
+            order = config.rng(ExampleStream.SHUFFLE, r, c) if config.shuffled else passer_first
+            lists = _write_camera(folder, f"{name}_{camera}", rows[c], detected, order, c)
             for key, frames in lists.items():
                 record[key][camera] = frames
-        truth_points = subject_points[-first_instant : -first_instant + N]
+        truth_points = np.stack(points, axis=1)[-first_instant : -first_instant + N]  # [N, P, K, 3]
         if config.layout == "coco17":
             hips = [COCO_17.joint_names.index("left_hip"), COCO_17.joint_names.index("right_hip")]
-            truth_points = np.concatenate([truth_points, truth_points[:, hips].mean(1, keepdims=True)], axis=1)
+            truth_points = np.concatenate([truth_points, truth_points[:, :, hips].mean(2, keepdims=True)], axis=2)
+        if config.people == 1:
+            truth_points = truth_points[:, 0]  # the single-person layout [N, J', 3]
         write_ground_truth(root / name / GROUND_TRUTH_NPZ, truth_points, np.arange(N), ground_truth_names(config.layout))
         recordings[name] = record
     desync = config.desync_camera >= 0 and config.desync_frames != 0
@@ -238,7 +274,13 @@ def main(argv: Sequence[str] | None = None) -> Path:
             f"{camera} is {config.desync_frames} frames out of sync: pass"
             f" --data.frame-offsets {camera}={config.desync_frames} or --data.sync auto"
         )
-    print(f"train a lifter on it: python -m experiments.rig --data.root {root}")
+    if config.people == 1:
+        print(f"train a lifter on it: python -m experiments.rig --data.root {root}")
+    else:
+        print(
+            f"{config.people} people: ground_truth.npz holds points3d [N, {config.people}, J, 3];"
+            f" {EXAMPLE_TRUTH_JSON}'s people_order says who each listed detection is"
+        )
     return root
 
 
