@@ -41,6 +41,7 @@ FLIP = np.array([5, 4, 3, 2, 1, 0, 11, 10, 9, 8, 7, 6, 12, 13])
 LIMBS = np.array([[0, 1], [1, 2], [3, 4], [4, 5], [6, 7], [7, 8], [9, 10], [10, 11], [12, 13]])
 """The nine limbs between joints; the torso (mid-hip to neck) is the tenth, `limb_ends`."""
 PAIRING_MM = 500.0
+MAX_GAP = 10  # instants a track's joint is interpolated over (0.4 s)
 THRESHOLD_PX = 15.0  # association: the images are 360x288, the people 60-120 px tall
 
 
@@ -183,8 +184,9 @@ def several(campus: Campus, keypoints: np.ndarray, confidence: np.ndarray, peopl
     start = time.perf_counter()
     found = association.associate(campus.P, keypoints, confidence, THRESHOLD_PX)
     followed = tracks.follow(found.points, found.present, LIMBS, tracks.TrackSettings(fps=FPS, people=people_count))
+    points = tracks.track_points(found.points, followed.identity, followed.count, MAX_GAP)
     seconds = time.perf_counter() - start
-    return found, followed, seconds
+    return found, followed, points, seconds
 
 
 def one_person(campus: Campus, keypoints: np.ndarray, confidence: np.ndarray) -> np.ndarray:
@@ -208,11 +210,14 @@ def main() -> None:
     averages = {"several": [], "one person": []}
     for seed in args.seeds:
         keypoints, confidence = simulate(campus, seed)
-        found, followed, seconds = several(campus, keypoints, confidence, args.people)
-        for path, (points, identity, extra) in {
-            "several": (found.points, followed.identity, f"{followed.count:>6} {found.unmatched:>8} {len(keypoints) / seconds:>7.0f}"),
-            "one person": (p := one_person(campus, keypoints, confidence), np.where(np.isfinite(p).any((-1, -2)), 0, -1), f"{1:>6} {'':>8} {'':>7}"),
+        found, followed, track_points, seconds = several(campus, keypoints, confidence, args.people)
+        for path, (points, extra) in {
+            "several": (track_points,
+                        f"{followed.count:>6} {found.unmatched:>8} {len(keypoints) / seconds:>7.0f}"),
+            "one person": (one_person(campus, keypoints, confidence), f"{1:>6} {'':>8} {'':>7}"),
         }.items():
+            # a track's slot is its identity, empty where it has no joint
+            identity = np.where(np.isfinite(points).all(-1).any(-1), np.arange(points.shape[1]), -1)
             s = score(campus, points, identity)
             averages[path].append(s["average"])
             pcps = " ".join(f"{s['pcp'][i]:6.1f}" for i in sorted(s["pcp"]))

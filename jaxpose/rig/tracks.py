@@ -123,3 +123,27 @@ def follow(points: np.ndarray, present: np.ndarray, limbs: np.ndarray, settings:
     renumber[kept] = np.arange(len(kept))  # tracks start in order, so this keeps the order of first appearance
     identity = renumber[raw].astype(np.int32)
     return Tracks(identity, len(kept), int((present & (identity < 0)).sum()))
+
+
+def track_points(points: np.ndarray, identity: np.ndarray, count: int, max_gap: int) -> np.ndarray:
+    """Each track's joints at every instant: points f32[n, M, J, 3], identity int[n, M] -> f32[n, count, J, 3];
+    a joint unseen for at most `max_gap` instants between two sightings is interpolated linearly (an
+    occlusion, a view's miss), NaN elsewhere."""
+    n, M, J, _ = points.shape
+    out = np.full((n, count, J, 3), np.nan, np.float32)
+    instants, slots = np.nonzero(identity >= 0)
+    out[instants, identity[instants, slots]] = points[instants, slots]
+    seen = np.isfinite(out).all(-1)  # [n, T, J]
+    steps = np.arange(n)
+    for t in range(count):
+        for j in range(J):
+            known = np.flatnonzero(seen[:, t, j])
+            if len(known) < 2:
+                continue
+            gaps = np.diff(known)
+            fill = np.flatnonzero((gaps > 1) & (gaps <= max_gap + 1))
+            for g in fill:
+                inside = steps[known[g] + 1 : known[g + 1]]
+                share = ((inside - known[g]) / gaps[g])[:, None]
+                out[inside, t, j] = (1 - share) * out[known[g], t, j] + share * out[known[g + 1], t, j]
+    return out
