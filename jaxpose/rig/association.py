@@ -70,19 +70,28 @@ def _take(found: people.Proposals, hypotheses: np.ndarray, detected: np.ndarray)
     return chosen
 
 
-CHUNK = 256  # instants per compiled call: one shape whatever the recording's length
+CHUNK = 256  # instants per compiled call at most: one shape whatever the recording's length
+BUDGET = 1 << 22  # proposal-to-detection distances per instant chunk (x 4 bytes, a few such arrays)
+
+
+def chunk_size(views: int, detections: int, joints: int) -> int:
+    """Instants per call: `CHUNK`, or fewer (a power of two) where many detections per view make every
+    instant's proposals (views^2 detections^2) large."""
+    per_instant = len(people.pair_hypotheses(views, detections)) * views * detections * joints
+    return int(min(CHUNK, 2 ** max(0, int(np.log2(max(BUDGET // per_instant, 1))))))
 
 
 def _proposals_in_chunks(P: np.ndarray, keypoints: np.ndarray, confidence: np.ndarray, threshold_px: float) -> people.Proposals:
-    """`people.proposals` over chunks of `CHUNK` instants (the last padded with nobody)."""
-    n = len(keypoints)
+    """`people.proposals` over chunks of `chunk_size` instants (the last padded with nobody)."""
+    n, C, K, J = confidence.shape
+    size = chunk_size(C, K, J)
     parts = []
-    for start in range(0, max(n, 1), CHUNK):  # one (empty) chunk where n is 0: the arrays keep their shapes
-        rows = min(CHUNK, n - start)
-        pad = ((0, CHUNK - rows),) + ((0, 0),) * (keypoints.ndim - 1)
+    for start in range(0, max(n, 1), size):  # one (empty) chunk where n is 0: the arrays keep their shapes
+        rows = min(size, n - start)
+        pad = ((0, size - rows),) + ((0, 0),) * (keypoints.ndim - 1)
         xy = np.pad(keypoints[start : start + rows], pad)
         weight = np.pad(confidence[start : start + rows], pad[:-1])
-        found = people.proposals(np.broadcast_to(P, (CHUNK, *P.shape)), xy, weight, threshold_px)
+        found = people.proposals(np.broadcast_to(P, (size, *P.shape)), xy, weight, threshold_px)
         parts.append([np.asarray(field)[:rows] for field in (found.cost, found.match, found.matched, found.root)])
     return people.Proposals(*(np.concatenate(column) for column in zip(*parts)))
 
