@@ -197,12 +197,53 @@ def one_person(campus: Campus, keypoints: np.ndarray, confidence: np.ndarray) ->
     return points[:, None]
 
 
+def ring_rig(cameras: int) -> np.ndarray:
+    """f32[C, 3, 4]: cameras 6 m from the centre, 2 m up, evenly around it, looking at 1 m above the centre."""
+    K = np.array([[1000.0, 0, 960], [0, 1000.0, 540], [0, 0, 1]])
+    P = []
+    for angle in np.linspace(0, 2 * np.pi, cameras, endpoint=False):
+        centre = np.array([6000 * np.cos(angle), 6000 * np.sin(angle), 2000.0])
+        forward = (np.array([0, 0, 1000.0]) - centre) / np.linalg.norm(np.array([0, 0, 1000.0]) - centre)
+        right = np.cross(forward, [0, 0, 1.0])
+        right /= np.linalg.norm(right)
+        R = np.stack([right, np.cross(forward, right), forward])
+        P.append(K @ np.hstack([R, -R @ centre[:, None]]))
+    return np.array(P, np.float32)
+
+
+def speed(instants: int = 100) -> None:
+    """Instants per second of association and tracks at 2-6 people and 3-16 cameras (synthetic, 1 px noise)."""
+    rng = np.random.default_rng(0)
+    body = rng.uniform((-250, -150, 0), (250, 150, 1700), (14, 3))
+    print(f"{'people':>6} {'cameras':>7} {'inst/s':>8}  ({instants} instants, 1 px noise, every person in every view)")
+    for count in (2, 4, 6):
+        for cameras in (3, 4, 8, 16):
+            P = ring_rig(cameras)
+            start_positions = rng.uniform(-2000, 2000, (count, 2))
+            steps = np.arange(instants)[:, None, None] * rng.normal(0, 20, (1, count, 2))
+            floor = np.concatenate([start_positions + steps, np.zeros((instants, count, 1))], -1)
+            points = body + floor[:, :, None]  # [n, M, J, 3]
+            h = np.einsum("cik,nmjk->ncmji", P, np.concatenate([points, np.ones((*points.shape[:-1], 1))], -1))
+            keypoints = (h[..., :2] / h[..., 2:] + rng.normal(0, 1, h[..., :2].shape)).astype(np.float32)
+            keypoints = np.take_along_axis(keypoints, rng.permuted(np.tile(np.arange(count), (instants, cameras, 1)), axis=-1)[..., None, None], 2)
+            confidence = np.full(keypoints.shape[:-1], 0.9, np.float32)
+            association.associate(P, keypoints[:1], confidence[:1], THRESHOLD_PX)  # compiled before timing
+            start = time.perf_counter()
+            found = association.associate(P, keypoints, confidence, THRESHOLD_PX)
+            tracks.follow(found.points, found.present, LIMBS, tracks.TrackSettings(fps=FPS))
+            print(f"{count:>6} {cameras:>7} {instants / (time.perf_counter() - start):>8.0f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--campus", type=Path, default=CAMPUS)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--people", type=int, default=None, help="the number of people, when known")
+    parser.add_argument("--speed", action="store_true", help="instants per second at 2-6 people, 3-16 cameras instead")
     args = parser.parse_args()
+    if args.speed:
+        speed()
+        return
     campus = load_campus(args.campus)
     print(f"Campus: {len(campus.truth)} frames, 3 cameras; detector {NOISE}; association threshold {THRESHOLD_PX} px")
     header = f"{'seed':>4} {'path':<12} {'PCP 1':>6} {'PCP 2':>6} {'PCP 3':>6} {'avg':>6} {'MPJPE 1/2/3 mm':>18} {'IDsw':>5} {'false':>6} {'missed':>6} {'tracks':>6} {'left out':>8} {'inst/s':>7}"
