@@ -4,9 +4,11 @@ can write them.
 Rig calibration reads one (`python -m jaxpose.calibrate`, `jaxpose.calibration.read_detections_npz`),
 and so does a rig project, as a recording (`jaxpose.rig`).  Its arrays:
 
-- ``keypoints`` f32[N, C, J, 2]: pixels as detected (distorted); N synchronized frames, C views;
-- ``confidence`` f32[N, C, J] (optional, default 1): finite and >= 0, 0 = not detected; a keypoint
-  whose confidence is positive must be finite;
+- ``keypoints`` f32[N, C, J, 2]: pixels as detected (distorted); N synchronized frames, C views; or,
+  with several people, f32[N, C, P, J, 2]: up to P people per view, in any order in each view (a rig
+  project matches them across views, `jaxpose.rig.association`); a slot without a person has confidence 0;
+- ``confidence`` f32[N, C, J] (optional, default 1), f32[N, C, P, J] with a person axis: finite and >= 0,
+  0 = not detected; a keypoint whose confidence is positive must be finite;
 - ``camera_names`` str[C]: distinct;
 - ``frames`` int[N] (optional, default 0 .. N-1): distinct frame numbers;
 - ``image_size`` int[C, 2]: (width, height) pixels, positive; calibration needs it, and so does a rig
@@ -17,7 +19,7 @@ and so does a rig project, as a recording (`jaxpose.rig`).  Its arrays:
 - ``K`` f32[C, 3, 3], ``dist`` f32[C, 5] (k1, k2, p1, p2, k3; needs K) and ``distortion_model``
   ("opencv", the default, or "h36m"), all optional, where the intrinsics are known.
 
-`read` checks all of this (`check`, which in-memory detections go through too), and every refusal is
+Calibration reads one person per view (no person axis). `read` checks all of this (`check`, which in-memory detections go through too), and every refusal is
 a `DataFormatError` naming the file and the array.
 """
 
@@ -42,8 +44,8 @@ REQUIRED = ("keypoints", "camera_names")
 class MultiViewDetections:
     """A ``detections.npz`` as read and checked (the arrays of the module docstring, numpy)."""
 
-    keypoints: np.ndarray  # f32[N, C, J, 2]
-    confidence: np.ndarray  # f32[N, C, J]
+    keypoints: np.ndarray  # f32[N, C, J, 2], or f32[N, C, P, J, 2] where `read` allowed a person axis
+    confidence: np.ndarray  # f32[N, C, J] or f32[N, C, P, J]
     camera_names: tuple[str, ...]
     frames: np.ndarray  # int64[N]
     image_size: np.ndarray | None  # int64[C, 2]
@@ -66,25 +68,29 @@ def check(
     K: np.ndarray | None = None,
     dist: np.ndarray | None = None,
     distortion_model: str = "opencv",
+    people: bool = False,
 ) -> None:
     """Refuse detections that break the rules of the module docstring, naming `source` and the field
-    at fault.  With `joint_names` (those of the layout `skeleton`), J must be their number."""
+    at fault.  With `joint_names` (those of the layout `skeleton`), J must be their number; `people`:
+    a person axis (keypoints [N, C, P, J, 2]) is allowed."""
 
     def fail(field: str, expected: str, found: str):
         raise DataFormatError(f"{source}, field {field!r}", expected, found)
 
-    if keypoints.ndim != 4 or keypoints.shape[-1] != 2:
-        fail("keypoints", "shape [N, C, J, 2] (pixels)", f"shape {keypoints.shape}")
-    N, C, J, _ = keypoints.shape
+    if keypoints.ndim not in ((4, 5) if people else (4,)) or keypoints.shape[-1] != 2:
+        shapes = "[N, C, J, 2] or [N, C, P, J, 2] (P people per view)" if people else "[N, C, J, 2] (one person per view)"
+        fail("keypoints", f"shape {shapes}, pixels", f"shape {keypoints.shape}")
+    N, C, J = keypoints.shape[0], keypoints.shape[1], keypoints.shape[-2]
     if joint_names is not None and J != len(joint_names):
         fail("keypoints", f"{len(joint_names)} joints of skeleton {skeleton!r}", f"J = {J}")
-    if confidence.shape != (N, C, J):
-        fail("confidence", f"shape [N, C, J] = {(N, C, J)}", f"shape {confidence.shape}")
+    if confidence.shape != keypoints.shape[:-1]:
+        axes = "[N, C, P, J]" if keypoints.ndim == 5 else "[N, C, J]"
+        fail("confidence", f"shape {axes} = {keypoints.shape[:-1]} as keypoints", f"shape {confidence.shape}")
     if not np.all(np.isfinite(confidence)) or np.any(confidence < 0):
         fail("confidence", "finite values >= 0", "NaN, infinite or negative values")
     bad = (confidence > 0) & ~np.all(np.isfinite(keypoints), axis=-1)
     if bad.any():
-        n, c, j = np.argwhere(bad)[0]
+        n, c, *_, j = np.argwhere(bad)[0]
         fail(
             "keypoints",
             "finite pixels wherever confidence > 0 (give a missing joint confidence 0)",
@@ -119,8 +125,9 @@ def read_camera_names(path: str | Path) -> tuple[str, ...]:
     return tuple(str(name) for name in np.atleast_1d(names))
 
 
-def read(path: str | Path, required: Sequence[str] = ()) -> MultiViewDetections:
-    """Read and check a ``detections.npz``; `required` names optional arrays the caller needs."""
+def read(path: str | Path, required: Sequence[str] = (), people: bool = False) -> MultiViewDetections:
+    """Read and check a ``detections.npz``; `required` names optional arrays the caller needs; `people`:
+    a person axis is allowed (a rig project's recordings; calibration takes one person per view)."""
     path = Path(path)
     arrays = read_npz_arrays(path, "synchronized multi-view detections (a detections.npz)")
     missing = [name for name in (*REQUIRED, *required) if name not in arrays]
@@ -144,7 +151,7 @@ def read(path: str | Path, required: Sequence[str] = ()) -> MultiViewDetections:
     distortion_model = str(arrays.get("distortion_model", "opencv"))
     joint_names = None if skeleton is None else layout_joint_names(skeleton)
     check(str(path), keypoints, confidence, camera_names, skeleton=skeleton, joint_names=joint_names, image_size=image_size,
-          K=K, dist=dist, distortion_model=distortion_model)  # fmt: skip
+          K=K, dist=dist, distortion_model=distortion_model, people=people)  # fmt: skip
     N = len(keypoints)
     frames = np.asarray(arrays.get("frames", np.arange(N)), np.int64)
     if frames.shape != (N,) or len(np.unique(frames)) != N:

@@ -4,7 +4,8 @@ Users bring, for each camera of a recording, either
 
 - a folder of OpenPose-style JSON frames, one file per frame: ``{"version": ..., "people": [{"person_id":
   [-1], "pose_keypoints_2d": [x, y, score] * J, "face_keypoints_2d": ..., ...}, ...]}``, pretty-printed or
-  compact.  Only ``pose_keypoints_2d`` is read.  J is 25 (BODY_25 or BODY_25B: the count cannot tell them
+  compact.  Only ``pose_keypoints_2d`` is read; an entry whose list is empty is a person not found in that
+  frame, left out.  J is 25 (BODY_25 or BODY_25B: the count cannot tell them
   apart), 26 (HALPE_26), 17 (COCO-17) or 18 (OpenPose COCO-18); every file of a folder must have the same J.
   The frame number is the last run of digits of the file name once ``_keypoints.json`` / ``.json`` is
   removed (``clip_000000000123_keypoints.json``, ``cam01.0010.json``, ``frame_00001.json``); files that
@@ -128,8 +129,8 @@ def _person_values(person: Any, index: int) -> list:
     values = person.get("pose_keypoints_2d")
     if not isinstance(values, list):
         raise _FieldError(field, f"no 'pose_keypoints_2d' list (keys: {sorted(person)})")
-    if not values or len(values) % 3:
-        raise _FieldError(field, f"{len(values)} values, not a positive multiple of 3")
+    if len(values) % 3:
+        raise _FieldError(field, f"{len(values)} values, not a multiple of 3")
     return values
 
 
@@ -159,14 +160,17 @@ def _parse_chunk(paths: Sequence[str]) -> tuple:
             found = f"a JSON {type(frame).__name__}" if not isinstance(frame, dict) else (
                 f"no 'people' list (keys: {sorted(frame)})")  # fmt: skip
             return "error", path, _FRAME_EXPECTED, found
+        count = 0
         try:
             for index, person in enumerate(frame["people"]):
                 values = _person_values(person, index)
-                lengths.append(len(values))
-                flat.extend(values)
+                if values:  # an empty list is a person OpenPose lists but did not find (Pose2Sim writes them)
+                    lengths.append(len(values))
+                    flat.extend(values)
+                    count += 1
         except _FieldError as error:
             return "error", path, f"{_FRAME_EXPECTED} (field {error.field})", error.found
-        people.append(len(frame["people"]))
+        people.append(count)
     try:
         values = np.array(flat, np.float32)
         if values.ndim != 1:

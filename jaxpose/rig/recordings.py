@@ -188,13 +188,18 @@ def find_recording(folder: pathlib.Path) -> Recording:
 
 
 def _npz_cameras(detections: detections_npz.MultiViewDetections) -> dict[str, CameraDetections]:
-    """A detections.npz as per-camera detections (one person per frame)."""
+    """A detections.npz as per-camera detections (one person per frame, or its person axis)."""
+    keypoints, confidence = detections.keypoints, detections.confidence
+    if keypoints.ndim == 4:
+        keypoints, confidence = keypoints[:, :, None], confidence[:, :, None]
+    found = (confidence > 0).any(-1)  # [N, C, P]
+    slots = np.arange(1, found.shape[-1] + 1)
     return {
         name: CameraDetections(
             frames=detections.frames,
-            keypoints=detections.keypoints[:, c, None],
-            scores=detections.confidence[:, c, None],
-            people=(detections.confidence[:, c] > 0).any(-1).astype(np.int32),
+            keypoints=keypoints[:, c],
+            scores=confidence[:, c],
+            people=np.max(np.where(found[:, c], slots, 0), axis=-1, initial=0).astype(np.int32),
             source=f"{detections.source} (camera {name})",
         )
         for c, name in enumerate(detections.camera_names)
@@ -234,7 +239,7 @@ def read_detections(recording: Recording, skeleton: str, progress: bool, parsed:
     in the folder `parsed` (the project's cache), one file per camera."""
     npz, known = None, {}
     if DETECTIONS_NPZ in recording.sources:
-        npz = detections_npz.read(recording.sources[DETECTIONS_NPZ])
+        npz = detections_npz.read(recording.sources[DETECTIONS_NPZ], people=True)
         cameras = _npz_cameras(npz)
         given = {key: getattr(npz, key) for key in ("image_size", "K", "dist") if getattr(npz, key) is not None}
         known = {

@@ -358,7 +358,7 @@ def test_pool_equals_sequential(tmp_path, monkeypatch):
     # A bad file in a later chunk: the pool reports it as the sequential path does.
     (tmp_path / "cam01_json" / "cam01.0031.json").write_text('{"people": [{"pose_keypoints_2d": [1, 2]}]}')
     for workers in (1, 2):
-        with pytest.raises(DataFormatError, match=r"cam01\.0031\.json: .*2 values, not a positive multiple of 3"):
+        with pytest.raises(DataFormatError, match=r"cam01\.0031\.json: .*2 values, not a multiple of 3"):
             kf.read_openpose_folder(tmp_path / "cam01_json", progress=False, workers=workers)
 
 
