@@ -19,10 +19,11 @@ driver in their own environment (`--venv`; skipped, with a line saying why, wher
 `benchmarks.peers_scores.Scores`' over the pelvis and COCO-17's 17 keypoints: world MPJPE (mm, no
 alignment), P-MPJPE (mm), acceleration error (mm/frame^2 at the rate's frames), per kind of motion
 (`KINDS`) and rate, as the mean over seeds and their spread (max - min), and the world error split into
-its offset (per take and joint, the mean error vector over the instants) and what varies about it.  Beside them, what the default's
-motion prior estimated (`jaxpose.reconstruct`'s report fields `motion_prior_mm_s2` and `impacts`, per take
-and seed in report.json's `priors`): the process noise over the joints, takes and seeds (median and range,
-mm/s^2 per axis) and the impacts, the share of accelerations the Student-t prior weighted below 0.5.
+its offset (per take and joint, the mean error vector over the instants) and what varies about it.
+Beside them, what the default's motion prior estimated (`jaxpose.reconstruct`'s report fields
+`motion_prior_mm_s2` and `impacts`, per take and seed in report.json's `priors`): the process noise over
+the joints, takes and seeds (median and range, mm/s^2 per axis) and the impacts, the share of
+accelerations the Student-t prior weighted below 0.5.
 """
 
 from __future__ import annotations
@@ -259,14 +260,15 @@ def markdown(report: dict) -> str:
         for rate, methods in rates.items():
             for method, seeds in methods.items():
                 if method != "ground truth":
-                    cells = [_cell([summary[column] for summary in seeds]) for column in ("mpjpe_mm", "offset_mm", "about_offset_mm")]
+                    columns = ("mpjpe_mm", "offset_mm", "about_offset_mm")
+                    cells = [_cell([summary[column] for summary in seeds]) for column in columns]
                     lines.append(f"| {rate} | {kind} | {method} | {' | '.join(cells)} |")
     lines += [
         "", "The default's motion prior as estimated: each joint's process noise over the joints, takes and seeds (mm/s²"
         " per axis, median (range)) and its impacts (accelerations the Student-t prior weighted below 0.5).", "",
         "| fps | motion | process noise, median (range) (mm/s²) | impacts (% of accelerations) |", "|---|---|---|---|",
     ]  # fmt: skip
-    for kind, rates in report.get("priors", {}).items():
+    for kind, rates in report["priors"].items():
         for rate, seeds in rates.items():
             solved = [take for seed in seeds for take in seed.values()]
             noise = [value for take in solved for value in take["motion_prior_mm_s2"].values() if value is not None]
