@@ -282,16 +282,51 @@ def one_person(keypoints: np.ndarray, confidence: np.ndarray) -> tuple[np.ndarra
 
 
 def ground_truth_on_instants(folder: pathlib.Path, skeleton: Skeleton, layout: str, instants: np.ndarray) -> tuple[np.ndarray | None, int]:
-    """The recording's ground truth on its instants: (f32[N, J, 3] world mm, NaN where unknown, or None; instants with it)."""
+    """The recording's ground truth on its instants: (f32[N, P, J, 3] world mm of its P people, NaN where
+    unknown, or None; instants with it)."""
     path = folder / GROUND_TRUTH_NPZ
     if not path.is_file():
         return None, 0
     truth = read_ground_truth(path)
-    if truth.points.shape[1] != 1:
-        raise DataFormatError(path, "points3d of one person [N, J, 3] (this path follows one person)", f"{truth.points.shape[1]} people")
     root_from = DETECTOR_LAYOUTS[layout].root_from if layout in DETECTOR_LAYOUTS else None
-    matched = ground_truth.on_skeleton(truth.points[:, 0], truth.joint_names, skeleton, root_from, f"{path}, array 'joint_names'")
-    target = np.full((len(instants), skeleton.num_joints, 3), np.nan, np.float32)
+    people = truth.points.shape[1]
+    matched = np.stack([
+        ground_truth.on_skeleton(truth.points[:, person], truth.joint_names, skeleton, root_from, f"{path}, array 'joint_names'")
+        for person in range(people)
+    ], 1)  # fmt: skip
+    target = np.full((len(instants), people, skeleton.num_joints, 3), np.nan, np.float32)
     _, rows, gt_rows = np.intersect1d(instants, truth.frames, return_indices=True)
     target[rows] = matched[gt_rows]
     return target, len(rows)
+
+
+TRUTH_MATCH_MM = 300.0
+"""The largest median joint distance (mm) of a prepared person from a ground-truth person for it to be that one."""
+
+
+def truth_of_people(target: np.ndarray, instant: np.ndarray, person: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Each prepared row's ground truth: target f32[N, P, J, 3] (`ground_truth_on_instants`), the rows' instant
+    int[R] and person int[R] and their triangulated joints f32[R, J, 3] (NaN where unseen) -> f32[R, J, 3].
+    With one ground-truth person and one prepared person, that person's; else each prepared person is given the
+    ground-truth person nearest to it (the median joint distance over the instants both have, one to one,
+    `scipy.optimize.linear_sum_assignment`) within `TRUTH_MATCH_MM`, and NaN where none is."""
+    from scipy.optimize import linear_sum_assignment
+
+    if target.shape[1] == 1 and (person == person[0]).all():
+        return target[instant, 0]
+    ids = np.unique(person)
+    cost = np.full((len(ids), target.shape[1]), np.inf)
+    for row, k in enumerate(ids):
+        rows = person == k
+        distance = np.linalg.norm(target[instant[rows]] - points[rows, None], axis=-1)  # [r, P, J]
+        finite = np.isfinite(distance)
+        with np.errstate(invalid="ignore"):
+            median = np.array([np.median(distance[:, p][finite[:, p]]) if finite[:, p].any() else np.inf for p in range(target.shape[1])])
+        cost[row] = median
+    out = np.full((len(person), *target.shape[2:]), np.nan, np.float32)
+    rows, columns = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e12))
+    for row, column in zip(rows, columns):
+        if cost[row, column] <= TRUTH_MATCH_MM:
+            mine = person == ids[row]
+            out[mine] = target[instant[mine], column]
+    return out
