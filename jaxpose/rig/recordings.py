@@ -7,6 +7,7 @@ a recording's ground truth on its instants (the folder is described in `jaxpose.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import pathlib
 from collections.abc import Mapping, Sequence
@@ -32,6 +33,8 @@ from jaxpose.layouts import (
     to_lifting_skeleton,
 )
 from jaxpose.skeleton import DETECTOR_LAYOUTS, Skeleton
+
+log = logging.getLogger(__name__)
 
 MAX_PEOPLE = 4  # detections per camera and frame kept for the choice of person
 
@@ -252,22 +255,33 @@ def read_detections(recording: Recording, skeleton: str, progress: bool, parsed:
 
 
 def lifting_views(read: RecordingDetections, min_confidence: float) -> Views:
-    """The recording's `Views` in the lifting skeleton, scores below `min_confidence` made 0, at most `MAX_PEOPLE` detections per frame (the most confident: a crowd only costs memory), and at
-    least one (a camera that never saw anybody keeps an empty slot)."""
+    """The recording's `Views` in the lifting skeleton, scores below `min_confidence` made 0, at most `MAX_PEOPLE` detections per frame
+    (the most confident: a crowd only costs memory; the frames where more were left out are logged in one line per camera), and at
+    least one (a camera that never saw anybody keeps an empty slot).  A BODY_25 / BODY_25B layout is checked on every camera's
+    poses together (`check_body25_layout`): one camera's few people (a false detection, a person with arms down) can mislead it."""
     views = {}
     joints = len(layout_joint_names(read.layout))
+    pooled = []
     for name, detections in read.cameras.items():
         keypoints, scores = detections.keypoints, detections.scores
         if keypoints.shape[1] == 0:
             keypoints, scores = np.zeros((len(keypoints), 1, joints, 2), np.float32), np.zeros((len(keypoints), 1, joints), np.float32)
         if keypoints.shape[1] > MAX_PEOPLE:
+            crowded = int(((scores > 0).any(-1).sum(-1) > MAX_PEOPLE).sum())
+            log.warning("recording %s, camera %s: %d frames with more than %d people detected: the %d most confident of each kept",
+                        read.recording.name, name, crowded, MAX_PEOPLE, MAX_PEOPLE)  # fmt: skip
             order = np.argsort(-np.nan_to_num(scores).sum(-1), axis=1, kind="stable")[:, :MAX_PEOPLE]
             keypoints = np.take_along_axis(keypoints, order[..., None, None], axis=1)
             scores = np.take_along_axis(scores, order[..., None], axis=1)
-        check_body25_layout(read.layout, keypoints, scores, printable(read.recording.folder / name), "--data.skeleton")
+        pooled.append((keypoints.reshape(-1, *keypoints.shape[2:]), scores.reshape(-1, scores.shape[-1])))
+        views[name] = (detections.frames, keypoints, scores)
+    if pooled:
+        where = printable(read.recording.folder) + f" (cameras {', '.join(views)})"
+        check_body25_layout(read.layout, np.concatenate([k for k, _ in pooled]), np.concatenate([c for _, c in pooled]), where, "--data.skeleton")
+    for name, (frames, keypoints, scores) in views.items():
         keypoints, confidence = to_lifting_skeleton(read.layout, keypoints, scores)
         confidence = np.where(confidence >= min_confidence, confidence, 0.0).astype(np.float32)
-        views[name] = (detections.frames, keypoints, confidence)
+        views[name] = (frames, keypoints, confidence)
     return views
 
 
