@@ -333,16 +333,18 @@ class Preparation:
                      f"; {chosen.implausible_tracks} tracks the detector scored low left out" if chosen.implausible_tracks else "")  # fmt: skip
         target, truth_instants = ground_truth_on_instants(recording.folder, skeleton, part.layout, part.instants)
         if target is not None:
-            if self.recovered and target.shape[1] > 1:
-                raise DataFormatError(recording.folder / GROUND_TRUTH_NPZ, "points3d of one person [N, J, 3] in a project without calibration"
-                                      " (the people are matched in the calibration's world)", f"{target.shape[1]} people")  # fmt: skip
+            if self.recovered:  # into the recovered world first, fitted on every row (trimmed: a passer-by's rows weigh little)
+                if target.shape[1] > 1:
+                    raise DataFormatError(recording.folder / GROUND_TRUTH_NPZ, "points3d of one person [N, J, 3] in a project without"
+                                          " calibration (several people are matched in the calibration's world)", f"{target.shape[1]} people")  # fmt: skip
+                moved = ground_truth_into_recovered_world(target[chosen.instant, 0], chosen.keypoints, chosen.confidence, self.rigs.calibrations[rig_index])
+                target = np.full(target.shape, np.nan, np.float32)
+                target[chosen.instant, 0] = moved
             points = None
             if target.shape[1] > 1 or chosen.people > 1:
                 points = geometry.triangulate_rows(self.rigs.P[rig_index], chosen.keypoints, chosen.confidence, method="normal")
                 points = np.where(((chosen.confidence > 0).sum(1) >= 2)[..., None], points, np.nan)
             target = truth_of_people(target, chosen.instant, chosen.person, points)
-        if target is not None and self.recovered:
-            target = ground_truth_into_recovered_world(target, chosen.keypoints, chosen.confidence, self.rigs.calibrations[rig_index])
         self.ground_truth_seen |= target is not None
         if units is not None:
             units.add(rig_index, chosen.keypoints, chosen.confidence, skeleton)

@@ -189,3 +189,16 @@ def test_pose2sim_multiperson_demo_is_its_real_person_and_its_ghost(tmp_path):
         kinds.append("ghost" if np.median(scores) == 1.0 else "real")
         assert ((confidence > 0).any(-1).sum(-1) >= 3).mean() > 0.9  # seen by three cameras or four, not by 1 and 2 only
     assert sorted(kinds) == ["ghost", "real"]
+
+
+def test_several_people_compile_nothing_more_for_more_and_longer_recordings(two, tmp_path):
+    """The people of a project are found and tracked in the loader's fixed-size chunks: after one project of two
+    people, another of more and shorter recordings of two people lowers no program anew."""
+    from compilations import compilations
+
+    every_row(two)
+    more = write_rig_project(tmp_path / "more", dataclasses.replace(TWO, recordings=3, frames_per_recording=41))
+    with compilations() as found:
+        prepared, _ = every_row(more)
+    assert [summary.people for summary in prepared.meta.recordings] == [(41, 41)] * 3
+    assert found["lowered"] == 0, found
