@@ -202,3 +202,14 @@ def test_several_people_compile_nothing_more_for_more_and_longer_recordings(two,
         prepared, _ = every_row(more)
     assert [summary.people for summary in prepared.meta.recordings] == [(41, 41)] * 3
     assert found["lowered"] == 0, found
+
+
+def test_the_run_report_counts_samples_per_person(two):
+    from jaxpose.training.report import samples_per_person, samples_per_person_table
+
+    project = load_rig_project(RigProjectConfig(root=two), progress=False)
+    name = TWO.recording_names[0]
+    counts = {part: samples_per_person(dataset) for part, dataset in (("train", project.train), ("test", project.validation))}
+    assert counts == {"train": {f"{name}.person1": 48, f"{name}.person2": 48}, "test": {f"{name}.person1": 12, f"{name}.person2": 12}}
+    table = samples_per_person_table(counts)
+    assert f"| {name}.person2 | 48 | 12 |" in table and table.endswith("| all | 96 | 24 |")
