@@ -8,7 +8,10 @@ first appearance within the recording; their rows carry, in every view, that per
 
 Where one person or none is found, the recording is prepared as before (`jaxpose.rig.people.choose`: the
 person the views agree on at every instant, person 1): a recording of one subject and a passer-by too brief
-to make a track gives the same rows as it always did.
+to make a track gives the same rows as it always did.  So does a recording with at most one detection per
+view at every instant (a `detections.npz` of one person, Human3.6M written as a project), without the
+association and the tracks (loops over the instants in Python, which a project of Human3.6M's size need not pay): there, two
+people can only be seen by disjoint views, and the choice keeps the one more views agree on.
 """
 
 from __future__ import annotations
@@ -66,6 +69,8 @@ def everyone(
     (`people.proposals`), P f32[C, 3, 4] the recording's projection matrices (undistorted pixels, world mm),
     keypoints f32[n, C, K, J, 2] undistorted, confidence f32[n, C, K, J]."""
     n, C, K, J = confidence.shape
+    if K == 1:  # one detection per view at every instant: one person, unless the views disagree (the choice's case)
+        return _one_person(found, keypoints, confidence, 0, 0)
     detected = (confidence > 0).any(-1)  # [n, C, K]
     with_choice = int((detected.sum(-1) > 1).any(-1).sum())
     instants_people = association.of_proposals(found, P, keypoints, confidence)
@@ -79,11 +84,7 @@ def everyone(
         kept += [t] if plausible(scores[scores > 0]) else []
     dropped = followed.dropped + int(np.isin(followed.identity, [t for t in range(followed.count) if t not in kept]).sum())
     if len(kept) <= 1:
-        choice = people.choose(found, keypoints, confidence)
-        return TrackedPeople(
-            np.arange(n), np.ones(n, np.int32), choice.keypoints, choice.confidence, 1, followed.count - len(kept),
-            dropped, choice.instants_with_choice, choice.views_without_match,
-        )  # fmt: skip
+        return _one_person(found, keypoints, confidence, followed.count - len(kept), dropped)
     rows = [np.argwhere(followed.identity == t) for t in kept]  # each [r, 2] (instant, slot), instants in order
     instant = np.concatenate([row[:, 0] for row in rows])
     slot = np.concatenate([row[:, 1] for row in rows])
@@ -99,4 +100,14 @@ def everyone(
     return TrackedPeople(
         instant.astype(np.int64), person, out_keypoints.astype(np.float32), out_confidence, len(kept), followed.count - len(kept),
         dropped, with_choice, int((detected.any(-1) & ~used.any(-1)).sum()),
+    )  # fmt: skip
+
+
+def _one_person(found: people.Proposals, keypoints: np.ndarray, confidence: np.ndarray, implausible: int, dropped: int) -> TrackedPeople:
+    """The recording as one person's, at every instant (`people.choose`), as it was prepared before several people."""
+    n = len(keypoints)
+    choice = people.choose(found, keypoints, confidence)
+    return TrackedPeople(
+        np.arange(n), np.ones(n, np.int32), choice.keypoints, choice.confidence, 1, implausible, dropped,
+        choice.instants_with_choice, choice.views_without_match,
     )  # fmt: skip
