@@ -79,6 +79,8 @@ from jaxpose.rig.tracked import MIN_TRACK_SCORE
 MAX_FPS = 10000.0
 LOCK_FILE = "reconstruct.lock"
 """Held in --output while a reconstruct writes there (`exclusive_folder`), removed at its end."""
+MD_LIMBS = ("elbow", "wrist", "knee", "ankle")
+"""report.md's person table shows the limbs ending at these joints (upper arms, forearms, thighs, shanks)."""
 INTERRUPTED_EXIT = 128 + signal.SIGINT  # the shell's code for a command ended by Ctrl-C: 130
 
 @dataclasses.dataclass(frozen=True)
@@ -410,7 +412,7 @@ def report_markdown(report: dict) -> str:
         "People: per recording, the people found (tracked over time; a track whose detections' keypoints score below"
         f" {report.get('min_track_score', '-')} in the median is left out as no person), and each person's files: its first"
         " and last frame, its coverage (the share of the recording's instants at which a camera sees it) and its limbs'"
-        " median lengths (mm; report.json has every limb's).",
+        " median lengths (mm: the arms' and legs' here, report.json has every limb's).",
         "",
         "| recording | people found | tracks left out |",
         "|---|---|---|",
@@ -420,9 +422,10 @@ def report_markdown(report: dict) -> str:
         "|---|---|---|---|---|---|---|",
     ]
     for row in (row for row in report["recordings"] if "skipped" not in row):
-        limbs = [f"{name} {value:.0f}" for name, value in row["limb_length_mm"].items() if value is not None]
+        limbs = [f"{name} {value:.0f}" for name, value in row["limb_length_mm"].items()
+                 if value is not None and any(part in name.split("-")[-1].lower() for part in MD_LIMBS)]  # fmt: skip
         lines.append(f"| {row['recording']} | {row['of_recording']} | {row['person']} | {row['first_frame']} | {row['last_frame']}"
-                     f" | {row['coverage']:.1%} | {', '.join(limbs[:4]) + (' ...' if len(limbs) > 4 else '') or '-'} |")  # fmt: skip
+                     f" | {row['coverage']:.1%} | {', '.join(limbs) or '-'} |")  # fmt: skip
     if report["smoothing"]:
         smoothing = (
             "solved over time (the trajectory), each limb held at its median length where both its joints are measured at"
