@@ -13,6 +13,7 @@ import pathlib
 from collections.abc import Mapping, Sequence
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from jaxpose.data import ground_truth
 from jaxpose.formats import detections_npz
@@ -324,8 +325,6 @@ def truth_of_people(target: np.ndarray, instant: np.ndarray, person: np.ndarray,
     With one ground-truth person and one prepared person, that person's; else each prepared person is given the
     ground-truth person nearest to it (the median joint distance over the instants both have, one to one,
     `scipy.optimize.linear_sum_assignment`) within `TRUTH_MATCH_MM`, and NaN where none is."""
-    from scipy.optimize import linear_sum_assignment
-
     if target.shape[1] == 1 and (person == person[0]).all():
         return target[instant, 0]
     ids = np.unique(person)
