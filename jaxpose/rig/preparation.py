@@ -30,7 +30,7 @@ from jaxpose.chunks import ChunkedMap
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.layouts import lifting_skeleton
-from jaxpose.rig import cache, geometry, people, tracked
+from jaxpose.rig import cache, geometry, people, tracked, tracks
 from jaxpose.rig.cache import Assembly, PreparedProject, ProjectMeta, RecordingSummary, SessionSummary
 from jaxpose.rig.cameras import check_unit_against_people, distinct_rigs, in_view_order, read_calibrations
 from jaxpose.rig.config import RigProjectConfig
@@ -141,7 +141,7 @@ def prepare(config: RigProjectConfig, found: FoundProject, progress: bool, entry
     rigs = geometry.Rigs.of([in_view_order(rig, camera_order) for rig in distinct])
     temporary = cache.start(entry)
     preparation = Preparation(
-        rigs, rig_index, tuple(camera_order), cache.Assembly(temporary), phases, threshold_px=config.person_threshold_px, recovered=bool(sessions),
+        rigs, rig_index, tuple(camera_order), cache.Assembly(temporary), phases, threshold_px=config.person_threshold_px, people=config.people, recovered=bool(sessions),
         check_unit=config.calibration_unit == "auto" and not sessions,
         labels={"subject": np.dtype(f"<U{len(f'rig{len(rig_index) - 1}')}"),
                 "recording": np.dtype(f"<U{max(len(recording.name) for recording in recordings)}")},
@@ -257,6 +257,8 @@ class Preparation:
     assembly: Assembly
     phases: Phases
     threshold_px: float
+    people: int | None
+    """--data.people: how many people there are, where known."""
     recovered: bool
     check_unit: bool
     labels: dict[str, np.dtype]
@@ -326,7 +328,7 @@ class Preparation:
         rows appended: person after person, each one's instants in order."""
         recording, rig_index = part.recording, self.rig_of[part.recording.name]
         skeleton = lifting_skeleton(part.layout)
-        chosen = tracked.everyone(found, self.rigs.P[rig_index], undistorted, part.confidence, skeleton)
+        chosen = tracked.everyone(found, self.rigs.P[rig_index], undistorted, part.confidence, skeleton, tracks.TrackSettings(people=self.people))
         instants = part.instants[chosen.instant]
         if chosen.people > 1 or chosen.implausible_tracks:
             log.info("recording %s: %d people found%s", recording.name, chosen.people,

@@ -213,3 +213,13 @@ def test_the_run_report_counts_samples_per_person(two):
     assert counts == {"train": {f"{name}.person1": 48, f"{name}.person2": 48}, "test": {f"{name}.person1": 12, f"{name}.person2": 12}}
     table = samples_per_person_table(counts)
     assert f"| {name}.person2 | 48 | 12 |" in table and table.endswith("| all | 96 | 24 |")
+
+
+def test_a_known_count_of_people_starts_no_more_tracks(two, tmp_path):
+    """--data.people 1 on two people: one track, the other person's detections given to it where it is unseen
+    (never, here: both are at every instant), so one person of 60 instants, as the choice prepared it."""
+    prepared, rows = every_row(two, people=1, cache_dir=tmp_path / "cache")
+    assert [summary.people for summary in prepared.meta.recordings] == [(60,)]
+    assert list(np.unique(rows.samples.labels["person"])) == [1]
+    with pytest.raises(ValueError, match=r"--data.people is how many people .* got 0"):
+        RigProjectConfig(root=two, people=0)
