@@ -121,13 +121,17 @@ def _holds_rig(prepared: PreparedProject, recovered: pathlib.Path) -> bool:
 
 @dataclasses.dataclass(frozen=True)
 class RecordingInput:
-    """One recording's detections on its whole frame axis (F frames, C views, J joints).
+    """One person's detections in one recording, on their whole frame axis (F frames, C views, J joints).
 
-    frames:     i64[F] the instants, consecutive, first to last (the rig project's frame numbers).
+    name:       what the files are named: the recording's name where it has one person, else
+                ``<recording>.person<k>`` (`jaxpose.rig.split.person_names`).
+    frames:     i64[F] the instants, consecutive, the person's first to last (the rig project's frame numbers).
     cameras:    the recording's pinhole rig, fields [C, ...] (x_cam = R x_world + t, mm).
     keypoints:  f32[F, C, J, 2] undistorted pixels; 0 where not seen.
     confidence: f32[F, C, J]; 0 where not seen (and at every instant the project lacks).
     target3d:   f32[F, J, 3] world mm, the ground truth (NaN where none), or None.
+    recording:  the recording's name.
+    person:     k, the person (1, 2, ... in order of first appearance in the recording).
     """
 
     name: str
@@ -136,6 +140,8 @@ class RecordingInput:
     keypoints: np.ndarray
     confidence: np.ndarray
     target3d: np.ndarray | None
+    recording: str = ""
+    person: int = 1
 
     @property
     def seen(self) -> np.ndarray:
@@ -144,18 +150,19 @@ class RecordingInput:
 
 
 def recording_inputs(dataset: MultiViewDataset) -> Iterator[RecordingInput]:
-    """The recordings of a data set (labels "recording" and "frame", e.g. `load_every_instant`'s instants),
-    each undistorted and on its whole frame axis, in the order they appear."""
+    """The people of a data set's recordings (labels "recording", "sequence", "person" and "frame", e.g.
+    `load_every_instant`'s instants), each undistorted and on its whole frame axis, in the order they appear."""
     dataset = dataset.undistorted()
-    names = dataset.samples.labels["recording"]
+    labels = dataset.samples.labels
+    names = labels["sequence"]
     _, first = np.unique(names, return_index=True)
     for name in names[np.sort(first)]:
         rows = np.flatnonzero(names == name)
-        rows = rows[np.argsort(dataset.samples.labels["frame"][rows], kind="stable")]
+        rows = rows[np.argsort(labels["frame"][rows], kind="stable")]
         rigs = np.unique(dataset.samples.rig_index[rows])
         if len(rigs) != 1:
             raise ValueError(f"recording {name}: its instants have {len(rigs)} rigs; expected one")
-        frame = dataset.samples.labels["frame"][rows].astype(np.int64)
+        frame = labels["frame"][rows].astype(np.int64)
         index = frame - frame[0]
         F = int(index[-1]) + 1
         keypoints = np.zeros((F, *dataset.samples.keypoints2d.shape[1:]), np.float32)
@@ -166,7 +173,8 @@ def recording_inputs(dataset: MultiViewDataset) -> Iterator[RecordingInput]:
             target = np.full((F, *dataset.samples.target3d.shape[1:]), np.nan, np.float32)
             target[index] = dataset.samples.target3d[rows]
         cameras = dataset.rigs[int(rigs[0])]
-        yield RecordingInput(str(name), frame[0] + np.arange(F), cameras, keypoints, confidence, target)
+        yield RecordingInput(str(name), frame[0] + np.arange(F), cameras, keypoints, confidence, target,
+                             str(labels["recording"][rows[0]]), int(labels["person"][rows[0]]))  # fmt: skip
 
 
 def lift_views(lifter: Lifter3D, inputs: RecordingInput, roots: np.ndarray | None = None) -> np.ndarray:

@@ -103,9 +103,15 @@ def associate(
     keypoints f32[n, C, K, J, 2] undistorted pixels of up to K detections per view in any order (padding
     with confidence 0), confidence f32[n, C, K, J]; `threshold_px` the largest median joint distance (pixels)
     of a detection to a person's projection for it to be that person (state it with the results)."""
+    P = np.asarray(P, np.float32)
+    return of_proposals(_proposals_in_chunks(P, keypoints, confidence, threshold_px), P, keypoints, confidence)
+
+
+def of_proposals(found: people.Proposals, P: np.ndarray, keypoints: np.ndarray, confidence: np.ndarray) -> Association:
+    """`associate` from the instants' proposals (`people.proposals` of the same keypoints, confidence and
+    threshold), where the caller has them already (the rig loader: `jaxpose.rig.tracked`)."""
     n, C, K, J = confidence.shape
     P = np.asarray(P, np.float32)
-    found = _proposals_in_chunks(P, keypoints, confidence, threshold_px)
     detected = (confidence > 0).any(-1)
     chosen = _take(found, people.pair_hypotheses(C, K), detected)
     M = max((len(persons) for persons in chosen), default=0)

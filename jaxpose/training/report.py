@@ -58,6 +58,7 @@ def evaluate_and_report(
         "final_gradient_shares": shares,
         "train_steps": int(state.step),
         "training_budget": {"steps": budget.total_steps, "steps_per_epoch": budget.steps_per_epoch, "capped": budget.capped},
+        "samples_per_person": {part: samples_per_person(dataset) for part, dataset in (("train", splits.train), ("test", test))},
         "test_time_flip": config.train.eval_flip,
         "wall_time_s": wall_time,
         "devices": [str(d) for d in jax.devices()],
@@ -66,6 +67,8 @@ def evaluate_and_report(
     if jax.process_index() == 0:
         RunDirectory(run_dir).report_json.write_text(json.dumps(report, indent=2))
         tables = [*splits.notes, *([f"Training budget: trained {budget.note()}."] if budget.capped else [])]
+        if report["samples_per_person"]["train"]:
+            tables.append(samples_per_person_table(report["samples_per_person"]))
         if config.train.eval_flip:
             tables.append("Test-time flip (--train.eval-flip): every view's pose and its mirror image lifted and averaged.")
         if rows:
@@ -86,6 +89,25 @@ def evaluate_and_report(
         reference = evaluator.truth.target if rows and len(joint_names) == test.skeleton.num_joints else evaluator.triangulation
         _plots(config, test, pred, reference, run_dir)
     return report
+
+
+def samples_per_person(dataset: MultiViewDataset) -> dict[str, int]:
+    """{person: samples} of a data set whose samples are people of recordings (label "person", named by
+    "sequence": `jaxpose.rig.split.person_names`); {} for other data sets."""
+    labels = dataset.samples.labels
+    if "person" not in labels:
+        return {}
+    names, counts = np.unique(np.asarray(labels["sequence"]).astype(str), return_counts=True)
+    return {str(name): int(count) for name, count in zip(names, counts)}
+
+
+def samples_per_person_table(counts: dict[str, dict[str, int]]) -> str:
+    """Markdown: the training and test samples of each person (every person's instants are samples)."""
+    people = sorted(set(counts["train"]) | set(counts["test"]))
+    lines = ["**Samples per person** (each person's instants, with their own pseudo-labels)", "", "| person | train | test |", "|---|---|---|"]
+    lines += [f"| {name} | {counts['train'].get(name, 0)} | {counts['test'].get(name, 0)} |" for name in people]
+    lines.append(f"| all | {sum(counts['train'].values())} | {sum(counts['test'].values())} |")
+    return "\n".join(lines)
 
 
 def ground_truth_free_table(consistency: dict, camera_names: tuple[str, ...]) -> str:
