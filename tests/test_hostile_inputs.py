@@ -315,7 +315,8 @@ def test_the_run_record_carries_the_project_settings_to_the_commands_that_use_th
     its threshold; a flag given always wins (issue 52: also at the command's own default), and where it differs
     from the run's it is said in one line."""
     from jaxpose import reconstruct
-    from jaxpose.serving.inference import score_threshold
+    from jaxpose import export
+    from jaxpose.serving.inference import parse_with_run
     from jaxpose.rig.config import recorded_settings
     from jaxpose.training.run_directory import RunRecord, prepare_run_dir, read_record, write_record
 
@@ -337,11 +338,14 @@ def test_the_run_record_carries_the_project_settings_to_the_commands_that_use_th
     assert capsys.readouterr().err.splitlines() == [
         "--data.min-confidence 0.3 given; the run was trained with 0.2", "--data.sync given given; the run was trained with auto"
     ]
-    trained_lifter = types.SimpleNamespace(record=record, source=run_dir / "checkpoints")  # what score_threshold reads of a Lifter3D
-    assert score_threshold(trained_lifter, None) == 0.2
-    assert score_threshold(types.SimpleNamespace(record=None, source=tmp_path / "checkpoints"), None) == 0.05  # a run from before the record
-    assert score_threshold(trained_lifter, 0.05) == 0.05
-    assert "--min-confidence 0.05 differs from the run's 0.2" in capsys.readouterr().err
+    def export_threshold(run, *flags):
+        args, _, _ = parse_with_run(export.ExportArgs, [str(run), *flags], export.__doc__, "python -m jaxpose.export", run_field="run_dir")
+        return args.min_confidence
+
+    assert export_threshold(run_dir / "checkpoints") == 0.2
+    assert export_threshold(tmp_path / "old_run") == 0.05  # a run from before the record
+    assert export_threshold(run_dir, "--min-confidence", "0.05") == 0.05
+    assert "--min-confidence 0.05 given; the run was trained with 0.2" in capsys.readouterr().err
 
 
 @pytest.mark.trains  # the shared rig run (tests/conftest.py)

@@ -12,10 +12,10 @@ import re
 import pytest
 
 from experiments import rig as rig_job
-from jaxpose import predict, reconstruct
+from jaxpose import export, predict, reconstruct
 from jaxpose.rig.config import RigProjectConfig, recorded_settings
 from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
-from jaxpose.training.run_directory import RunRecord, read_record, write_record
+from jaxpose.training.run_directory import RunDirectory, RunRecord, read_record, write_record
 
 TRAINED = dict(min_confidence=0.3, sync="auto", max_sync_offset=4, frame_offsets=("cam02=3",), calibration_unit="m")
 
@@ -99,7 +99,9 @@ def predict_run(tmp_path):
 
 def _predict_args(run, *flags):
     argv = ["--checkpoint", str(run), "--input", "in.json", "--output", "out.json", *flags]
-    return predict.inference.parse_with_run(predict.PredictArgs, argv, predict.__doc__, "python -m jaxpose.predict")
+    args, run_dir, _ = predict.inference.parse_with_run(predict.PredictArgs, argv, predict.__doc__, "python -m jaxpose.predict")
+    assert run_dir == RunDirectory.of(run)  # built once, from the command line, for the command
+    return args
 
 
 def test_predict_min_confidence_given_default_other_or_not(predict_run, capsys):
@@ -116,10 +118,35 @@ def test_predict_min_confidence_given_default_other_or_not(predict_run, capsys):
     assert _help_default(capsys.readouterr().out, "--min-confidence") == "0.2"
 
 
+def _export_args(run, *flags):
+    """export's command line of `flags`, with its positional RUN_DIR where "RUN" stands (else first)."""
+    argv = [str(run) if flag == "RUN" else flag for flag in flags] if "RUN" in flags else [str(run), *flags]
+    args, run_dir, _ = predict.inference.parse_with_run(export.ExportArgs, argv, export.__doc__, "python -m jaxpose.export", run_field="run_dir")
+    assert run_dir == RunDirectory.of(run)
+    return args
+
+
+def test_export_min_confidence_given_default_other_or_not(predict_run, capsys):
+    """The same mechanism for export, whose run is its positional RUN_DIR: it took None for "from the run" and
+    its --help showed no value.  The run is found wherever it stands among the flags."""
+    assert _export_args(predict_run, "--min-confidence", "0.05", "RUN").min_confidence == 0.05
+    assert "--min-confidence 0.05 given; the run was trained with 0.2" in capsys.readouterr().err
+    assert _export_args(predict_run, "--output", "x.onnx", "RUN", "--min-confidence", "0.4").min_confidence == 0.4
+    assert "--min-confidence 0.4 given; the run was trained with 0.2" in capsys.readouterr().err
+    assert _export_args(predict_run, "--flip", "RUN", "--output=x.onnx").min_confidence == 0.2
+    assert _export_args(predict_run / "checkpoints").min_confidence == 0.2
+    assert "trained with" not in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:
+        export.main([str(predict_run), "--help"])
+    assert stop.value.code == 0
+    assert _help_default(capsys.readouterr().out, "--min-confidence") == "0.2"
+
+
 def test_predict_of_a_run_without_a_record_uses_the_default_threshold(tmp_path):
     run = tmp_path / "old_run"
     (run / "checkpoints").mkdir(parents=True)
     assert _predict_args(run).min_confidence == predict.inference.DEFAULT_MIN_CONFIDENCE
+    assert _export_args(run).min_confidence == predict.inference.DEFAULT_MIN_CONFIDENCE
 
 
 def test_a_run_records_its_project_by_an_absolute_resolved_path(tmp_path, monkeypatch):

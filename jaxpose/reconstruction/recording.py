@@ -2,7 +2,7 @@
 
     from jaxpose.serving import inference
     from jaxpose.reconstruction import recording
-    project = recording.load_every_instant(RigProjectConfig(root=PROJECT), run_dir=RUN)
+    project = recording.load_every_instant(RigProjectConfig(root=PROJECT), RunDirectory.of(RUN))
     lifter = inference.load(RUN)
     for inputs in recording.recording_inputs(project.instants):
         motion, lifted = recording.lift_and_reconstruct(lifter, inputs)
@@ -50,7 +50,7 @@ from jaxpose.skeleton import ROOT, Skeleton
 log = logging.getLogger(__name__)
 
 
-def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: bool = True, found: FoundProject | None = None) -> ProjectInstants:
+def load_every_instant(data: RigProjectConfig, run: RunDirectory, progress: bool = True, found: FoundProject | None = None) -> ProjectInstants:
     """Every instant of every recording (of --data.recordings) of the project; `found`: its files as found
     already (`jaxpose.rig.recordings.find_project`), else found now.
 
@@ -65,7 +65,7 @@ def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: 
         flags = ", ".join("--data." + field.replace("_", "-") for field in changed)
         raise ValueError(f"{flags}: a reconstruction takes every instant of every recording; leave the split flags out")
     found = found or find_project(data.root, data.recordings, data.calibration)
-    recovered = RunDirectory(pathlib.Path(run_dir)).recovered_cameras
+    recovered = run.recovered_cameras
     if data.calibration is None and recovered.is_file():
         # the run's own, where the cache holds it
         prepared = _whole_project(data, found, progress) or prepared_project(data, found, progress, cached_only=True)
@@ -76,14 +76,14 @@ def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: 
         data = dataclasses.replace(data, calibration=recovered)
         found = dataclasses.replace(found, calibration=recovered)
     elif not found.calibrated:
-        sessions = recovered.parent / RECOVERED_SESSIONS_DIR
+        sessions = run.path / RECOVERED_SESSIONS_DIR
         if sessions.is_dir():
             raise ValueError(
-                f"{data.root}: no calibration file, and the run {run_dir} was trained on one recovered rig per session"
+                f"{data.root}: no calibration file, and the run {run.path} was trained on one recovered rig per session"
                 f" ({sessions}): pass the recordings' session's as --data.calibration {sessions}/SESSION.toml"
             )
         raise ValueError(
-            f"{data.root}: no calibration file, and the run {run_dir} has no {recovered.name} (it was trained on"
+            f"{data.root}: no calibration file, and the run {run.path} has no {recovered.name} (it was trained on"
             " a calibrated project): pass --data.calibration; a rig recovered again would have another world frame"
         )
     prepared = _whole_project(data, found, progress) or prepared_project(data, found, progress)

@@ -16,10 +16,14 @@ import json
 import logging
 import pathlib
 import shutil
+import sys
 import time
-from collections.abc import Iterator, Mapping, Sequence
+import typing
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from typing import Any, TypeVar
 
 import jax
+import tyro
 
 from jaxpose.formats.files import from_typed_json, typed_json
 from jaxpose.formats.outputs import atomic_output, exclusive_folder
@@ -27,6 +31,8 @@ from jaxpose.rig.config import RigProjectConfig
 from jaxpose.training.experiment import ExperimentConfig, TrainConfig, dumps, to_json_dict
 
 log = logging.getLogger("jaxpose")
+
+T = TypeVar("T")
 
 
 LOCK_FILE = "run.lock"
@@ -150,19 +156,50 @@ def read_record(run_dir: pathlib.Path) -> RunRecord | None:
         raise ValueError(f"{path}: not a run record jaxpose wrote ({error})") from None
 
 
-def record_named_in(argv: Sequence[str]) -> tuple[pathlib.Path | None, RunRecord | None]:
-    """(the run `--checkpoint RUN` names in a command line, its record): read before the command line is
-    parsed, because the run's settings are its defaults (`--help` shows them, every flag given wins).  (None,
-    None) without the flag; (RUN, None) for a run from before records.  Raises ValueError for an unreadable record."""
-    for index, argument in enumerate(argv):
-        if argument.startswith("--checkpoint="):
-            run = pathlib.Path(argument.split("=", 1)[1])
-        elif argument == "--checkpoint" and index + 1 < len(argv):
-            run = pathlib.Path(argv[index + 1])
+def parse_over_run(
+    args_type: type[T], argv: Sequence[str] | None, run_defaults: Callable[[RunRecord | None], Mapping[str, Any]],
+    description: str, prog: str, run_field: str = "checkpoint",
+) -> tuple[T, RunDirectory | None, RunRecord | None]:
+    """The command line of a command that uses a run (`jaxpose.predict`, `export`, `reconstruct`): the run it
+    names (its `run_field`: --checkpoint RUN, or export's positional RUN_DIR) is read before the command line is
+    parsed, and `run_defaults(record)` (field name: value, from the run's record; None for a run from before
+    records) are the command's defaults, so `--help` shows the values that will be used and every flag given
+    wins, also one given at the command's own default.  Returns (the arguments, the run's `RunDirectory`,
+    built once here for the whole command, its record); (args, None, None) where the command line names no run."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    named = _named_run(argv, args_type, run_field)
+    run = None if named is None else RunDirectory.of(pathlib.Path(named))
+    try:
+        record = None if run is None else read_record(run.path)
+    except ValueError as error:
+        raise SystemExit(f"{prog}: error: {error}") from None
+    required = {
+        field.name: tyro.MISSING for field in dataclasses.fields(args_type)
+        if field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING
+    }  # fmt: skip
+    default = args_type(**(required | dict(run_defaults(record))))
+    return tyro.cli(args_type, default=default, args=argv, description=description, prog=prog), run, record
+
+
+def _named_run(argv: Sequence[str], args_type: type, field: str) -> str | None:
+    """The value `argv` gives the field `field` of `args_type`: its flag's (--checkpoint RUN or --checkpoint=RUN,
+    the last one given, as the parser takes it), else the first positional argument (every flag but a bool's
+    takes one value)."""
+    flag = "--" + field.replace("_", "-")
+    given = [argv[i + 1] for i in range(len(argv) - 1) if argv[i] == flag] + [a.split("=", 1)[1] for a in argv if a.startswith(flag + "=")]
+    if given:
+        return given[-1]
+    hints = typing.get_type_hints(args_type)
+    takes_value = {"--" + name.replace("_", "-") for name, hint in hints.items() if hint is not bool}
+    expects_value = False
+    for argument in argv:
+        if argument.startswith("-"):
+            expects_value = argument in takes_value
+        elif expects_value:
+            expects_value = False
         else:
-            continue
-        return run, read_record(run)
-    return None, None
+            return argument
+    return None
 
 
 # What a run writes into its folder, and what --run.overwrite may remove.

@@ -16,6 +16,7 @@ from jaxpose.formats.camera_file import save_cameras
 from jaxpose.formats.calibration_files import read_rig_calibration
 from jaxpose.formats.trc import read_trc
 from jaxpose.reconstruction.fusion import Provenance
+from jaxpose.training.run_directory import RunDirectory
 from jaxpose.reconstruction.motion_files import (
     UP_AXES,
     camera_up_axis,
@@ -128,7 +129,7 @@ def test_no_smoothing_gives_each_instants_own_estimate(project, run_dir, tmp_pat
     plain = _reconstruct(run_dir, project, tmp_path / "plain", "--no-smoothing")
     assert plain["trajectory"] is None and "each instant alone" in (tmp_path / "plain" / "report.md").read_text()
     lifter = inference.load(run_dir)
-    dataset = recording.load_every_instant(RigProjectConfig(root=project), run_dir, progress=False).instants
+    dataset = recording.load_every_instant(RigProjectConfig(root=project), RunDirectory.of(run_dir), progress=False).instants
     for inputs, row, smoothed in zip(recording.recording_inputs(dataset), plain["recordings"], smooth["recordings"]):
         motion, _ = recording.lift_and_reconstruct(lifter, inputs)
         saved = np.load(tmp_path / "plain" / f"{inputs.name}.npz")
