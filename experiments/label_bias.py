@@ -36,6 +36,7 @@ import numpy as np
 
 from experiments import ablation, cli, h36m
 from jaxpose.training.experiment import ExperimentConfig
+from jaxpose.training.run_directory import write_study_file
 from jaxpose.training.runner import run
 from jaxpose.training.splits import Splits
 from jaxpose.training import evaluation, pseudo_labelling
@@ -224,8 +225,7 @@ def main(argv: list[str] | None = None) -> str:
             evaluation.per_joint_table(ablation.per_joint_rows(results), "p_mpjpe", joint_names, "P-MPJPE (mm) per joint"),
         ]
     )
-    base.run.run_dir.mkdir(parents=True, exist_ok=True)
-    (base.run.run_dir / "label_bias.md").write_text(text + "\n")
+    write_study_file(base.run.run_dir, "label_bias.md", text + "\n")
     print(text)
     return text
 

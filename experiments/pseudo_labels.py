@@ -27,6 +27,7 @@ import numpy as np
 import tyro
 
 from jaxpose.training.experiment import RunConfig, TrainConfig
+from jaxpose.training.run_directory import write_study_file
 from jaxpose.training.runner import run
 from jaxpose.training.splits import Splits
 from experiments.synthetic import DEFAULT, SyntheticData, load_splits
@@ -160,10 +161,8 @@ def main(argv: list[str] | None = None) -> str:
         f"Pseudo-labels of the synthetic training split ({study.samples_per_subject} samples x 5 subjects,"
         f" 4 views, threshold {study.pseudo_labels.threshold_px:g} px).{budget}\n\n" + markdown(rows, study.train)
     )
-    study.run_dir.mkdir(parents=True, exist_ok=True)
-    (study.run_dir / "table.md").write_text(table + "\n")
     print(table)
-    print(f"written to {study.run_dir / 'table.md'}")
+    print(f"written to {write_study_file(study.run_dir, 'table.md', table + chr(10))}")
     return table
 
 

@@ -5,7 +5,6 @@ project by an absolute, resolved path (defects 6, 7)."""
 
 import dataclasses
 import json
-import os
 import pathlib
 import re
 
@@ -27,7 +26,7 @@ def run_dir(tmp_path):
     run.mkdir()
     (run / "run.json").write_text('{"jaxpose_run": 1}\n')
     trained = RigProjectConfig(root=tmp_path / "project", calibration=tmp_path / "rig.toml", **TRAINED)
-    write_record(run, RunRecord(min_confidence=0.3, layout="coco17", project=recorded_settings(trained, "coco17")))
+    write_record(RunDirectory(run), RunRecord(min_confidence=0.3, layout="coco17", project=recorded_settings(trained, "coco17")))
     return run
 
 
@@ -93,7 +92,7 @@ def predict_run(tmp_path):
     run = tmp_path / "run"
     run.mkdir()
     (run / "run.json").write_text('{"jaxpose_run": 1}\n')
-    write_record(run, RunRecord(min_confidence=0.2, layout="coco17"))
+    write_record(RunDirectory(run), RunRecord(min_confidence=0.2, layout="coco17"))
     return run
 
 
@@ -160,7 +159,7 @@ def test_a_run_records_its_project_by_an_absolute_resolved_path(tmp_path, monkey
     run = tmp_path / "run"
     run.mkdir()
     (run / "run.json").write_text('{"jaxpose_run": 1}\n')
-    write_record(run, RunRecord(project=recorded))
+    write_record(RunDirectory(run), RunRecord(project=recorded))
     monkeypatch.chdir(tmp_path)  # elsewhere: the same project
     args = _reconstruct_args(run.resolve())
     assert args.data.root == tmp_path.resolve() / "a" / "project"
@@ -176,14 +175,14 @@ def test_an_old_run_record_still_loads(tmp_path):
     project = {"root": "project", "calibration": None, "sync": "auto", "frame_offsets": ["cam02=3"], "skeleton": "coco17",
                "image_size": [1920, 1080], "min_confidence": 0.2}  # fmt: skip
     (run / "run.json").write_text(json.dumps({"jaxpose_run": 1, "trained_on": {"min_confidence": 0.2, "layout": "coco17", "project": project}}))
-    record = read_record(run / "checkpoints")
+    record = read_record(RunDirectory.of(run / "checkpoints"))
     assert record == RunRecord(min_confidence=0.2, layout="coco17", project=RigProjectConfig(
         root=pathlib.Path("project"), sync="auto", frame_offsets=("cam02=3",), skeleton="coco17", image_size=(1920, 1080), min_confidence=0.2
     ))  # fmt: skip
     typed = RunRecord(min_confidence=0.3, layout="coco17", project=recorded_settings(RigProjectConfig(root=tmp_path, **TRAINED), "coco17"),
                       sessions={"a": ["walking01"]})  # fmt: skip
-    write_record(run, typed)
-    assert read_record(run) == typed
+    write_record(RunDirectory(run), typed)
+    assert read_record(RunDirectory(run)) == typed
     assert json.loads((run / "run.json").read_text())["jaxpose_run"] == 1  # the marker kept
 
 
@@ -194,8 +193,8 @@ def test_a_sessions_rig_limits_reconstruct_to_that_sessions_recordings(tmp_path,
     run.mkdir()
     (run / "run.json").write_text('{"jaxpose_run": 1}\n')
     settings = recorded_settings(RigProjectConfig(root=tmp_path / "project"), "coco17")
-    write_record(run, RunRecord(project=settings, sessions={"a": ["walking01"], "b": ["turning02"]}))
-    assert read_record(run).sessions == {"a": ["walking01"], "b": ["turning02"]}
+    write_record(RunDirectory(run), RunRecord(project=settings, sessions={"a": ["walking01"], "b": ["turning02"]}))
+    assert read_record(RunDirectory(run)).sessions == {"a": ["walking01"], "b": ["turning02"]}
     rig = str(run / "recovered_sessions" / "a.toml")
     assert _reconstruct_args(run, "--data.calibration", rig).data.recordings == ("walking01",)
     assert "the rig of session a: its recordings only (walking01)" in capsys.readouterr().err

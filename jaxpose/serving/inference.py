@@ -455,5 +455,5 @@ def load(path: str | pathlib.Path | RunDirectory, batch_size: int = DEFAULT_BATC
         source=checkpoints,
         eval_step=make_eval_step(model, network.model),
         batch_size=batch_size,
-        record=read_record(run.path),
+        record=read_record(run),
     )

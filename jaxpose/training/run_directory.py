@@ -4,8 +4,9 @@ only ever a run folder.
 
 A run folder is marked at creation by its record, `run.json`.  A folder that holds anything a run did not
 write (a project, a thesis) is refused before anything is written, with or without --run.overwrite, and
---run.overwrite removes only the entries a run writes (`RUN_ENTRIES`), never a nested run or a study's
-summary beside it.  A run folder written before the record existed is recognised by its entries.
+--run.overwrite removes only the entries a run writes (`RUN_ENTRIES`), never a nested run.  A study of
+experiments/ writes its summary into a folder of its own, never into a run's (`write_study_file`).  A run
+folder written before the record existed is recognised by its entries.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ RECORD_FILE = "run.json"
 RECOVERED_CAMERAS_FILE = "recovered_cameras.json"
 RECOVERED_TOML_FILE = "recovered_cameras.toml"
 RECOVERED_SESSIONS_DIR = "recovered_sessions"
+PAPER_TABLE_FILE = "table_paper_layout.md"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,6 +111,11 @@ class RunDirectory:
         return calibration.stem if calibration.parent == folder and calibration.suffix in (".json", ".toml") else None
 
     @property
+    def paper_table(self) -> pathlib.Path:
+        """The report's results in the paper's table layout (`experiments.paper_tables`), for the experiments of one."""
+        return self.path / PAPER_TABLE_FILE
+
+    @property
     def plots(self) -> pathlib.Path:
         return self.path / "plots"
 
@@ -134,19 +141,18 @@ class RunRecord:
     (its rig is `RunDirectory.recovered_session_toml`); None otherwise."""
 
 
-def write_record(run_dir: pathlib.Path, record: RunRecord) -> None:
+def write_record(run: RunDirectory, record: RunRecord) -> None:
     """Add `record` to the run's run.json (atomically: a failed write keeps the marker as it was)."""
-    path = RunDirectory(run_dir).record
+    path = run.record
     content = json.loads(path.read_text()) if path.exists() else {"jaxpose_run": 1}
     content["trained_on"] = typed_json(record)
     with atomic_output(path) as temporary:
         temporary.write_text(json.dumps(content, indent=1, default=str) + "\n")  # default: the paths as text
 
 
-def read_record(run_dir: pathlib.Path) -> RunRecord | None:
-    """The record of the run `run_dir` (or of its checkpoints/ folder), or None for a run written before
-    records existed."""
-    path = RunDirectory.of(run_dir).record
+def read_record(run: RunDirectory) -> RunRecord | None:
+    """The record of the run, or None for a run written before records existed."""
+    path = run.record
     if not path.is_file():
         return None
     try:
@@ -170,7 +176,7 @@ def parse_over_run(
     named = _named_run(argv, args_type, run_field)
     run = None if named is None else RunDirectory.of(pathlib.Path(named))
     try:
-        record = None if run is None else read_record(run.path)
+        record = None if run is None else read_record(run)
     except ValueError as error:
         raise SystemExit(f"{prog}: error: {error}") from None
     required = {
@@ -203,9 +209,19 @@ def _named_run(argv: Sequence[str], args_type: type, field: str) -> str | None:
 
 
 # What a run writes into its folder, and what --run.overwrite may remove.
-RUN_ENTRIES = frozenset({RECORD_FILE, LOCK_FILE, "config.json", "metrics.jsonl", "checkpoints", "tensorboard", "report.json", "report.md", "plots", RECOVERED_CAMERAS_FILE, RECOVERED_TOML_FILE, RECOVERED_SESSIONS_DIR})
-# What the studies of experiments/ write beside the runs they train inside a run folder (kept by --run.overwrite).
-STUDY_ENTRIES = frozenset({"comparison.md", "comparison.json", "search.md", "search.json", "label_bias.md", "table_paper_layout.md", "mpi_inf_3dhp"})
+RUN_ENTRIES = frozenset({RECORD_FILE, LOCK_FILE, "config.json", "metrics.jsonl", "checkpoints", "tensorboard", "report.json", "report.md", "plots", PAPER_TABLE_FILE, RECOVERED_CAMERAS_FILE, RECOVERED_TOML_FILE, RECOVERED_SESSIONS_DIR})
+
+
+def write_study_file(folder: pathlib.Path, name: str, text: str) -> pathlib.Path:
+    """Write a study's summary (experiments/: comparison.md, search.md, ...) into the study's own folder, the one
+    that holds the runs it trained, each in a sub-folder: never into a run folder, which only the training that
+    owns it writes (through `RunDirectory`).  Atomic; rewritten as the study goes on."""
+    if (folder / RECORD_FILE).is_file() or ((folder / "config.json").is_file() and (folder / "checkpoints").is_dir()):
+        raise SystemExit(f"{folder}: is a run folder, which holds only its run; give the study a folder of its own (its --run.run-dir)")
+    folder.mkdir(parents=True, exist_ok=True)
+    with atomic_output(folder / name) as temporary:
+        temporary.write_text(text)
+    return folder / name
 
 
 def _written_by_jaxpose(entry: pathlib.Path) -> bool:
@@ -219,12 +235,12 @@ def _written_by_jaxpose(entry: pathlib.Path) -> bool:
 
 
 def foreign_entries(run_dir: pathlib.Path) -> list[str]:
-    """The names in `run_dir` that no jaxpose run or study wrote (none where it does not exist)."""
+    """The names in `run_dir` that no jaxpose run wrote (none where it does not exist)."""
     if not run_dir.is_dir():
         return []
     return sorted(
         entry.name for entry in run_dir.iterdir()
-        if entry.name not in RUN_ENTRIES | STUDY_ENTRIES and not _written_by_jaxpose(entry)
+        if entry.name not in RUN_ENTRIES and not _written_by_jaxpose(entry)
     )  # fmt: skip
 
 
@@ -254,26 +270,28 @@ def _identity(config_json: dict) -> dict:
     return identity
 
 
-def holds_a_run(run_dir: pathlib.Path) -> bool:
+def holds_a_run(files: RunDirectory) -> bool:
     """Whether run_dir holds something a different config must not take over: a committed checkpoint
     (Orbax names them by step) or a finished run's report.  A start that failed before its first
     checkpoint (a batch larger than the data, a crash while compiling) left nothing to resume."""
-    files = RunDirectory(run_dir)
     committed = files.checkpoints.is_dir() and any(entry.name.isdigit() for entry in files.checkpoints.iterdir())
     return committed or files.report_json.exists()
 
 
-def check_resumable(config: ExperimentConfig) -> None:
-    """Fail early (before any data are loaded) if run_dir is not a run folder, or holds a run of a different config."""
+def check_resumable(config: ExperimentConfig) -> RunDirectory:
+    """Fail early (before any data are loaded) if run_dir is not a run folder, or holds a run of a different
+    config; returns its `RunDirectory`."""
     check_run_folder(config.run.run_dir)
-    config_path = RunDirectory(config.run.run_dir).config
-    if config.run.overwrite or not config_path.exists() or not holds_a_run(config.run.run_dir):
-        return
+    files = RunDirectory(config.run.run_dir)
+    config_path = files.config
+    if config.run.overwrite or not config_path.exists() or not holds_a_run(files):
+        return files
     if _identity(json.loads(config_path.read_text())) != _identity(to_json_dict(config)):
         raise SystemExit(
             f"{config.run.run_dir} holds a run with a different config ({config_path}); resume it with the same"
             " settings, pick another --run.run-dir, or pass --run.overwrite to start over."
         )
+    return files
 
 
 @contextlib.contextmanager
@@ -288,11 +306,11 @@ def exclusive(run_dir: pathlib.Path) -> Iterator[None]:
         yield
 
 
-def prepare_run_dir(config: ExperimentConfig) -> pathlib.Path:
-    """Create (or check, for a resume) the run directory, mark it, and write config.json."""
-    check_resumable(config)
-    run_dir = config.run.run_dir
-    files = RunDirectory(run_dir)
+def prepare_run_dir(config: ExperimentConfig) -> RunDirectory:
+    """Create (or check, for a resume) the run directory, mark it, and write config.json.  Returns its
+    `RunDirectory`, which the run passes on to everything that writes or reads its files."""
+    files = check_resumable(config)
+    run_dir = files.path
     if config.run.overwrite and run_dir.exists() and jax.process_index() == 0:
         for entry in run_dir.iterdir():  # what a run wrote, but the lock this run holds
             if entry.name in RUN_ENTRIES and entry.name != LOCK_FILE:
@@ -303,7 +321,7 @@ def prepare_run_dir(config: ExperimentConfig) -> pathlib.Path:
         if not files.record.exists():
             files.record.write_text(json.dumps({"jaxpose_run": 1, "created": time.strftime("%Y-%m-%d %H:%M:%S")}, indent=1) + "\n")
         files.config.write_text(dumps(config))
-    return run_dir
+    return files
 
 
 def _append_jsonl(path: pathlib.Path, record: dict) -> None:
@@ -324,8 +342,8 @@ class RunLog:
     """The run's metric lines: appended to metrics.jsonl and, where tensorboardX is installed, written
     as TensorBoard scalars (`<group>/<name>`) to <run_dir>/tensorboard.  Process 0 writes."""
 
-    def __init__(self, run_dir: pathlib.Path, start_step: int, tensorboard: bool):
-        self.path = RunDirectory(run_dir).metrics
+    def __init__(self, run: RunDirectory, start_step: int, tensorboard: bool):
+        self.path = run.metrics
         _truncate_log(self.path, start_step)
         self.writer = None
         if not tensorboard or jax.process_index() != 0:
@@ -337,7 +355,7 @@ class RunLog:
             return
         # purge_step: a resumed run replays the steps after its checkpoint; TensorBoard drops their
         # first logging, as `_truncate_log` does for metrics.jsonl.
-        self.writer = SummaryWriter(str(RunDirectory(run_dir).tensorboard), purge_step=start_step or None, flush_secs=5)
+        self.writer = SummaryWriter(str(run.tensorboard), purge_step=start_step or None, flush_secs=5)
 
     def write(self, group: str, record: dict) -> None:
         _append_jsonl(self.path, record)
