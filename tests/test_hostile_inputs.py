@@ -333,7 +333,7 @@ def test_the_run_record_carries_the_project_settings_to_the_commands_that_use_th
     )
     run_dir = tmp_path / "run"
     prepare_run_dir(_experiment(run_dir, overwrite=False))
-    write_record(RunDirectory(run_dir), RunRecord(min_confidence=0.2, layout="coco17", project=recorded_settings(trained, "coco17")))
+    write_record(RunDirectory(run_dir), RunRecord(project=recorded_settings(trained, "coco17")))
     record = read_record(RunDirectory.of(run_dir / "checkpoints"))  # the checkpoints folder names the same run
     expected = dataclasses.replace(trained, skeleton="coco17", validation_fraction=0.2, train_stride=1)  # the split is not carried
     assert record.project == expected.resolved()

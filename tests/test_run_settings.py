@@ -12,6 +12,7 @@ import pytest
 
 from experiments import rig as rig_job
 from jaxpose import export, predict, reconstruct
+from jaxpose.model import ModelConfig
 from jaxpose.rig.config import RigProjectConfig, recorded_settings
 from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
 from jaxpose.training.run_directory import RunDirectory, RunRecord, read_record, write_record
@@ -26,7 +27,7 @@ def run_dir(tmp_path):
     run.mkdir()
     (run / "run.json").write_text('{"jaxpose_run": 1}\n')
     trained = RigProjectConfig(root=tmp_path / "project", calibration=tmp_path / "rig.toml", **TRAINED)
-    write_record(RunDirectory(run), RunRecord(min_confidence=0.3, layout="coco17", project=recorded_settings(trained, "coco17")))
+    write_record(RunDirectory(run), RunRecord(project=recorded_settings(trained, "coco17")))
     return run
 
 
@@ -92,7 +93,7 @@ def predict_run(tmp_path):
     run = tmp_path / "run"
     run.mkdir()
     (run / "run.json").write_text('{"jaxpose_run": 1}\n')
-    write_record(RunDirectory(run), RunRecord(min_confidence=0.2, layout="coco17"))
+    write_record(RunDirectory(run), RunRecord(project=recorded_settings(RigProjectConfig(root=tmp_path / "project", min_confidence=0.2), "coco17")))
     return run
 
 
@@ -176,14 +177,44 @@ def test_an_old_run_record_still_loads(tmp_path):
                "image_size": [1920, 1080], "min_confidence": 0.2}  # fmt: skip
     (run / "run.json").write_text(json.dumps({"jaxpose_run": 1, "trained_on": {"min_confidence": 0.2, "layout": "coco17", "project": project}}))
     record = read_record(RunDirectory.of(run / "checkpoints"))
-    assert record == RunRecord(min_confidence=0.2, layout="coco17", project=RigProjectConfig(
+    assert record.min_confidence == 0.2 and record == RunRecord(project=RigProjectConfig(
         root=pathlib.Path("project"), sync="auto", frame_offsets=("cam02=3",), skeleton="coco17", image_size=(1920, 1080), min_confidence=0.2
     ))  # fmt: skip
-    typed = RunRecord(min_confidence=0.3, layout="coco17", project=recorded_settings(RigProjectConfig(root=tmp_path, **TRAINED), "coco17"),
+    typed = RunRecord(project=recorded_settings(RigProjectConfig(root=tmp_path, **TRAINED), "coco17"), skeleton="h36m17", model=ModelConfig(width=64),
+                      recovered_rigs={"a": "recovered_sessions/a.json"},
                       sessions={"a": ["walking01"]})  # fmt: skip
     write_record(RunDirectory(run), typed)
     assert read_record(RunDirectory(run)) == typed
     assert json.loads((run / "run.json").read_text())["jaxpose_run"] == 1  # the marker kept
+
+
+@pytest.mark.trains  # the shared synthetic run (tests/conftest.py)
+def test_the_run_record_is_the_one_owner_of_the_network_the_checkpoints_repeat(trained_run):
+    """Issue 52: what a run was trained on was written three times; run.json's record now holds the network too,
+    and every checkpoint's `lifter` item is derived from it (a step must restore alone)."""
+    from jaxpose.serving import inference
+    from jaxpose.training import checkpoint
+
+    run = RunDirectory(trained_run[0])
+    record = read_record(run)
+    restored = checkpoint.restore_lifter(run.checkpoints, inference.jax.sharding.SingleDeviceSharding(inference.jax.devices()[0]))
+    assert record.skeleton == "h36m17" and record.lifter() == restored[1]
+    assert record.model == ModelConfig(**json.loads(run.config.read_text())["model"])
+
+
+def test_recovered_rigs_are_the_runs_assets_listed_by_its_record(tmp_path):
+    """Issue 52: the recovered rig is stored with the run as an asset its record names; reconstruct reads it
+    through the record (a run from before the record listed them: the files its folder holds)."""
+    run = RunDirectory(tmp_path / "run")
+    assert RunDirectory.recovered_rig_files(["s"]) == {"s": "recovered_cameras.json"}
+    assert RunDirectory.recovered_rig_files(["a", "b"]) == {"a": "recovered_sessions/a.json", "b": "recovered_sessions/b.json"}
+    record = RunRecord(recovered_rigs=RunDirectory.recovered_rig_files(["a", "b"]))
+    assert run.recovered_rigs(record) == {"a": run.path / "recovered_sessions" / "a.json", "b": run.path / "recovered_sessions" / "b.json"}
+    assert run.recovered_rigs(RunRecord()) == {}  # a calibrated project's run, from before the list: none found
+    (run.path / "recovered_sessions").mkdir(parents=True)
+    for name in ("b", "a"):
+        (run.path / "recovered_sessions" / f"{name}.json").write_text("{}")
+    assert run.recovered_rigs(None) == run.recovered_rigs(record)
 
 
 def test_a_sessions_rig_limits_reconstruct_to_that_sessions_recordings(tmp_path, capsys):

@@ -3,6 +3,7 @@ test subset now and then, checkpoint, and stop cleanly on Ctrl-C or SIGTERM."""
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import signal
 import time
@@ -14,7 +15,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from jaxpose.training.experiment import ExperimentConfig
-from jaxpose.training.run_directory import RunDirectory, RunLog
+from jaxpose.training.run_directory import RunDirectory, RunLog, RunRecord, read_record, write_record
 from jaxpose.training import checkpoint, parallel
 from jaxpose.training.evaluator import Evaluator
 from jaxpose.data.dataset import MultiViewDataset
@@ -97,7 +98,13 @@ def train(
     # The step's switch for the gradient shares, on the devices once (the logged steps measure them).
     measure_shares = parallel.replicate({False: np.False_, True: np.True_}, mesh)
     manager = checkpoint.checkpoint_manager(run.checkpoints, cfg.keep_checkpoints)
-    lifter = checkpoint.LifterRecord(skeleton, config.model)
+    # The network joins the run's record (run.json, the one record of what it was trained on); every checkpoint
+    # repeats it, derived from the record, because a step must restore alone: Orbax needs the network's shapes
+    # before it reads the variables, and a checkpoints/ folder copied without its run.json still loads.
+    record = dataclasses.replace(read_record(run) or RunRecord(), skeleton=skeleton.name, model=config.model)
+    if jax.process_index() == 0:
+        write_record(run, record)
+    lifter = record.lifter()
     restored = checkpoint.restore_latest(manager, state, discard_unreadable=True)
     if restored is not None:
         state = restored

@@ -28,7 +28,10 @@ import tyro
 
 from jaxpose.formats.files import from_typed_json, typed_json
 from jaxpose.formats.outputs import atomic_output, exclusive_folder
+from jaxpose.model import ModelConfig
 from jaxpose.rig.config import RigProjectConfig
+from jaxpose.skeleton import get_skeleton
+from jaxpose.training.checkpoint import LifterRecord
 from jaxpose.training.experiment import ExperimentConfig, TrainConfig, dumps, to_json_dict
 
 log = logging.getLogger("jaxpose")
@@ -104,6 +107,23 @@ class RunDirectory:
         """The same session's rig as a Pose2Sim/Anipose calibration TOML (metres): recovered_sessions/SESSION.toml."""
         return self.path / RECOVERED_SESSIONS_DIR / f"{session}.toml"
 
+    @staticmethod
+    def recovered_rig_files(sessions: Sequence[str]) -> dict[str, str]:
+        """Where a run keeps the rigs recovered for `sessions` (`RunRecord.recovered_rigs`), by session: one
+        session's as recovered_cameras.json, several as recovered_sessions/SESSION.json (paths in the run folder)."""
+        if len(sessions) == 1:
+            return {sessions[0]: RECOVERED_CAMERAS_FILE}
+        return {session: f"{RECOVERED_SESSIONS_DIR}/{session}.json" for session in sessions}
+
+    def recovered_rigs(self, record: RunRecord | None) -> dict[str, pathlib.Path]:
+        """The run's recovered rigs by session (jaxpose camera files; the TOML beside each), as its record lists
+        them; for a run from before the record listed them, the ones its folder holds."""
+        if record is not None and record.recovered_rigs is not None:
+            return {session: self.path / name for session, name in record.recovered_rigs.items()}
+        if self.recovered_cameras.is_file():
+            return {"": self.recovered_cameras}
+        return {path.stem: path for path in sorted((self.path / RECOVERED_SESSIONS_DIR).glob("*.json"))}
+
     def session_of(self, calibration: pathlib.Path) -> str | None:
         """The session whose recovered rig `calibration` is (recovered_sessions/SESSION.json or .toml), or None."""
         folder = (self.path / RECOVERED_SESSIONS_DIR).resolve()
@@ -125,20 +145,38 @@ class RunDirectory:
 
 @dataclasses.dataclass(frozen=True)
 class RunRecord:
-    """What a run was trained on beyond its config, kept in run.json for the commands that use the run
-    (`jaxpose.predict`, `reconstruct`, `export`): how a detection became the lifter's input, and a rig
-    project's settings.  Each applies them unless overridden, and says in one line where an override differs."""
+    """What a run was trained on, kept in run.json: the one record of it.  The commands that use the run
+    (`jaxpose.predict`, `reconstruct`, `export`) take their defaults from it (`parse_over_run`), each applying
+    them unless overridden and saying in one line where an override differs.  config.json holds the settings as
+    they were given, which a resume must continue (`check_resumable`); each checkpoint repeats the network
+    (`lifter`, derived from this record) because a step must restore alone."""
 
-    min_confidence: float | None = None
-    """Keypoints scored below this were missing in training (None: the data set's 2D taken as given)."""
-    layout: str | None = None
-    """The detector keypoint layout trained on (a `jaxpose.layouts` name; None: the data set's own joints)."""
     project: RigProjectConfig | None = None
     """A rig project's settings (`jaxpose.rig.config.recorded_settings`: sync, frame offsets, calibration and
-    its unit, score threshold, ..., the paths resolved; its recordings and split left at their defaults)."""
+    its unit, score threshold, the detector layout as `skeleton`, ..., the paths resolved; its recordings and
+    split left at their defaults); None for the other data sets."""
     sessions: Mapping[str, Sequence[str]] | None = None
-    """A rig project of several sessions without a calibration: each session's recordings, by session name
-    (its rig is `RunDirectory.recovered_session_toml`); None otherwise."""
+    """A rig project of several sessions without a calibration: each session's recordings, by session name;
+    None otherwise."""
+    recovered_rigs: Mapping[str, str] | None = None
+    """The rigs recovered from the recordings of a project without a calibration, stored with the run as its
+    assets (`RunDirectory.recovered_rig_files`): by session, the jaxpose camera file's path in the run folder,
+    the Pose2Sim/Anipose TOML beside it with the suffix .toml.  None for a calibrated project (or a run from
+    before the record listed them: `RunDirectory.recovered_rigs` finds them)."""
+    skeleton: str | None = None
+    """The joints the lifter lifts (a `jaxpose.skeleton` name); None for a run from before the record held it."""
+    model: ModelConfig | None = None
+    """The lifter's network; None for a run from before the record held it."""
+
+    @property
+    def min_confidence(self) -> float | None:
+        """Keypoints scored below this were missing in training: the rig project's --data.min-confidence (None:
+        the data set's 2D taken as given)."""
+        return None if self.project is None else self.project.min_confidence
+
+    def lifter(self) -> LifterRecord:
+        """The network, as each checkpoint repeats it (its `lifter` item)."""
+        return LifterRecord(get_skeleton(self.skeleton), self.model)
 
 
 def write_record(run: RunDirectory, record: RunRecord) -> None:
