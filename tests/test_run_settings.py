@@ -268,6 +268,7 @@ def test_recovered_rig_files_state_the_world_they_are_in(tmp_path):
         run.path.mkdir()
         (write_calibration,) = splits.artifacts
         write_calibration(run)
+        assert list(run.recovered_rigs(splits.record).values()) == [run.recovered_cameras]  # the asset the record lists
         metadata = tomllib.loads(run.recovered_toml.read_text())["metadata"]
         assert metadata["world"] == UPRIGHT and metadata["up"] in ("normal of the floor the ankles stand on", "the subject's body axis")
         assert metadata["scale"].startswith("limb prior (")  # no height given, the limbs too few to rescale: the rig's own

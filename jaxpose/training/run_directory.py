@@ -98,15 +98,6 @@ class RunDirectory:
         """The same rig as a Pose2Sim/Anipose calibration TOML (metres), for the other tools."""
         return self.path / RECOVERED_TOML_FILE
 
-    def recovered_session_cameras(self, session: str) -> pathlib.Path:
-        """The rig recovered for one session of a project of several (cameras moved between sessions):
-        recovered_sessions/SESSION.json, a jaxpose camera file."""
-        return self.path / RECOVERED_SESSIONS_DIR / f"{session}.json"
-
-    def recovered_session_toml(self, session: str) -> pathlib.Path:
-        """The same session's rig as a Pose2Sim/Anipose calibration TOML (metres): recovered_sessions/SESSION.toml."""
-        return self.path / RECOVERED_SESSIONS_DIR / f"{session}.toml"
-
     @staticmethod
     def recovered_rig_files(sessions: Sequence[str]) -> dict[str, str]:
         """Where a run keeps the rigs recovered for `sessions` (`RunRecord.recovered_rigs`), by session: one
@@ -230,7 +221,11 @@ def _named_run(argv: Sequence[str], args_type: type, field: str) -> str | None:
     the last one given, as the parser takes it), else the first positional argument (every flag but a bool's
     takes one value)."""
     flag = "--" + field.replace("_", "-")
-    given = [argv[i + 1] for i in range(len(argv) - 1) if argv[i] == flag] + [a.split("=", 1)[1] for a in argv if a.startswith(flag + "=")]
+    given = [
+        argument.split("=", 1)[1] if argument.startswith(flag + "=") else argv[index + 1]
+        for index, argument in enumerate(argv)
+        if argument.startswith(flag + "=") or (argument == flag and index + 1 < len(argv))
+    ]  # fmt: skip
     if given:
         return given[-1]
     hints = typing.get_type_hints(args_type)
