@@ -27,7 +27,7 @@ import numpy as np
 import tyro
 
 from jaxpose.training.experiment import RunConfig, TrainConfig
-from jaxpose.training.run_directory import write_study_file
+from jaxpose.training.run_directory import check_study_folder, write_study_file
 from jaxpose.training.runner import run
 from jaxpose.training.splits import Splits
 from experiments.synthetic import DEFAULT, SyntheticData, load_splits
@@ -138,6 +138,7 @@ def markdown(rows: list[dict], trained: bool) -> str:
 
 def main(argv: list[str] | None = None) -> str:
     study = tyro.cli(Study, args=argv, description=__doc__)
+    check_study_folder(study.run_dir)  # its runs train in sub-folders; its table is written into it
     if study.train:
         compared = {f"{scenario}:{method}" for scenario in study.scenarios for method in study.methods}
         unknown = [run for run in study.train_runs if run not in compared]

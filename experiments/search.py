@@ -42,7 +42,7 @@ from scipy.stats import kendalltau, spearmanr
 
 from experiments import ablation, cli, rig
 from jaxpose.training.experiment import ExperimentConfig
-from jaxpose.training.run_directory import RunDirectory, check_resumable, read_jsonl, write_study_file
+from jaxpose.training.run_directory import RunDirectory, check_resumable, check_study_folder, read_jsonl, write_study_file
 from jaxpose.training.runner import run
 
 EXPERIMENTS = ablation.EXPERIMENTS | {"rig": rig.EXPERIMENT}
@@ -213,6 +213,7 @@ def main(argv: Sequence[str] | None = None) -> str:
         f" those of {experiment.prog}, the base recipe."
     )
     base = cli.parse(experiment, argv, description, f"{PROG} --dataset {dataset}", _presets(experiment))
+    check_study_folder(base.run.run_dir)  # the variants train in its sub-folders; the ranking is written into it
     seeds = searched.seeds or [base.train.seed]
     variants = grid(searched.vary)
     rows: dict[str, list[dict]] = {}

@@ -29,7 +29,7 @@ from scipy.stats import spearmanr
 
 from experiments import rig as rig_job
 from jaxpose.training.experiment import ExperimentConfig
-from jaxpose.training.run_directory import RunDirectory, write_study_file
+from jaxpose.training.run_directory import RunDirectory, check_study_folder, write_study_file
 from jaxpose.training.runner import run
 from jaxpose.training import self_consistency
 from jaxpose.training.config import LossConfig, PseudoLabelConfig
@@ -127,6 +127,7 @@ def report_table(finals: dict[str, dict], series: dict[str, list[dict]]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> str:
     args = tyro.cli(StudyArgs, args=argv, prog="python -m experiments.selection_study", description=__doc__.split("\n\n")[0])
+    check_study_folder(args.run_root)  # its runs train in sub-folders; its table is written into it
     return study(args)
 
 

@@ -245,12 +245,17 @@ def _named_run(argv: Sequence[str], args_type: type, field: str) -> str | None:
 RUN_ENTRIES = frozenset({RECORD_FILE, LOCK_FILE, "config.json", "metrics.jsonl", "checkpoints", "tensorboard", "report.json", "report.md", "plots", PAPER_TABLE_FILE, RECOVERED_CAMERAS_FILE, RECOVERED_TOML_FILE, RECOVERED_SESSIONS_DIR})
 
 
+def check_study_folder(folder: pathlib.Path) -> None:
+    """Refuse a run folder as a study's folder (`write_study_file`): called by a study before it trains anything."""
+    if (folder / RECORD_FILE).is_file() or ((folder / "config.json").is_file() and (folder / "checkpoints").is_dir()):
+        raise SystemExit(f"{folder}: is a run folder, which holds only its run; give the study a folder of its own (its --run.run-dir)")
+
+
 def write_study_file(folder: pathlib.Path, name: str, text: str) -> pathlib.Path:
     """Write a study's summary (experiments/: comparison.md, search.md, ...) into the study's own folder, the one
     that holds the runs it trained, each in a sub-folder: never into a run folder, which only the training that
     owns it writes (through `RunDirectory`).  Atomic; rewritten as the study goes on."""
-    if (folder / RECORD_FILE).is_file() or ((folder / "config.json").is_file() and (folder / "checkpoints").is_dir()):
-        raise SystemExit(f"{folder}: is a run folder, which holds only its run; give the study a folder of its own (its --run.run-dir)")
+    check_study_folder(folder)
     folder.mkdir(parents=True, exist_ok=True)
     with atomic_output(folder / name) as temporary:
         temporary.write_text(text)
