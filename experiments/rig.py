@@ -51,7 +51,7 @@ def load_splits(data: RigProjectConfig, progress: bool = True) -> Splits:
     project = load_rig_project(data, progress=progress)
     artifacts = ()
     # The recovered rigs are the run's assets, where its folder will keep them (the record lists them).
-    rigs = RunDirectory.recovered_rig_files([session.name for session in project.sessions]) if project.sessions else None
+    rigs = RunDirectory.recovered_rig_files([session.name for session in project.sessions])  # none for a calibrated project
     if project.sessions:
 
         def write_calibration(run: RunDirectory) -> None:

@@ -214,7 +214,8 @@ def test_recovered_rigs_are_the_runs_assets_listed_by_its_record(tmp_path):
     (run.path / "recovered_sessions").mkdir(parents=True)
     for name in ("b", "a"):
         (run.path / "recovered_sessions" / f"{name}.json").write_text("{}")
-    assert run.recovered_rigs(None) == run.recovered_rigs(record)
+    assert run.recovered_rigs(None) == run.recovered_rigs(record)  # a run from before the list: the files it holds
+    assert run.recovered_rigs(RunRecord(recovered_rigs={})) == {}  # a calibrated project's run: the record says none
 
 
 def test_a_sessions_rig_limits_reconstruct_to_that_sessions_recordings(tmp_path, capsys):

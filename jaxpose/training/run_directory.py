@@ -152,8 +152,8 @@ class RunRecord:
     recovered_rigs: Mapping[str, str] | None = None
     """The rigs recovered from the recordings of a project without a calibration, stored with the run as its
     assets (`RunDirectory.recovered_rig_files`): by session, the jaxpose camera file's path in the run folder,
-    the Pose2Sim/Anipose TOML beside it with the suffix .toml.  None for a calibrated project (or a run from
-    before the record listed them: `RunDirectory.recovered_rigs` finds them)."""
+    the Pose2Sim/Anipose TOML beside it with the suffix .toml.  Empty for a calibrated project; None for the
+    other data sets or a run from before the record listed them (`RunDirectory.recovered_rigs` finds them)."""
     skeleton: str | None = None
     """The joints the lifter lifts (a `jaxpose.skeleton` name); None for a run from before the record held it."""
     model: ModelConfig | None = None
