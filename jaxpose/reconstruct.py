@@ -69,7 +69,7 @@ from jaxpose.formats.gaps import DEFAULT_MAX_GAP
 from jaxpose.reconstruction.motion_quality import motion_summary
 from jaxpose.reconstruction.trajectory import MIN_LENGTH_INSTANTS, TrajectoryConfig, limb_lengths
 from jaxpose.rig.config import RigProjectConfig, differences
-from jaxpose.training.run_directory import RunDirectory, record_named_in
+from jaxpose.training.run_directory import RunDirectory, parse_over_run
 from jaxpose.rig.recordings import find_project
 from jaxpose.rig.tracked import MIN_TRACK_SCORE
 
@@ -147,8 +147,9 @@ def run(args: ReconstructArgs) -> dict:
 def _reconstruct(args: ReconstructArgs, found, ctrl_c: _CtrlC) -> dict:
     """`run` once the output folder is this process's."""
     earlier = check_outputs(args, found.names)
-    lifter = inference.load(args.checkpoint)
-    project = recording.load_every_instant(args.data, args.checkpoint, args.progress, found)
+    run = RunDirectory.of(args.checkpoint)
+    lifter = inference.load(run)
+    project = recording.load_every_instant(args.data, run, args.progress, found)
     dataset = project.instants
     if tuple(dataset.skeleton.joint_names) != tuple(lifter.joint_names):
         raise ValueError(
@@ -278,28 +279,24 @@ def parse(argv: Sequence[str] | None) -> ReconstructArgs:
     """The command line over the run's settings: the project settings the run named by --checkpoint was trained
     with (its run.json) are the --data defaults, so `--help` shows them and every flag given wins; a flag given
     that differs from the run's value is said in one line.  Paths are taken absolute and resolved."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    try:
-        run, record = record_named_in(argv)
-    except ValueError as error:
-        raise SystemExit(f"jaxpose.reconstruct: error: {error}") from None
-    trained = None if record is None else record.project
-    default = ReconstructArgs(checkpoint=tyro.MISSING, output=tyro.MISSING, fps=tyro.MISSING, data=trained or RigProjectConfig())
-    args = tyro.cli(ReconstructArgs, default=default, args=argv, description=__doc__, prog="python -m jaxpose.reconstruct")
+    args, run, record = parse_over_run(
+        ReconstructArgs, argv, lambda record: {"data": (record and record.project) or RigProjectConfig()}, __doc__, "python -m jaxpose.reconstruct"
+    )  # fmt: skip
     args = dataclasses.replace(args, data=args.data.resolved())
+    trained = None if record is None else record.project
     if trained is None:
-        print(f"{run} records no project settings (a run from before run.json): the --data flags as given", file=sys.stderr)
+        print(f"{run.path} records no project settings (a run from before run.json): the --data flags as given", file=sys.stderr)
     else:
         for line in differences(args.data, trained):
             print(line, file=sys.stderr)
-    return dataclasses.replace(args, data=_session_recordings(args, record))
+    return dataclasses.replace(args, data=_session_recordings(args, run, record))
 
 
-def _session_recordings(args: ReconstructArgs, record) -> RigProjectConfig:
+def _session_recordings(args: ReconstructArgs, run: RunDirectory, record) -> RigProjectConfig:
     """--data with the recordings limited to the session whose recovered rig --data.calibration names (the
     run's recovered_sessions/SESSION.toml is that session's world, no other's); a recording of another session
     named by --data.recordings is refused."""
-    session = None if args.data.calibration is None else RunDirectory.of(args.checkpoint).session_of(args.data.calibration)
+    session = None if args.data.calibration is None else run.session_of(args.data.calibration)
     if session is None or record is None or not record.sessions or session not in record.sessions:
         return args.data
     own = tuple(record.sessions[session])

@@ -2,7 +2,7 @@
 
     from jaxpose.serving import inference
     from jaxpose.reconstruction import recording
-    project = recording.load_every_instant(RigProjectConfig(root=PROJECT), run_dir=RUN)
+    project = recording.load_every_instant(RigProjectConfig(root=PROJECT), RunDirectory.of(RUN))
     lifter = inference.load(RUN)
     for inputs in recording.recording_inputs(project.instants):
         motion, lifted = recording.lift_and_reconstruct(lifter, inputs)
@@ -43,19 +43,19 @@ from jaxpose.rig.project import prepared_project
 from jaxpose.rig.cache import PreparedProject
 from jaxpose.rig.config import SPLIT_FIELDS, RigProjectConfig
 from jaxpose.rig.split import ProjectInstants, every_instant
-from jaxpose.training.run_directory import RECOVERED_SESSIONS_DIR, RunDirectory
+from jaxpose.training.run_directory import RECOVERED_SESSIONS_DIR, RunDirectory, read_record
 from jaxpose.rig.recordings import FoundProject, find_project
 from jaxpose.skeleton import ROOT, Skeleton
 
 log = logging.getLogger(__name__)
 
 
-def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: bool = True, found: FoundProject | None = None) -> ProjectInstants:
+def load_every_instant(data: RigProjectConfig, run: RunDirectory, progress: bool = True, found: FoundProject | None = None) -> ProjectInstants:
     """Every instant of every recording (of --data.recordings) of the project; `found`: its files as found
     already (`jaxpose.rig.recordings.find_project`), else found now.
 
-    The calibration: --data.calibration where given; else RUN/recovered_cameras.json where the run was
-    trained on a recovered rig (read from the prepared project the run was trained on where the cache still
+    The calibration: --data.calibration where given; else the run's recovered rig where it was trained on one
+    (the asset its record lists, `RunRecord.recovered_rigs`: RUN/recovered_cameras.json; read from the prepared project the run was trained on where the cache still
     holds it); else the project's own.  A project with none of these is refused, as are the split flags
     (`SPLIT_FIELDS`) set to anything but their defaults.  The prepared instants are those training read
     (`jaxpose.rig.project.prepared_project`): the same cache, whatever the run's split."""
@@ -65,8 +65,9 @@ def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: 
         flags = ", ".join("--data." + field.replace("_", "-") for field in changed)
         raise ValueError(f"{flags}: a reconstruction takes every instant of every recording; leave the split flags out")
     found = found or find_project(data.root, data.recordings, data.calibration)
-    recovered = RunDirectory(pathlib.Path(run_dir)).recovered_cameras
-    if data.calibration is None and recovered.is_file():
+    rigs = run.recovered_rigs(read_record(run))  # the run's assets, as its record lists them
+    if data.calibration is None and len(rigs) == 1:
+        (recovered,) = rigs.values()
         # the run's own, where the cache holds it
         prepared = _whole_project(data, found, progress) or prepared_project(data, found, progress, cached_only=True)
         if prepared is not None and _holds_rig(prepared, recovered):
@@ -76,14 +77,14 @@ def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: 
         data = dataclasses.replace(data, calibration=recovered)
         found = dataclasses.replace(found, calibration=recovered)
     elif not found.calibrated:
-        sessions = recovered.parent / RECOVERED_SESSIONS_DIR
-        if sessions.is_dir():
+        if rigs:
+            sessions = run.path / RECOVERED_SESSIONS_DIR
             raise ValueError(
-                f"{data.root}: no calibration file, and the run {run_dir} was trained on one recovered rig per session"
+                f"{data.root}: no calibration file, and the run {run.path} was trained on one recovered rig per session"
                 f" ({sessions}): pass the recordings' session's as --data.calibration {sessions}/SESSION.toml"
             )
         raise ValueError(
-            f"{data.root}: no calibration file, and the run {run_dir} has no {recovered.name} (it was trained on"
+            f"{data.root}: no calibration file, and the run {run.path} has no {run.recovered_cameras.name} (it was trained on"
             " a calibrated project): pass --data.calibration; a rig recovered again would have another world frame"
         )
     prepared = _whole_project(data, found, progress) or prepared_project(data, found, progress)
