@@ -388,8 +388,8 @@ class _System:
         source = [upper_source, upper_source[strict]]
         # The couplings: limb l's -u u^T [F, 3, 3] at (child's cell, parent's cell) and its transpose.
         frame, a, b = (index.ravel() for index in np.meshgrid(np.arange(F), np.arange(3), np.arange(3), indexing="ij"))
-        for l, (_, child, parent) in enumerate(limbs):
-            value = (BAND + 1) * J * n + l * 9 * F + 9 * frame + 3 * a + b
+        for number, (_, child, parent) in enumerate(limbs):
+            value = (BAND + 1) * J * n + number * 9 * F + 9 * frame + 3 * a + b
             rows += [child * n + 3 * frame + a, parent * n + 3 * frame + a]
             columns += [parent * n + 3 * frame + b, child * n + 3 * frame + b]
             source += [value, value]
