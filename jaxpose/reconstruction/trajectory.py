@@ -234,12 +234,17 @@ def _estimated_noise(evidence: _Evidence, weight: np.ndarray, fps: float) -> np.
     blocks = weight[..., None, None] * evidence.precision
     rhs = np.einsum("fjab,fjb->fja", blocks, evidence.observed)
     fit = np.einsum("fja,fja->j", evidence.observed, rhs)  # y^T P y per joint
+    # The system is the evidence's bands plus the motion prior's of unit weight times 1 / q^2 per joint:
+    # both built once, each value of the grid only factors their sum.
+    evidence_bands = _bands(blocks, np.zeros((F - 2, J)))
+    motion_bands = _bands(np.zeros_like(blocks), np.ones((F - 2, J)))
+    rhs = rhs.swapaxes(0, 1).reshape(J, -1)  # joint-major, as the factor
     likelihood = []
     for noise in NOISE_GRID_MM_S2:
         per_frame = evidence.per_frame(np.full(J, noise), fps)
-        factors = _factors(blocks, np.broadcast_to(1.0 / per_frame**2, (F - 2, J)))
-        solved = cho_solve_banded((factors, False), rhs.swapaxes(0, 1).ravel(), check_finite=False).reshape(J, F * 3)
-        cost = fit - np.einsum("jn,jn->j", rhs.swapaxes(0, 1).reshape(J, -1), solved)
+        factors = _factor(evidence_bands + motion_bands * (1.0 / per_frame**2)[:, None])
+        solved = cho_solve_banded((factors, False), rhs.ravel(), check_finite=False).reshape(J, F * 3)
+        cost = fit - np.einsum("jn,jn->j", rhs, solved)
         log_determinant = 2.0 * np.log(factors[BAND].reshape(J, -1)).sum(-1)
         likelihood.append(-0.5 * cost - 0.5 * log_determinant - 3.0 * (F - 2) * np.log(per_frame))
     likelihood = np.array(likelihood)  # [grid, J]
@@ -312,7 +317,7 @@ def _solve_window(points, covariance, provenance, bones, fps, config, lengths, n
     evidence = _evidence(points, covariance, provenance, config)
     solved, has, dummy = evidence.solved, evidence.has, evidence.dummy
     limbs = [(b, c, p) for b, (c, p) in enumerate(bones) if np.isfinite(lengths[b]) and solved[c] and solved[p]]
-    system = _System(evidence.precision, evidence.observed, has, 1.0 / config.limb_sigma_mm**2)
+    system = _System(evidence.precision, evidence.observed, has, 1.0 / config.limb_sigma_mm**2, limbs)
 
     weight = (has | dummy).astype(np.float64)
     estimate = noise is None and config.acceleration_mm_s2 is None
@@ -321,7 +326,7 @@ def _solve_window(points, covariance, provenance, bones, fps, config, lengths, n
     noise = np.where(solved, noise, np.nanmean(noise) if solved.any() else 1.0)
     per_frame = evidence.per_frame(noise, fps)
     impact = np.ones((max(F - 2, 0), J))
-    track = system.solve(weight, impact / per_frame**2, limbs, lengths, None)
+    track = system.solve(weight, impact / per_frame**2, lengths, None)
     for iteration in range(config.iterations):
         residual = evidence.observed - track
         mahalanobis = np.sqrt(np.maximum(np.einsum("fja,fjab,fjb->fj", residual, evidence.precision, residual), 0.0))
@@ -331,8 +336,8 @@ def _solve_window(points, covariance, provenance, bones, fps, config, lengths, n
             per_frame = evidence.per_frame(noise, fps)
         if iteration >= SETTLE_ITERATIONS:
             impact = _impact_weights(track, per_frame, config.acceleration_dof)
-        track = system.solve(weight, impact / per_frame**2, limbs, lengths, track)
-    sigma = system.marginal_sigma(weight, impact / per_frame**2, limbs, track)
+        track = system.solve(weight, impact / per_frame**2, lengths, track)
+    sigma = system.marginal_sigma(weight, impact / per_frame**2, track)
     track = np.where(solved[None, :, None], track, points)
     impact_weight = np.ones((F, J))
     impact_weight[1 : F - 1] = np.where(solved, impact, 1.0)[: max(F - 2, 0)]
@@ -357,75 +362,84 @@ def _impact_weights(track: np.ndarray, per_frame: np.ndarray, dof: float) -> np.
 
 class _System:
     """The normal equations of the module docstring, for given robust weights, motion weights and a
-    linearisation of the limbs.  Unknowns x [F, J, 3] in the order (frame, joint, axis) as one vector of 3FJ."""
+    linearisation of the limbs.  Unknowns x [F, J, 3]; the solve works on them joint-major ([J, F, 3] as one
+    vector of 3FJ), the order of the preconditioner's banded factor, so that no step transposes them.
 
-    def __init__(self, precision, observed, has, limb_weight: float):
+    The matrix is each joint's own system (`_bands`: its cells' blocks, its limbs' u u^T, the motion prior)
+    and the limbs' couplings -u u^T between joints, held as CSR: its pattern is the same at every solve of a
+    recording, so it is built once here and each solve only gathers the values into it."""
+
+    def __init__(self, precision, observed, has, limb_weight: float, limbs):
         self.precision, self.observed, self.has = precision, observed, has
-        self.limb_weight = limb_weight
+        self.limb_weight, self.limbs = limb_weight, limbs
         F, J = has.shape
-        self.second = scipy.sparse.csr_matrix((0, 3 * F * J))  # no second difference in fewer than 3 frames
-        if F >= 3:
-            second = scipy.sparse.diags([1.0, -2.0, 1.0], [0, 1, 2], shape=(F - 2, F))
-            self.second = scipy.sparse.kron(second, scipy.sparse.identity(3 * J), "csr")  # rows (frame, joint, axis)
+        n = 3 * F
+        # The band within each joint (both triangles): value bands[BAND + i - k, j n + k] at (j n + i, j n + k),
+        # i <= k, where it can be nonzero: within a frame's block, or the same axis (the motion prior) across frames.
+        offset, column = np.meshgrid(np.arange(BAND + 1), np.arange(n), indexing="ij")  # offset = k - i
+        inside = (column - offset >= 0) & (((column - offset) // 3 == column // 3) | (offset % 3 == 0))
+        offset, column = offset[inside], column[inside]
+        base = np.arange(J)[:, None] * n
+        upper_rows, upper_columns = (base + (column - offset)).ravel(), (base + column).ravel()
+        upper_source = ((BAND - offset) * J * n + base + column).ravel()
+        strict = np.tile(offset > 0, J)
+        rows = [upper_rows, upper_columns[strict]]
+        columns = [upper_columns, upper_rows[strict]]
+        source = [upper_source, upper_source[strict]]
+        # The couplings: limb l's -u u^T [F, 3, 3] at (child's cell, parent's cell) and its transpose.
+        frame, a, b = (index.ravel() for index in np.meshgrid(np.arange(F), np.arange(3), np.arange(3), indexing="ij"))
+        for number, (_, child, parent) in enumerate(limbs):
+            value = (BAND + 1) * J * n + number * 9 * F + 9 * frame + 3 * a + b
+            rows += [child * n + 3 * frame + a, parent * n + 3 * frame + a]
+            columns += [parent * n + 3 * frame + b, child * n + 3 * frame + b]
+            source += [value, value]
+        rows, columns, source = np.concatenate(rows), np.concatenate(columns), np.concatenate(source)
+        order = np.lexsort((columns, rows))
+        self._indices, self._gather = columns[order].astype(np.int32), source[order]
+        self._indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=J * n))]).astype(np.int32)
 
-    def _motion(self, motion_weight) -> scipy.sparse.csr_matrix:
-        """D^T diag(motion_weight) D: the motion prior's part, motion_weight [F - 2, J] 1 / (mm/frame^2)^2."""
-        return (self.second.T @ scipy.sparse.diags(np.repeat(np.ravel(motion_weight), 3)) @ self.second).tocsr()
-
-    def _limb_rows(self, limbs, track) -> np.ndarray:
+    def _limb_rows(self, track) -> np.ndarray:
         """[L, F, 3]: sqrt(limb weight) u, u each limb's unit direction at `track` (0 where degenerate, and
         all 0 before there is a track): the linearised limb rows sqrt(w) u^T (x_c - x_p) = sqrt(w) L_b."""
-        if track is None or not limbs:
-            return np.zeros((len(limbs), len(self.has), 3))
-        index = np.array(limbs)
+        if track is None or not self.limbs:
+            return np.zeros((len(self.limbs), len(self.has), 3))
+        index = np.array(self.limbs)
         difference = track[:, index[:, 1]] - track[:, index[:, 2]]  # [F, L, 3]
         norm = np.linalg.norm(difference, axis=-1, keepdims=True)
         direction = np.where(norm > 1e-6, difference / np.maximum(norm, 1e-6), 0.0)
         return np.sqrt(self.limb_weight) * direction.swapaxes(0, 1)
 
-    def _diagonal_blocks(self, weight, limbs, rows) -> np.ndarray:
+    def _diagonal_blocks(self, weight, rows) -> np.ndarray:
         """[F, J, 3, 3]: each cell's own block: its weighted evidence and its limbs' u u^T."""
         blocks = weight[..., None, None] * self.precision
-        for (_, child, parent), row in zip(limbs, rows):
+        for (_, child, parent), row in zip(self.limbs, rows):
             outer = row[:, :, None] * row[:, None, :]
             blocks[:, child] += outer
             blocks[:, parent] += outer
         return blocks
 
-    def _matrix(self, blocks, motion_weight, limbs, rows) -> scipy.sparse.csr_matrix:
-        """The whole normal matrix: the cells' blocks, the limbs' couplings -u u^T, the motion prior."""
-        F, J = blocks.shape[:2]
-        cell = np.arange(F * J).reshape(F, J)
-        block_rows, block_columns, data = [cell.ravel()], [cell.ravel()], [blocks.reshape(-1, 3, 3)]
-        for (_, child, parent), row in zip(limbs, rows):
-            coupling = -(row[:, :, None] * row[:, None, :])
-            block_rows += [cell[:, child], cell[:, parent]]
-            block_columns += [cell[:, parent], cell[:, child]]
-            data += [coupling, coupling]
-        block_rows, block_columns, data = np.concatenate(block_rows), np.concatenate(block_columns), np.concatenate(data)
-        axis = np.arange(3)
-        rows_ = (3 * block_rows[:, None, None] + axis[None, :, None]).repeat(3, 2)
-        columns = (3 * block_columns[:, None, None] + axis[None, None, :]).repeat(3, 1)
-        evidence = scipy.sparse.coo_matrix((data.ravel(), (rows_.ravel(), columns.ravel())), shape=(3 * F * J,) * 2)
-        return evidence.tocsr() + self._motion(motion_weight)
+    def _matrix(self, bands, rows) -> scipy.sparse.csr_matrix:
+        """The whole normal matrix (joint-major): the joints' systems `bands` and the limbs' couplings."""
+        values = np.concatenate([bands.ravel(), -(rows[..., :, None] * rows[..., None, :]).ravel()])
+        n = len(self._indptr) - 1
+        return scipy.sparse.csr_matrix((values[self._gather], self._indices, self._indptr), shape=(n, n))
 
-    def solve(self, weight, motion_weight, limbs, lengths, track) -> np.ndarray:
-        """[F, J, 3]: the minimum of the linearised problem (conjugate gradients, `_factors` preconditioning)."""
-        rows = self._limb_rows(limbs, track)
-        blocks = self._diagonal_blocks(weight, limbs, rows)
+    def solve(self, weight, motion_weight, lengths, track) -> np.ndarray:
+        """[F, J, 3]: the minimum of the linearised problem (conjugate gradients, `_factor` preconditioning)."""
+        rows = self._limb_rows(track)
+        bands = _bands(self._diagonal_blocks(weight, rows), motion_weight)
         rhs = np.einsum("fjab,fjb->fja", weight[..., None, None] * self.precision, self.observed)
-        for (b, child, parent), row in zip(limbs, rows):
+        for (b, child, parent), row in zip(self.limbs, rows):
             rhs[:, child] += row * np.sqrt(self.limb_weight) * lengths[b]
             rhs[:, parent] -= row * np.sqrt(self.limb_weight) * lengths[b]
-        matrix, factors = self._matrix(blocks, motion_weight, limbs, rows), _factors(blocks, motion_weight)
-        shape = rhs.shape
+        matrix, factors = self._matrix(bands, rows), _factor(bands)
+        F, J, _ = rhs.shape
 
         def precondition(r):  # the joints' systems side by side: one banded matrix, joint-major
-            solved = cho_solve_banded((factors, False), r.reshape(shape).swapaxes(0, 1).ravel(), check_finite=False)
-            return solved.reshape(shape[1], shape[0], 3).swapaxes(0, 1).ravel()
+            return cho_solve_banded((factors, False), r, check_finite=False)
 
-        rhs = rhs.ravel()
-        x = precondition(rhs) if track is None else track.ravel().copy()
+        rhs = rhs.swapaxes(0, 1).ravel()
+        x = precondition(rhs) if track is None else track.swapaxes(0, 1).flatten()
         residual = rhs - matrix @ x
         z = precondition(residual)
         direction, rz = z, _dot(residual, z)
@@ -440,24 +454,24 @@ class _System:
             z = precondition(residual)
             rz, previous = _dot(residual, z), rz
             direction = z + (rz / previous) * direction
-        return x.reshape(shape)
+        return np.ascontiguousarray(x.reshape(J, F, 3).swapaxes(0, 1))
 
-    def marginal_sigma(self, weight, motion_weight, limbs, track) -> np.ndarray:
+    def marginal_sigma(self, weight, motion_weight, track) -> np.ndarray:
         """f64[F, J]: sqrt(trace) of each cell's marginal covariance under its joint's own system."""
-        factors = _factors(self._diagonal_blocks(weight, limbs, self._limb_rows(limbs, track)), motion_weight)
+        factors = _factors(self._diagonal_blocks(weight, self._limb_rows(track)), motion_weight)
         factors = factors.reshape(BAND + 1, len(weight[0]), -1).swapaxes(0, 1)  # [J, BAND + 1, 3F]
         return np.sqrt(np.trace(_selected_blocks(factors), axis1=-2, axis2=-1)).T
 
 
 def _bands(blocks: np.ndarray, motion_weight: np.ndarray) -> np.ndarray:
-    """[J, BAND + 1, 3F]: each joint's system (its blocks [F, J, 3, 3] and the motion prior of weights
+    """[BAND + 1, J, 3F]: each joint's system (its blocks [F, J, 3, 3] and the motion prior of weights
     [F - 2, J]) in LAPACK's upper band storage, ab[BAND + i - k, k] = A[i, k] for i <= k, unknowns in the
-    order (frame, axis)."""
+    order (frame, axis); joint after joint, so that [BAND + 1, 3FJ] is one banded matrix of them all."""
     F, J = blocks.shape[:2]
-    ab = np.zeros((J, BAND + 1, 3 * F))
+    ab = np.zeros((BAND + 1, J, 3 * F))
     for a in range(3):
         for b in range(a, 3):
-            ab[:, BAND + a - b, b::3] = blocks[:, :, a, b].T
+            ab[BAND + a - b, :, b::3] = blocks[:, :, a, b].T
     if F < 3:  # no second difference
         return ab
     # D^T W D per axis: its diagonal and the two bands above it, 3 and 6 apart in the (frame, axis) order.
@@ -470,17 +484,21 @@ def _bands(blocks: np.ndarray, motion_weight: np.ndarray) -> np.ndarray:
         first[:, i : F - 2 + i] += stencil[i] * stencil[i + 1] * w
     second += stencil[0] * stencil[2] * w
     for a in range(3):
-        ab[:, BAND, a::3] += diagonal
-        ab[:, BAND - 3, 3 + a :: 3] += first
-        ab[:, BAND - 6, 6 + a :: 3] += second
+        ab[BAND, :, a::3] += diagonal
+        ab[BAND - 3, :, 3 + a :: 3] += first
+        ab[BAND - 6, :, 6 + a :: 3] += second
     return ab
 
 
+def _factor(bands: np.ndarray) -> np.ndarray:
+    """[BAND + 1, 3FJ]: the banded Cholesky factor of every joint's system [BAND + 1, J, 3F] (`_bands`), joint
+    after joint (block diagonal: `_bands` leaves the entries above each joint's first rows 0)."""
+    return cholesky_banded(bands.reshape(BAND + 1, -1), lower=False, check_finite=False)
+
+
 def _factors(blocks: np.ndarray, motion_weight: np.ndarray) -> np.ndarray:
-    """[BAND + 1, 3FJ]: the banded Cholesky factor of every joint's system, joint after joint (block
-    diagonal: `_bands` leaves the entries above each joint's first rows 0, so one banded matrix holds all)."""
-    bands = _bands(blocks, motion_weight)
-    return cholesky_banded(bands.swapaxes(0, 1).reshape(BAND + 1, -1), lower=False, check_finite=False)
+    """[BAND + 1, 3FJ]: `_factor` of the system of these blocks and motion weights."""
+    return _factor(_bands(blocks, motion_weight))
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> float:
