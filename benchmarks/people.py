@@ -23,14 +23,22 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from jaxpose.rig import association, people, tracks
+from jaxpose.camera import projection_matrices
+from jaxpose.formats import keypoint_files
+from jaxpose.formats.calibration_files import read_rig_calibration
+from jaxpose.formats.rig_folder import read_ground_truth
+from jaxpose.rig import association, geometry, people, tracks
 from jaxpose.rig.geometry import triangulate_rows
+from jaxpose.skeleton import COCO_17
+from jaxpose.synthetic import ExampleProjectConfig, write_rig_project
 
 CAMPUS = Path(__file__).resolve().parents[2] / "shared" / "data" / "multiperson" / "campus"
 CAMERAS = ("Camera0", "Camera1", "Camera2")
@@ -42,7 +50,8 @@ LIMBS = np.array([[0, 1], [1, 2], [3, 4], [4, 5], [6, 7], [7, 8], [9, 10], [10, 
 """The nine limbs between joints; the torso (mid-hip to neck) is the tenth, `limb_ends`."""
 PAIRING_MM = 500.0
 MAX_GAP = 10  # instants a track's joint is interpolated over (0.4 s)
-THRESHOLD_PX = 15.0  # association: the images are 360x288, the people 60-120 px tall
+THRESHOLD_PX = 15.0
+SYNTHETIC_LIMBS = np.array([(j, p) for j, p in enumerate(COCO_17.parents) if p >= 0])  # association: the images are 360x288, the people 60-120 px tall
 
 
 @dataclasses.dataclass(frozen=True)
@@ -138,14 +147,15 @@ def pcp(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return np.nan_to_num(error, nan=np.inf) <= np.linalg.norm(t[:, 0] - t[:, 1], axis=-1) / 2
 
 
-def score(campus: Campus, points: np.ndarray, identity: np.ndarray) -> dict:
-    """points f32[N, M, J, 3], identity int[N, M] (-1: no output person) -> the scores of the module docstring."""
-    ids = sorted({i for frame in campus.truth for i in frame})
-    correct = {i: [] for i in ids}
-    errors = {i: [] for i in ids}
+def pair_with_truth(truth: list, points: np.ndarray, identity: np.ndarray) -> dict:
+    """truth: per instant, dict id -> f32[J, 3] mm; points f32[N, M, J, 3], identity int[N, M] (-1: no output
+    person) -> per id the nearest output slot at each of its instants ("nearest": list of (instant, slot or
+    None)), the one-to-one pairs within `PAIRING_MM` ("paired": list of (instant, id, slot)), and the counts
+    of identity switches, false and missed people of the module docstring."""
+    nearest, paired_all = {}, []
     last = {}
     switches = false = missed = 0
-    for n, frame in enumerate(campus.truth):
+    for n, frame in enumerate(truth):
         if not frame:
             continue
         out = np.flatnonzero(identity[n] >= 0)
@@ -154,13 +164,8 @@ def score(campus: Campus, points: np.ndarray, identity: np.ndarray) -> dict:
         for a, i in enumerate(truth_ids):
             for b, m in enumerate(out):
                 distance[a, b] = np.nanmean(np.linalg.norm(points[n, m] - frame[i], axis=-1))
-            # PCP and MPJPE: the nearest output person, as the field scores Campus
-            nearest = out[np.argmin(distance[a])] if len(out) and np.isfinite(distance[a]).any() else None
-            if nearest is None:
-                correct[i].append(np.zeros(10, bool))
-            else:
-                correct[i].append(pcp(points[n, nearest], frame[i]))
-                errors[i].append(distance[a].min())
+            found = len(out) and np.isfinite(distance[a]).any()
+            nearest.setdefault(i, []).append((n, out[np.nanargmin(distance[a])] if found else None))
         rows, cols = linear_sum_assignment(np.where(np.isfinite(distance), distance, 1e9)) if len(out) else ([], [])
         paired = [(r, c) for r, c in zip(rows, cols) if distance[r, c] <= PAIRING_MM]
         false += len(out) - len(paired)
@@ -169,14 +174,32 @@ def score(campus: Campus, points: np.ndarray, identity: np.ndarray) -> dict:
             track = identity[n, out[c]]
             switches += truth_ids[r] in last and last[truth_ids[r]] != track
             last[truth_ids[r]] = track
+            paired_all.append((n, truth_ids[r], out[c]))
+    return {"nearest": nearest, "paired": paired_all, "switches": int(switches), "false": int(false), "missed": int(missed)}
+
+
+def score(campus: Campus, points: np.ndarray, identity: np.ndarray) -> dict:
+    """points f32[N, M, J, 3], identity int[N, M] (-1: no output person) -> the scores of the module docstring;
+    PCP and MPJPE of each ground-truth person against the output person nearest to it, as the field scores Campus."""
+    pairs = pair_with_truth(campus.truth, points, identity)
+    ids = sorted(pairs["nearest"])
+    correct = {i: [] for i in ids}
+    errors = {i: [] for i in ids}
+    for i in ids:
+        for n, slot in pairs["nearest"][i]:
+            if slot is None:
+                correct[i].append(np.zeros(10, bool))
+            else:
+                correct[i].append(pcp(points[n, slot], campus.truth[n][i]))
+                errors[i].append(np.nanmean(np.linalg.norm(points[n, slot] - campus.truth[n][i], axis=-1)))
     per_person = {i: 100 * np.mean(correct[i]) for i in ids}
     return {
         "pcp": per_person,
         "average": float(np.mean(list(per_person.values()))),
         "mpjpe": {i: float(np.mean(errors[i])) for i in ids},
-        "switches": int(switches),
-        "false": int(false),
-        "missed": int(missed),
+        "switches": pairs["switches"],
+        "false": pairs["false"],
+        "missed": pairs["missed"],
     }
 
 
@@ -195,6 +218,128 @@ def one_person(campus: Campus, keypoints: np.ndarray, confidence: np.ndarray) ->
     points = triangulate_rows(campus.P, choice.keypoints, choice.confidence)
     points = np.where(((choice.confidence > 0).sum(1) >= 2)[..., None], points, np.nan)
     return points[:, None]
+
+
+# The synthetic projects (`jaxpose.synthetic`'s example project with several people, its default detector):
+# the people 0.5 m apart at least, the first two passing each other 0.5 m apart, the last leaving and coming
+# back, false detections in 10% of each view's frames, occlusion; 4 cameras in sync, 50 fps, a 4 m square
+# (5 people walking 0.5 m apart fit in it).
+SYNTHETIC = ExampleProjectConfig(
+    people=2, recordings=1, frames_per_recording=300, cameras=4, desync_camera=-1, second_person_rate=0.0, motions=("walking",),
+    capture_area=4000.0, min_distance=500.0, pass_each_other=500.0, false_people_rate=0.1, occlusion=True, absent_frames=60,
+)  # fmt: skip
+SYNTHETIC_THRESHOLD_PX = people.DEFAULT_THRESHOLD_PX  # the association's default: 1920x1080 images, people 300-500 px tall
+
+
+@dataclasses.dataclass(frozen=True)
+class Scene:
+    """A synthetic project's recording as the association takes it, and its truth."""
+
+    P: np.ndarray  # f32[C, 3, 4] undistorted pixels from world mm
+    keypoints: np.ndarray  # f32[N, C, K, J, 2] undistorted pixels, each view's detections in file order
+    confidence: np.ndarray  # f32[N, C, K, J]
+    who: np.ndarray  # int[N, C, K]: the person of each detection, -1 a false one, -2 padding
+    truth: np.ndarray  # f32[N, P, J, 3] world mm, NaN while a person is out of the scene
+    fps: float
+
+
+def synthetic_scene(config: ExampleProjectConfig) -> Scene:
+    """Write `config`'s project (one recording, cameras in sync) to a temporary folder and read it back as
+    the loader does: OpenPose JSON, calibration.toml (undistorted here), ground_truth.npz, and
+    example_truth.json's people_order (who each listed detection is)."""
+    with tempfile.TemporaryDirectory() as folder:
+        root = write_rig_project(Path(folder) / "project", config)
+        name = config.recording_names[0]
+        calibration = read_rig_calibration(root / "calibration.toml", unit="m")
+        order = json.loads((root / "example_truth.json").read_text())["recordings"][name]["people_order"]
+        views = [keypoint_files.read_openpose_folder(root / name / f"{camera}_json", progress=False, workers=1) for camera in config.camera_names]
+        truth = read_ground_truth(root / name / "ground_truth.npz").points
+    N, C = config.frames_per_recording, config.cameras
+    K = max(view.keypoints.shape[1] for view in views)
+    J = views[0].keypoints.shape[2]
+    keypoints = np.zeros((N, C, K, J, 2), np.float32)
+    confidence = np.zeros((N, C, K, J), np.float32)
+    who = np.full((N, C, K), -2, np.int64)
+    for c, (camera, view) in enumerate(zip(config.camera_names, views)):
+        k = view.keypoints.shape[1]
+        keypoints[:, c, :k] = geometry.undistort_views(calibration, camera, view.keypoints)
+        confidence[:, c, :k] = view.scores
+        for n, codes in enumerate(order[camera]):
+            who[n, c, : len(codes)] = [max(code, -1) for code in codes]
+    P = np.asarray(projection_matrices(calibration.cameras), np.float32)
+    return Scene(P, keypoints, confidence, who, np.asarray(truth[:, :, :J], np.float32), config.fps)
+
+
+def pair_precision_recall(found: association.Association, who: np.ndarray) -> tuple[float, float]:
+    """Association precision and recall over cross-view pairs of detections at the same instant: a pair put
+    in one person is right when both are the same real person; the true pairs are every two views' detections
+    of the same real person (one seen by a single view has none)."""
+    N, C, K = who.shape
+    right = claimed = 0
+    for n, m in np.argwhere(found.present):
+        codes = [who[n, c, k] for c, k in enumerate(found.detection[n, m]) if k >= 0]
+        for a in range(len(codes)):
+            for b in range(a + 1, len(codes)):
+                claimed += 1
+                right += codes[a] == codes[b] >= 0
+    per_person = np.stack([(who == p).any(-1).sum(-1) for p in range(who.max() + 1)], -1)  # [N, P] views seeing p
+    true = int((per_person * (per_person - 1) // 2).sum())
+    return right / max(claimed, 1), right / max(true, 1)
+
+
+def alone(scene: Scene) -> np.ndarray:
+    """Each person reconstructed alone: the association of their own detections only (`Scene.who`), as the
+    recording of that person alone would be, f32[N, P, J, 3] (NaN where the association finds nobody)."""
+    count = scene.truth.shape[1]
+    own = scene.who[..., None] == np.arange(count)  # [N, C, K, P]
+    index = np.argmax(own, 2)  # [N, C, P]
+    seen = own.any(2)
+    N, C = index.shape[:2]
+    xy = scene.keypoints[np.arange(N)[:, None, None], np.arange(C)[:, None], index]  # [N, C, P, J, 2]
+    weight = np.where(seen[..., None], scene.confidence[np.arange(N)[:, None, None], np.arange(C)[:, None], index], 0.0)
+    points = np.full(scene.truth.shape, np.nan, np.float32)
+    for p in range(count):
+        found = association.associate(scene.P, xy[:, :, p : p + 1], weight[:, :, p : p + 1], SYNTHETIC_THRESHOLD_PX)
+        points[:, p] = np.where(found.present[:, :1, None, None], found.points[:, :1], np.nan)[:, 0]  # most views first
+    return points
+
+
+def synthetic_scores(scene: Scene, people_count: int | None = None) -> dict:
+    """Association precision and recall, tracks and identity switches, and each person's MPJPE (mm, per-instant
+    triangulation of the associated detections) beside the same person's alone on the same instants."""
+    start = time.perf_counter()
+    found = association.associate(scene.P, scene.keypoints, scene.confidence, SYNTHETIC_THRESHOLD_PX)
+    followed = tracks.follow(found.points, found.present, SYNTHETIC_LIMBS, tracks.TrackSettings(fps=scene.fps, people=people_count))
+    seconds = time.perf_counter() - start
+    precision, recall = pair_precision_recall(found, scene.who)
+    truth = [{p: scene.truth[n, p] for p in range(scene.truth.shape[1]) if np.isfinite(scene.truth[n, p]).all()} for n in range(len(scene.truth))]
+    pairs = pair_with_truth(truth, found.points, followed.identity)
+    single = alone(scene)
+    errors = {p: ([], []) for p in range(scene.truth.shape[1])}
+    for n, p, slot in pairs["paired"]:
+        both = np.isfinite(found.points[n, slot]).all(-1) & np.isfinite(single[n, p]).all(-1)
+        errors[p][0].extend(np.linalg.norm(found.points[n, slot] - scene.truth[n, p], axis=-1)[both])
+        errors[p][1].extend(np.linalg.norm(single[n, p] - scene.truth[n, p], axis=-1)[both])
+    return {
+        "precision": precision, "recall": recall, "tracks": followed.count, "switches": pairs["switches"],
+        "false": pairs["false"], "missed": pairs["missed"], "unmatched": found.unmatched,
+        "mpjpe": {p: float(np.mean(e[0])) for p, e in errors.items()}, "alone": {p: float(np.mean(e[1])) for p, e in errors.items()},
+        "instants_per_s": len(scene.truth) / seconds,
+    }  # fmt: skip
+
+
+def synthetic(seeds: Sequence[int], counts: Sequence[int], frames: int, people_count: bool) -> None:
+    print(f"synthetic projects: {SYNTHETIC}; association threshold {SYNTHETIC_THRESHOLD_PX} px")
+    print(f"{'people':>6} {'seed':>4} {'precision':>9} {'recall':>7} {'tracks':>6} {'IDsw':>5} {'false':>6} {'missed':>6} {'left out':>8} "
+          f"{'max |MPJPE - alone| mm':>22}  MPJPE per person (alone) mm")  # fmt: skip
+    for count in counts:
+        for seed in seeds:
+            config = dataclasses.replace(SYNTHETIC, people=count, seed=seed, frames_per_recording=frames, absent_frames=frames // 5)
+            s = synthetic_scores(synthetic_scene(config), count if people_count else None)
+            gap = max(abs(s["mpjpe"][p] - s["alone"][p]) for p in s["mpjpe"])
+            each = " ".join(f"{s['mpjpe'][p]:.1f} ({s['alone'][p]:.1f})" for p in sorted(s["mpjpe"]))
+            print(f"{count:>6} {seed:>4} {100 * s['precision']:>8.2f}% {100 * s['recall']:>6.2f}% {s['tracks']:>6} {s['switches']:>5} "
+                  f"{s['false']:>6} {s['missed']:>6} {s['unmatched']:>8} {gap:>22.2f}  {each}")  # fmt: skip
 
 
 def ring_rig(cameras: int) -> np.ndarray:

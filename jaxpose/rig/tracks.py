@@ -9,10 +9,15 @@ walked off): a track survives occlusions and the person leaving and coming back 
 Two people passing each other keep their identities while their centres stay further apart than the
 distance each moves between instants: the prediction puts each track ahead of itself, not onto the other.
 
-A person paired with no track starts a new one; with `people` set (the user knows how many there are),
-no more tracks than that are started, and a person beyond them is given to the unseen track whose limb
-lengths are closest (someone coming back far from where they left), or left out.  Tracks seen at fewer
-than `min_instants` instants are dropped (false people that happened to agree across views) and counted.
+A person paired with no track starts a tentative one.  It becomes a person (confirmed) once seen at
+`min_instants` instants without a gap of more than `tentative_gap`; before that, a longer gap ends it, its
+instants dropped and counted: a false person that happens to agree across views now and then never lasts,
+so never takes the place of someone coming back.  On confirmation, a person unseen since before the
+tentative track began and whose limb lengths differ from its by at most `reidentify_mm` (the mean over
+limbs) is someone coming back, far from where they left: the track continues theirs (the closest such
+person).  With `people` set (the user knows how many there are), no more than that are confirmed: beyond
+them a tentative track continues the unseen person whose limb lengths are closest, whatever the
+difference, or ends when everyone is in view.
 """
 
 from __future__ import annotations
@@ -38,6 +43,11 @@ class TrackSettings:
     """How much further, per second unseen, a track may have gone (a brisk walk)."""
     max_gate_mm: float = 3000.0
     min_instants: int = 10
+    """Instants a tentative track must be seen at to be a person."""
+    tentative_gap: int = 5
+    """The longest gap (instants unseen) of a tentative track; longer, it ends."""
+    reidentify_mm: float = 25.0
+    """Largest mean limb-length difference of a new person from an unseen one for it to be them coming back."""
     people: int | None = None
     """The number of people, when the user knows it (``--people N``)."""
 
@@ -51,7 +61,7 @@ class Tracks:
     count: int
     """How many tracks."""
     dropped: int
-    """Person-instants left out: in tracks shorter than `min_instants`, or beyond `people`."""
+    """Person-instants left out: in tentative tracks that ended, or beyond `people`."""
 
 
 def centres(points: np.ndarray) -> np.ndarray:
@@ -66,6 +76,48 @@ def limb_lengths(points: np.ndarray, limbs: np.ndarray) -> np.ndarray:
     return np.linalg.norm(points[..., limbs[:, 0], :] - points[..., limbs[:, 1], :], axis=-1)
 
 
+@dataclasses.dataclass
+class _Track:
+    """One track's state while `follow` runs (mutable: it changes at every instant it is seen)."""
+
+    first: int
+    last: np.ndarray  # f[3] centre, world mm
+    seen_at: int
+    limb_sum: np.ndarray
+    limb_count: np.ndarray
+    velocity: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
+    sightings: int = 1
+    confirmed: bool = False
+    continues: int = -1  # the confirmed track this one turned out to be (someone coming back), -1: none
+    ended: bool = False
+
+    def limbs(self) -> np.ndarray:
+        return np.where(self.limb_count > 0, self.limb_sum / np.maximum(self.limb_count, 1), np.nan)
+
+
+def _limb_difference(a: np.ndarray, b: np.ndarray) -> float:
+    both = np.isfinite(a) & np.isfinite(b)
+    return float(np.mean(np.abs(a[both] - b[both]))) if both.any() else np.inf
+
+
+def _confirm(tracks: list[_Track], t: int, settings: TrackSettings) -> None:
+    """Track t has been seen at `min_instants` instants: a person, new or coming back (module docstring)."""
+    track = tracks[t]
+    confirmed = [u for u, other in enumerate(tracks) if other.confirmed and other.continues < 0]
+    unseen = [u for u in confirmed if tracks[u].seen_at < track.first]
+    difference = [_limb_difference(tracks[u].limbs(), track.limbs()) for u in unseen]
+    full = settings.people is not None and len(confirmed) >= settings.people
+    if unseen and (full or min(difference) <= settings.reidentify_mm):
+        old = tracks[unseen[int(np.argmin(difference))]]
+        old.last, old.seen_at, old.velocity = track.last, track.seen_at, track.velocity
+        old.limb_sum, old.limb_count = old.limb_sum + track.limb_sum, old.limb_count + track.limb_count
+        track.continues, track.confirmed = unseen[int(np.argmin(difference))], True
+    elif full:
+        track.ended = True
+    else:
+        track.confirmed = True
+
+
 def follow(points: np.ndarray, present: np.ndarray, limbs: np.ndarray, settings: TrackSettings = TrackSettings()) -> Tracks:
     """Tracks of the people `points` f32[n, M, J, 3] (world mm) where `present` bool[n, M]; `limbs` int[L, 2]
     the skeleton's limbs (compared when someone comes back, see the module docstring)."""
@@ -74,55 +126,57 @@ def follow(points: np.ndarray, present: np.ndarray, limbs: np.ndarray, settings:
     present = present & np.isfinite(centre).all(-1)
     lengths = limb_lengths(points, limbs)
     step = 1.0 / settings.fps
-    last, velocity, seen_at, limb_sum, limb_count = [], [], [], [], []
+    found: list[_Track] = []
     raw = np.full((n, M), -1, np.int64)
     for i in range(n):
+        for track in found:  # a tentative track unseen too long ends
+            if not track.confirmed and not track.ended and i - track.seen_at > settings.tentative_gap + 1:
+                track.ended = True
+        live = [t for t, track in enumerate(found) if not track.ended and track.continues < 0]
         slots = np.flatnonzero(present[i])
         if not len(slots):
             continue
-        T = len(last)
         assigned = np.full(len(slots), -1)
-        if T:
-            gap = i - np.array(seen_at)
-            predicted = np.array(last) + np.array(velocity) * np.minimum(gap, PREDICTION_STEPS)[:, None]
+        if live:
+            gap = i - np.array([found[t].seen_at for t in live])
+            last = np.array([found[t].last for t in live])
+            velocity = np.array([found[t].velocity for t in live])
+            predicted = last + velocity * np.minimum(gap, PREDICTION_STEPS)[:, None]
             gate = np.minimum(settings.gate_mm + settings.speed_mm_s * step * (gap - 1), settings.max_gate_mm)
             cost = np.linalg.norm(predicted[:, None] - centre[i, slots][None], axis=-1)  # [T, S]
             rows, cols = linear_sum_assignment(np.where(cost <= gate[:, None], cost, 1e9))
             keep = cost[rows, cols] <= gate[rows]
-            assigned[cols[keep]] = rows[keep]
+            assigned[cols[keep]] = np.array(live)[rows[keep]]
         for s in np.flatnonzero(assigned < 0):
-            if settings.people is None or len(last) < settings.people:
-                assigned[s] = len(last)
-                last.append(centre[i, slots[s]])
-                velocity.append(np.zeros(3))
-                seen_at.append(i)
-                limb_sum.append(np.zeros(len(limbs)))
-                limb_count.append(np.zeros(len(limbs)))
-                continue
-            unseen = [t for t in range(len(last)) if seen_at[t] < i and t not in assigned]
-            if unseen:
-                means = np.array([limb_sum[t] / np.maximum(limb_count[t], 1) for t in unseen])
-                difference = np.nanmean(np.abs(means - lengths[i, slots[s]]), axis=-1)
-                assigned[s] = unseen[int(np.nanargmin(np.nan_to_num(difference, nan=np.inf)))]
-                velocity[assigned[s]] = np.zeros(3)
+            assigned[s] = len(found)
+            found.append(_Track(i, centre[i, slots[s]], i, np.zeros(len(limbs)), np.zeros(len(limbs)), sightings=0))
         for s, t in zip(slots, assigned):
-            if t < 0:
-                continue
-            gap = i - seen_at[t]
+            track = found[t]
+            gap = i - track.seen_at
             if gap:
-                moved = (centre[i, s] - last[t]) / gap
-                velocity[t] = moved if not velocity[t].any() else 0.5 * velocity[t] + 0.5 * moved
-            last[t], seen_at[t] = centre[i, s], i
+                moved = (centre[i, s] - track.last) / gap
+                track.velocity = moved if not track.velocity.any() else 0.5 * track.velocity + 0.5 * moved
+                track.sightings += 1
+            elif track.sightings == 0:
+                track.sightings = 1
+            track.last, track.seen_at = centre[i, s], i
             finite = np.isfinite(lengths[i, s])
-            limb_sum[t][finite] += lengths[i, s][finite]
-            limb_count[t][finite] += 1
+            track.limb_sum[finite] += lengths[i, s][finite]
+            track.limb_count[finite] += 1
             raw[i, s] = t
-    sizes = np.bincount(raw[raw >= 0], minlength=len(last))
-    kept = np.flatnonzero(sizes >= settings.min_instants)
-    renumber = np.full(len(last) + 1, -1)
-    renumber[kept] = np.arange(len(kept))  # tracks start in order, so this keeps the order of first appearance
-    identity = renumber[raw].astype(np.int32)
-    return Tracks(identity, len(kept), int((present & (identity < 0)).sum()))
+            if not track.confirmed and track.sightings >= settings.min_instants:
+                _confirm(found, t, settings)
+    identity_of = np.full(len(found) + 1, -1)  # the last entry: raw's -1
+    order = []
+    for t, track in enumerate(found):
+        if track.confirmed and track.continues < 0:
+            order.append(t)
+    identity_of[order] = np.arange(len(order))  # tracks start in order, so this keeps the order of first appearance
+    for t, track in enumerate(found):
+        if track.continues >= 0:
+            identity_of[t] = identity_of[track.continues]
+    identity = identity_of[raw].astype(np.int32)
+    return Tracks(identity, len(order), int((present & (identity < 0)).sum()))
 
 
 def track_points(points: np.ndarray, identity: np.ndarray, count: int, max_gap: int) -> np.ndarray:
