@@ -51,7 +51,8 @@ LIMBS = np.array([[0, 1], [1, 2], [3, 4], [4, 5], [6, 7], [7, 8], [9, 10], [10, 
 PAIRING_MM = 500.0
 MAX_GAP = 10  # instants a track's joint is interpolated over (0.4 s)
 THRESHOLD_PX = 15.0
-SYNTHETIC_LIMBS = np.array([(j, p) for j, p in enumerate(COCO_17.parents) if p >= 0])  # association: the images are 360x288, the people 60-120 px tall
+SYNTHETIC_LIMBS = np.array([(j, p) for j, p in enumerate(COCO_17.parents) if p >= 0])
+SYNTHETIC_MIRROR = COCO_17.flip_permutation()  # association: the images are 360x288, the people 60-120 px tall
 
 
 @dataclasses.dataclass(frozen=True)
@@ -205,7 +206,7 @@ def score(campus: Campus, points: np.ndarray, identity: np.ndarray) -> dict:
 
 def several(campus: Campus, keypoints: np.ndarray, confidence: np.ndarray, people_count: int | None) -> tuple:
     start = time.perf_counter()
-    found = association.associate(campus.P, keypoints, confidence, THRESHOLD_PX)
+    found = association.associate(campus.P, keypoints, confidence, THRESHOLD_PX, FLIP)
     followed = tracks.follow(found.points, found.present, LIMBS, tracks.TrackSettings(fps=FPS, people=people_count))
     points = tracks.track_points(found.points, followed.identity, followed.count, MAX_GAP)
     seconds = time.perf_counter() - start
@@ -228,7 +229,7 @@ SYNTHETIC = ExampleProjectConfig(
     people=2, recordings=1, frames_per_recording=300, cameras=4, desync_camera=-1, second_person_rate=0.0, motions=("walking",),
     capture_area=4000.0, min_distance=500.0, pass_each_other=500.0, false_people_rate=0.1, occlusion=True, absent_frames=60,
 )  # fmt: skip
-SYNTHETIC_THRESHOLD_PX = people.DEFAULT_THRESHOLD_PX  # the association's default: 1920x1080 images, people 300-500 px tall
+SYNTHETIC_THRESHOLD_PX = 20.0  # 1920x1080 images, people 300-500 px tall, the detector's noise 3-8 px a joint
 
 
 @dataclasses.dataclass(frozen=True)
@@ -299,7 +300,7 @@ def alone(scene: Scene) -> np.ndarray:
     weight = np.where(seen[..., None], scene.confidence[np.arange(N)[:, None, None], np.arange(C)[:, None], index], 0.0)
     points = np.full(scene.truth.shape, np.nan, np.float32)
     for p in range(count):
-        found = association.associate(scene.P, xy[:, :, p : p + 1], weight[:, :, p : p + 1], SYNTHETIC_THRESHOLD_PX)
+        found = association.associate(scene.P, xy[:, :, p : p + 1], weight[:, :, p : p + 1], SYNTHETIC_THRESHOLD_PX, SYNTHETIC_MIRROR)
         points[:, p] = np.where(found.present[:, :1, None, None], found.points[:, :1], np.nan)[:, 0]  # most views first
     return points
 
@@ -308,7 +309,7 @@ def synthetic_scores(scene: Scene, people_count: int | None = None) -> dict:
     """Association precision and recall, tracks and identity switches, and each person's MPJPE (mm, per-instant
     triangulation of the associated detections) beside the same person's alone on the same instants."""
     start = time.perf_counter()
-    found = association.associate(scene.P, scene.keypoints, scene.confidence, SYNTHETIC_THRESHOLD_PX)
+    found = association.associate(scene.P, scene.keypoints, scene.confidence, SYNTHETIC_THRESHOLD_PX, SYNTHETIC_MIRROR)
     followed = tracks.follow(found.points, found.present, SYNTHETIC_LIMBS, tracks.TrackSettings(fps=scene.fps, people=people_count))
     seconds = time.perf_counter() - start
     precision, recall = pair_precision_recall(found, scene.who)
@@ -328,14 +329,14 @@ def synthetic_scores(scene: Scene, people_count: int | None = None) -> dict:
     }  # fmt: skip
 
 
-def synthetic(seeds: Sequence[int], counts: Sequence[int], frames: int, people_count: bool) -> None:
+def synthetic(seeds: Sequence[int], counts: Sequence[int], frames: int) -> None:
     print(f"synthetic projects: {SYNTHETIC}; association threshold {SYNTHETIC_THRESHOLD_PX} px")
     print(f"{'people':>6} {'seed':>4} {'precision':>9} {'recall':>7} {'tracks':>6} {'IDsw':>5} {'false':>6} {'missed':>6} {'left out':>8} "
           f"{'max |MPJPE - alone| mm':>22}  MPJPE per person (alone) mm")  # fmt: skip
     for count in counts:
         for seed in seeds:
             config = dataclasses.replace(SYNTHETIC, people=count, seed=seed, frames_per_recording=frames, absent_frames=frames // 5)
-            s = synthetic_scores(synthetic_scene(config), count if people_count else None)
+            s = synthetic_scores(synthetic_scene(config))
             gap = max(abs(s["mpjpe"][p] - s["alone"][p]) for p in s["mpjpe"])
             each = " ".join(f"{s['mpjpe'][p]:.1f} ({s['alone'][p]:.1f})" for p in sorted(s["mpjpe"]))
             print(f"{count:>6} {seed:>4} {100 * s['precision']:>8.2f}% {100 * s['recall']:>6.2f}% {s['tracks']:>6} {s['switches']:>5} "
@@ -379,15 +380,116 @@ def speed(instants: int = 100) -> None:
             print(f"{count:>6} {cameras:>7} {instants / (time.perf_counter() - start):>8.0f}")
 
 
+POSE2SIM_DEMO = CAMPUS.parents[1] / "formats" / "openpose-json" / "pose2sim_demo_multiperson_body25b"
+POSE2SIM_CALIBRATION = CAMPUS.parents[1] / "formats" / "pose2sim-calib-toml" / "pose2sim_demo_Calib_qualisys.toml"
+PEERS_VENV = Path.home() / ".cache" / "jaxpose-peers" / "venv"
+DEMO_LIMBS = np.array([[5, 7], [7, 9], [6, 8], [8, 10], [11, 13], [13, 15], [12, 14], [14, 16]])  # BODY_25B's arms and legs
+# Run by the peers' python (imports nothing of jaxpose): Pose2Sim's multi-person association (`associate_all`,
+# its Demo_MultiPerson Config.toml, pose_model BODY_25B) on a trial folder, timed per call, as JSON on stdout.
+POSE2SIM_SCRIPT = """
+import json, logging, sys, time
+from pathlib import Path
+import rtoml, Pose2Sim
+from Pose2Sim.personAssociation import associate_all
+logging.disable(logging.CRITICAL)
+trial, repeats = Path(sys.argv[1]), int(sys.argv[2])
+config = rtoml.load(Path(Pose2Sim.__file__).parent / 'Demo_MultiPerson' / 'Config.toml')
+config['project']['project_dir'] = str(trial)
+config['project']['multi_person'] = True
+config['pose']['pose_model'] = 'BODY_25B'
+seconds = []
+for _ in range(repeats):
+    start = time.perf_counter()
+    associate_all(config)
+    seconds.append(time.perf_counter() - start)
+print(json.dumps({'seconds': seconds, 'version': Pose2Sim.__version__ if hasattr(Pose2Sim, '__version__') else '?'}))
+"""
+
+
+def demo_inputs(demo: Path, calibration_path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pose2Sim's multi-person demo as the association takes it: P f32[4, 3, 4], keypoints (undistorted) and
+    confidence of its four views (read from its OpenPose JSON)."""
+    calibration = read_rig_calibration(calibration_path, unit="m")
+    views = [keypoint_files.read_openpose_folder(demo / f"cam0{c}_json", progress=False, workers=1) for c in range(1, 5)]
+    N, K, J = len(views[0].frames), max(v.keypoints.shape[1] for v in views), views[0].keypoints.shape[2]
+    keypoints = np.zeros((N, 4, K, J, 2), np.float32)
+    confidence = np.zeros((N, 4, K, J), np.float32)
+    for c, (name, view) in enumerate(zip(calibration.camera_names, views)):
+        keypoints[:, c, : view.keypoints.shape[1]] = geometry.undistort_views(calibration, name, view.keypoints)
+        confidence[:, c, : view.keypoints.shape[1]] = view.scores
+    return np.asarray(projection_matrices(calibration.cameras), np.float32), keypoints, confidence
+
+
+def versus_pose2sim(demo: Path, calibration: Path, venv: Path, repeats: int) -> None:
+    """jaxpose's association and tracks beside Pose2Sim's person association on Pose2Sim's multi-person demo
+    (4 cameras, 100 frames), one process after the other on this machine: the first call, then the median of
+    `repeats`.  jaxpose's time with and without reading the JSON files (Pose2Sim's includes reading and
+    writing them)."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+
+    def jaxpose_call(read: bool) -> float:
+        start = time.perf_counter()
+        P, keypoints, confidence = demo_inputs(demo, calibration) if read else inputs
+        found = association.associate(P, keypoints, confidence)
+        followed = tracks.follow(found.points, found.present, DEMO_LIMBS, tracks.TrackSettings(fps=30.0))
+        assert followed.count >= 2
+        return time.perf_counter() - start
+
+    inputs = demo_inputs(demo, calibration)
+    frames = inputs[1].shape[0]
+    first = jaxpose_call(True)
+    with_reading = [jaxpose_call(True) for _ in range(repeats)]
+    association_only = [jaxpose_call(False) for _ in range(repeats)]
+    python = venv / "bin" / "python"
+    print(f"Pose2Sim's multi-person demo: {frames} frames, 4 cameras; {os.cpu_count()} cores ({len(os.sched_getaffinity(0))} usable); {sys.version.split()[0]}")
+    print(f"{'method':<52} {'first s':>8} {'median s':>9} {'frames/s':>9}")
+    rows = [("jaxpose: read JSON + associate + tracks", first, with_reading), ("jaxpose: associate + tracks (detections in memory)", association_only[0], association_only)]
+    if not python.exists():
+        print(f"{venv}: no peers' environment (benchmarks/peers.py makes it); Pose2Sim not run")
+    else:
+        with tempfile.TemporaryDirectory() as folder:
+            trial = Path(folder) / "trial"
+            (trial / "calibration").mkdir(parents=True)
+            shutil.copy(calibration, trial / "calibration" / "Calib.toml")
+            for c in range(1, 5):
+                shutil.copytree(demo / f"cam0{c}_json", trial / "pose" / f"cam0{c}_json")
+            done = subprocess.run([str(python), "-c", POSE2SIM_SCRIPT, str(trial), str(repeats + 1)], capture_output=True, text=True)
+        if done.returncode:
+            print(f"Pose2Sim failed: {done.stderr.strip().splitlines()[-1]}")
+        else:
+            seconds = json.loads(done.stdout.strip().splitlines()[-1])["seconds"]
+            pose2sim = float(np.median(seconds[1:]))
+            rows.append(("Pose2Sim 0.10 personAssociation (multi_person)", seconds[0], seconds[1:]))
+    for name, first_s, times in rows:
+        print(f"{name:<52} {first_s:>8.3f} {np.median(times):>9.3f} {frames / np.median(times):>9.0f}")
+    if python.exists() and not done.returncode:
+        for name, _, times in rows[:2]:
+            print(f"Pose2Sim / {name.split(':')[1].strip()}: {pose2sim / np.median(times):.0f}x (medians)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--campus", type=Path, default=CAMPUS)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--people", type=int, default=None, help="the number of people, when known")
     parser.add_argument("--speed", action="store_true", help="instants per second at 2-6 people, 3-16 cameras instead")
+    parser.add_argument("--synthetic", type=int, nargs="*", metavar="PEOPLE", help="the synthetic projects of these many people instead")
+    parser.add_argument("--frames", type=int, default=SYNTHETIC.frames_per_recording, help="frames of each synthetic project")
+    parser.add_argument("--pose2sim", action="store_true", help="beside Pose2Sim's person association on its multi-person demo instead")
+    parser.add_argument("--venv", type=Path, default=PEERS_VENV, help="the peers' environment (benchmarks/peers.py)")
+    parser.add_argument("--repeats", type=int, default=5, help="timed calls after the first (--pose2sim)")
     args = parser.parse_args()
     if args.speed:
         speed()
+        return
+    if args.pose2sim:
+        versus_pose2sim(POSE2SIM_DEMO, POSE2SIM_CALIBRATION, args.venv, args.repeats)
+        return
+    if args.synthetic is not None:
+        synthetic(args.seeds, args.synthetic or [2, 3, 4, 5], args.frames)
         return
     campus = load_campus(args.campus)
     print(f"Campus: {len(campus.truth)} frames, 3 cameras; detector {NOISE}; association threshold {THRESHOLD_PX} px")

@@ -36,6 +36,8 @@ class Association:
     """f32[n, M, J, 3] world (the calibration's unit), NaN for padding and joints seen by fewer than two views."""
     unmatched: int
     """Detections (with a joint seen) that belong to no person: false detections, people seen by one view."""
+    mirrored: np.ndarray
+    """bool[n, M, C]: the view's detection joined with its left and right exchanged (`associate`'s mirror)."""
 
     @property
     def present(self) -> np.ndarray:
@@ -54,7 +56,7 @@ def _take(found: people.Proposals, hypotheses: np.ndarray, detected: np.ndarray)
     chosen = []
     for i in range(n):
         candidates = np.flatnonzero(usable[i])
-        order = candidates[np.lexsort((found.cost[i, candidates], -views_matched[i, candidates]))]
+        order = candidates[np.argsort(found.cost[i, candidates], kind="stable")]
         taken = np.zeros(detected.shape[1:], bool)
         persons = []
         for h in order:
@@ -96,13 +98,84 @@ def _proposals_in_chunks(P: np.ndarray, keypoints: np.ndarray, confidence: np.nd
     return people.Proposals(*(np.concatenate(column) for column in zip(*parts)))
 
 
+def _triangulate(P: np.ndarray, keypoints: np.ndarray, confidence: np.ndarray, detection: np.ndarray, mirrored: np.ndarray, mirror: np.ndarray | None) -> np.ndarray:
+    """Each person triangulated from all of its views (a mirrored detection with its left and right
+    exchanged back): f32[n, M, J, 3], NaN for padding and joints seen by fewer than two views."""
+    n, M, C = detection.shape
+    J = keypoints.shape[3]
+    points = np.full((n, M, J, 3), np.nan, np.float32)
+    rows = np.argwhere((detection >= 0).sum(-1) >= 2)  # [R, 2] (instant, slot)
+    if not len(rows):
+        return points
+    index = detection[rows[:, 0], rows[:, 1]]  # [R, C]
+    instant = rows[:, 0, None]
+    seen = index >= 0
+    safe = np.maximum(index, 0)
+    xy = keypoints[instant, np.arange(C), safe]  # [R, C, J, 2]
+    weight = np.where(seen[..., None], confidence[instant, np.arange(C), safe], 0.0)
+    if mirror is not None:
+        flip = mirrored[rows[:, 0], rows[:, 1]]  # [R, C]
+        xy = np.where(flip[..., None, None], xy[:, :, mirror], xy)
+        weight = np.where(flip[..., None], weight[:, :, mirror], weight)
+    triangulated = triangulate_rows(P, xy, weight)
+    enough = (weight > 0).sum(1) >= 2  # [R, J]
+    points[rows[:, 0], rows[:, 1]] = np.where(enough[..., None], triangulated, np.nan)
+    return points
+
+
+MIN_JOINTS_COMPARED = 3  # joints a detection and a person's projection must share to be compared
+
+
+def _complete(P, keypoints, confidence, detection, points, mirror, threshold_px) -> tuple[np.ndarray, np.ndarray]:
+    """Give each person, in each view where it has no detection, the view's unused detection nearest to its
+    projection (from all of its views) within `threshold_px`, or that detection with its left and right
+    exchanged (`mirror`), nearest first -> (detection, mirrored bool[n, M, C])."""
+    n, M, C = detection.shape
+    mirrored = np.zeros(detection.shape, bool)
+    rows = np.argwhere((detection >= 0).sum(-1) >= 2)
+    lacking = detection[rows[:, 0], rows[:, 1]] < 0  # [R, C]
+    rows, lacking = rows[lacking.any(1)], lacking[lacking.any(1)]
+    if not len(rows):
+        return detection, mirrored
+    X = points[rows[:, 0], rows[:, 1]]  # [R, J, 3]
+    h = np.einsum("cik,rjk->rcji", P, np.concatenate([X, np.ones((*X.shape[:-1], 1), np.float32)], -1))
+    projected = np.where(h[..., 2:] > 0, h[..., :2] / np.where(h[..., 2:] > 0, h[..., 2:], 1.0), np.nan)  # [R, C, J, 2]
+    candidates = keypoints[rows[:, 0]]  # [R, C, K, J, 2]
+    seen = confidence[rows[:, 0]] > 0  # [R, C, K, J]
+    costs = []
+    for order in [slice(None)] + ([mirror] if mirror is not None else []):
+        distance = np.linalg.norm(projected[:, :, None] - candidates[..., order, :], axis=-1)  # [R, C, K, J]
+        distance = np.where(seen[..., order], distance, np.nan)
+        compared = np.isfinite(distance).sum(-1) >= MIN_JOINTS_COMPARED
+        costs.append(np.where(compared, people._median_over_last(distance), np.inf))
+    cost = np.min(costs, 0)  # [R, C, K]
+    flipped = np.argmin(costs, 0) == 1
+    used = np.zeros(confidence.shape[:3], bool)
+    instants, slots, views = np.nonzero(detection >= 0)
+    used[instants, views, detection[instants, slots, views]] = True
+    cost = np.where(lacking[..., None] & ~used[rows[:, 0]] & (cost <= threshold_px), cost, np.inf)
+    r, c, k = np.nonzero(np.isfinite(cost))
+    detection = detection.copy()
+    for i in np.argsort(cost[r, c, k], kind="stable"):  # nearest first, each detection and view once
+        instant, slot = rows[r[i]]
+        if used[instant, c[i], k[i]] or detection[instant, slot, c[i]] >= 0:
+            continue
+        used[instant, c[i], k[i]] = True
+        detection[instant, slot, c[i]] = k[i]
+        mirrored[instant, slot, c[i]] = flipped[r[i], c[i], k[i]]
+    return detection, mirrored
+
+
 def associate(
-    P: np.ndarray, keypoints: np.ndarray, confidence: np.ndarray, threshold_px: float = people.DEFAULT_THRESHOLD_PX
+    P: np.ndarray, keypoints: np.ndarray, confidence: np.ndarray, threshold_px: float = people.DEFAULT_THRESHOLD_PX,
+    mirror: np.ndarray | None = None,
 ) -> Association:
     """The people of n instants through one rig: P f32[C, 3, 4] projection matrices of undistorted pixels,
     keypoints f32[n, C, K, J, 2] undistorted pixels of up to K detections per view in any order (padding
     with confidence 0), confidence f32[n, C, K, J]; `threshold_px` the largest median joint distance (pixels)
-    of a detection to a person's projection for it to be that person (state it with the results)."""
+    of a detection to a person's projection for it to be that person (state it with the results); `mirror`
+    int[J], the joint each joint is with left and right exchanged (`jaxpose.skeleton`): where given, a
+    detection whose left and right the detector swapped joins its person, exchanged back."""
     n, C, K, J = confidence.shape
     P = np.asarray(P, np.float32)
     found = _proposals_in_chunks(P, keypoints, confidence, threshold_px)
@@ -113,19 +186,10 @@ def associate(
     for i, persons in enumerate(chosen):
         if persons:
             detection[i, : len(persons)] = persons
-    rows = np.argwhere((detection >= 0).sum(-1) >= 2)  # [R, 2] (instant, slot)
-    points = np.full((n, max(M, 1), J, 3), np.nan, np.float32)
-    if len(rows):
-        index = detection[rows[:, 0], rows[:, 1]]  # [R, C]
-        instant = rows[:, 0, None]
-        seen = index >= 0
-        safe = np.maximum(index, 0)
-        xy = keypoints[instant, np.arange(C), safe]  # [R, C, J, 2]
-        weight = np.where(seen[..., None], confidence[instant, np.arange(C), safe], 0.0)
-        triangulated = triangulate_rows(P, xy, weight)
-        enough = (weight > 0).sum(1) >= 2  # [R, J]
-        points[rows[:, 0], rows[:, 1]] = np.where(enough[..., None], triangulated, np.nan)
+    points = _triangulate(P, keypoints, confidence, detection, np.zeros(detection.shape, bool), None)
+    detection, mirrored = _complete(P, keypoints, confidence, detection, points, mirror, threshold_px)
+    points = _triangulate(P, keypoints, confidence, detection, mirrored, mirror)
     used = np.zeros((n, C, K), bool)
     instants, slots, views = np.nonzero(detection >= 0)
     used[instants, views, detection[instants, slots, views]] = True
-    return Association(detection, points, int((detected & ~used).sum()))
+    return Association(detection, points, int((detected & ~used).sum()), mirrored)
