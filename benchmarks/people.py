@@ -50,6 +50,7 @@ LIMBS = np.array([[0, 1], [1, 2], [3, 4], [4, 5], [6, 7], [7, 8], [9, 10], [10, 
 """The nine limbs between joints; the torso (mid-hip to neck) is the tenth, `limb_ends`."""
 PAIRING_MM = 500.0
 MAX_GAP = 10  # instants a track's joint is interpolated over (0.4 s)
+CAMERA_COUNTS = (3, 4, 8, 16)  # the speed table's rigs
 THRESHOLD_PX = 15.0
 SYNTHETIC_LIMBS = np.array([(j, p) for j, p in enumerate(COCO_17.parents) if p >= 0])
 SYNTHETIC_MIRROR = COCO_17.flip_permutation()  # association: the images are 360x288, the people 60-120 px tall
@@ -357,13 +358,20 @@ def ring_rig(cameras: int) -> np.ndarray:
     return np.array(P, np.float32)
 
 
-def speed(instants: int = 100) -> None:
-    """Instants per second of association and tracks at 2-6 people and 3-16 cameras (synthetic, 1 px noise)."""
+def speed(instants: int = 100, repeats: int = 3) -> None:
+    """Instants per second of association and tracks at 2-6 people and 3-16 cameras (synthetic, 1 px noise):
+    the median of `repeats` calls after one that compiles, and how the time grows with the cameras (the
+    exponent of a power law fitted over 3-16 cameras: 1 is linear)."""
+    import os
+
     rng = np.random.default_rng(0)
     body = rng.uniform((-250, -150, 0), (250, 150, 1700), (14, 3))
-    print(f"{'people':>6} {'cameras':>7} {'inst/s':>8}  ({instants} instants, 1 px noise, every person in every view)")
+    print(f"{instants} instants, 1 px noise, every person in every view; median of {repeats} calls; "
+          f"{os.cpu_count()} cores ({len(os.sched_getaffinity(0))} usable)")  # fmt: skip
+    print(f"{'people':>6} {'cameras':>7} {'inst/s':>8} {'ms/inst':>8} {'ms/inst/camera':>14}")
     for count in (2, 4, 6):
-        for cameras in (3, 4, 8, 16):
+        times = []
+        for cameras in CAMERA_COUNTS:
             P = ring_rig(cameras)
             start_positions = rng.uniform(-2000, 2000, (count, 2))
             steps = np.arange(instants)[:, None, None] * rng.normal(0, 20, (1, count, 2))
@@ -373,11 +381,18 @@ def speed(instants: int = 100) -> None:
             keypoints = (h[..., :2] / h[..., 2:] + rng.normal(0, 1, h[..., :2].shape)).astype(np.float32)
             keypoints = np.take_along_axis(keypoints, rng.permuted(np.tile(np.arange(count), (instants, cameras, 1)), axis=-1)[..., None, None], 2)
             confidence = np.full(keypoints.shape[:-1], 0.9, np.float32)
-            association.associate(P, keypoints[:1], confidence[:1], THRESHOLD_PX)  # compiled before timing
-            start = time.perf_counter()
-            found = association.associate(P, keypoints, confidence, THRESHOLD_PX)
-            tracks.follow(found.points, found.present, LIMBS, tracks.TrackSettings(fps=FPS))
-            print(f"{count:>6} {cameras:>7} {instants / (time.perf_counter() - start):>8.0f}")
+            association.associate(P, keypoints, confidence, THRESHOLD_PX, FLIP)  # compiles
+            calls = []
+            for _ in range(repeats):
+                start = time.perf_counter()
+                found = association.associate(P, keypoints, confidence, THRESHOLD_PX, FLIP)
+                tracks.follow(found.points, found.present, LIMBS, tracks.TrackSettings(fps=FPS))
+                calls.append(time.perf_counter() - start)
+            times.append(float(np.median(calls)))
+            per = 1000 * times[-1] / instants
+            print(f"{count:>6} {cameras:>7} {instants / times[-1]:>8.0f} {per:>8.2f} {per / cameras:>14.3f}")
+        exponent = np.polyfit(np.log(CAMERA_COUNTS), np.log(times), 1)[0]
+        print(f"{count:>6} people: time ~ cameras^{exponent:.2f} over {CAMERA_COUNTS[0]}-{CAMERA_COUNTS[-1]} cameras")
 
 
 POSE2SIM_DEMO = CAMPUS.parents[1] / "formats" / "openpose-json" / "pose2sim_demo_multiperson_body25b"

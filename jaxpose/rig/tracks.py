@@ -121,8 +121,7 @@ def _confirm(tracks: list[_Track], t: int, settings: TrackSettings) -> None:
     difference = {u: _limb_difference(tracks[u].limbs(), track.limbs()) for u in lost}
     # how far, in gates, where the tentative track began is from where each lost person would be
     away = {u: _distance(track.start, _predicted(tracks[u], track.first)) / _gate(settings, track.first - tracks[u].seen_at) for u in lost}
-    # beyond the widest gate, where someone was says nothing of who comes back: only their limbs do
-    near = [u for u in lost if away[u] <= 1.0 and _gate(settings, track.first - tracks[u].seen_at) < settings.max_gate_mm]
+    near = [u for u in lost if away[u] <= 1.0]
     alike = [u for u in lost if difference[u] <= settings.reidentify_mm]
     full = settings.people is not None and len(confirmed) >= settings.people
     if near or alike or (full and lost):
