@@ -1,7 +1,11 @@
-"""Several people on Campus: association across views (`jaxpose.rig.association`), tracks over time
-(`jaxpose.rig.tracks`), scored by the field's measure, beside the one-person path (`jaxpose.rig.people.choose`).
+"""Several people: association across views (`jaxpose.rig.association`), tracks over time
+(`jaxpose.rig.tracks`), scored on Campus by the field's measure beside the one-person path
+(`jaxpose.rig.people.choose`), on synthetic projects whose truth is known, and timed.
 
     python -m benchmarks.people [--campus ../shared/data/multiperson/campus] [--seeds 0 1 2]
+    python -m benchmarks.people --synthetic 2 3 4 5 [--seeds 0 1 2] [--frames 300]
+    python -m benchmarks.people --speed
+    python -m benchmarks.people --pose2sim [--venv ~/.cache/jaxpose-peers/venv] [--repeats 5]
 
 Campus (3 cameras, 360x288 px, 25 fps, 2,000 frames, 3D ground truth of up to 3 people) with its given
 calibration (pinhole: its ground truth projects onto its 2D annotations without the distortion it lists).
@@ -16,6 +20,14 @@ another frame placed anywhere in the image).  Scores, on the frames whose ground
 - identity switches: a ground-truth person paired (within 500 mm) with another track than at its last pairing;
 - false people: output people paired with no ground-truth person (one-to-one, within 500 mm); missed: the reverse;
 - instants per second of association and tracks.
+
+`--synthetic`: the example project (`SYNTHETIC`: jaxpose.synthetic's default detector, false detections,
+occlusion, two people passing 0.5 m apart, the last leaving and coming back) written and read back as files;
+association precision and recall over cross-view pairs of detections (`pair_precision_recall`), tracks,
+identity switches, false and missed people as above, and each person's MPJPE beside the same person
+reconstructed alone (`alone`).  `--speed`: instants per second at 2-6 people and 3-16 cameras.  `--pose2sim`:
+beside Pose2Sim's person association on its multi-person demo, run in the peers' environment
+(`benchmarks/peers.py` makes it).
 """
 
 from __future__ import annotations
@@ -51,9 +63,9 @@ LIMBS = np.array([[0, 1], [1, 2], [3, 4], [4, 5], [6, 7], [7, 8], [9, 10], [10, 
 PAIRING_MM = 500.0
 MAX_GAP = 10  # instants a track's joint is interpolated over (0.4 s)
 CAMERA_COUNTS = (3, 4, 8, 16)  # the speed table's rigs
-THRESHOLD_PX = 15.0
+THRESHOLD_PX = 15.0  # association: the images are 360x288, the people 60-120 px tall
 SYNTHETIC_LIMBS = np.array([(j, p) for j, p in enumerate(COCO_17.parents) if p >= 0])
-SYNTHETIC_MIRROR = COCO_17.flip_permutation()  # association: the images are 360x288, the people 60-120 px tall
+SYNTHETIC_MIRROR = COCO_17.flip_permutation()
 
 
 @dataclasses.dataclass(frozen=True)
