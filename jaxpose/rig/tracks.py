@@ -26,10 +26,11 @@ limb lengths are closest, whatever the difference, or ends when nobody is lost.
 from __future__ import annotations
 
 import dataclasses
-import warnings
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+
+from jaxpose.rig import people
 
 
 PREDICTION_STEPS = 10  # instants a velocity is carried forward: further, a person has turned or stopped
@@ -108,9 +109,7 @@ def _predicted(track: _Track, instant: int) -> np.ndarray:
 
 def _distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """f[..., J, 3] twice -> the median over the joints both have of their distances (inf: none shared)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return np.nan_to_num(np.nanmedian(np.linalg.norm(a - b, axis=-1), axis=-1), nan=np.inf)
+    return np.nan_to_num(people._median_over_last(np.linalg.norm(a - b, axis=-1)), nan=np.inf)
 
 
 def _confirm(tracks: list[_Track], t: int, settings: TrackSettings) -> None:
