@@ -18,7 +18,12 @@ Methods, all on the same detections: `jaxpose.reconstruct`'s default (the trajec
 driver in their own environment (`--venv`; skipped, with a line saying why, where absent).  Scores are
 `benchmarks.peers_scores.Scores`' over the pelvis and COCO-17's 17 keypoints: world MPJPE (mm, no
 alignment), P-MPJPE (mm), acceleration error (mm/frame^2 at the rate's frames), per kind of motion
-(`KINDS`) and rate, as the mean over seeds and their spread (max - min).
+(`KINDS`) and rate, as the mean over seeds and their spread (max - min), and the world error split into
+its offset (per take and joint, the mean error vector over the instants) and what varies about it.
+Beside them, what the default's motion prior estimated (`jaxpose.reconstruct`'s report fields
+`motion_prior_mm_s2` and `impacts`, per take and seed in report.json's `priors`): the process noise over
+the joints, takes and seeds (median and range, mm/s^2 per axis) and the impacts, the share of
+accelerations the Student-t prior weighted below 0.5.
 """
 
 from __future__ import annotations
@@ -41,7 +46,9 @@ from jaxpose.formats.bvh import read_bvh
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.outputs import OutputError, check_report, write_report
 from jaxpose.layouts import lifting_skeleton, to_lifting_skeleton
-from jaxpose.reconstruction.recording import RecordingInput
+from jaxpose.reconstruct import recording_summary
+from jaxpose.reconstruction.recording import RecordingInput, lift_and_reconstruct
+from jaxpose.reconstruction.trajectory import TrajectoryConfig
 from jaxpose.serving import inference
 from jaxpose.skeleton import COCO_17
 from jaxpose.synthetic.capture import ExampleProjectConfig, detect, field_radius2, rig_calibration
@@ -142,6 +149,15 @@ def score(points: np.ndarray, inputs: RecordingInput, scores: Scores) -> None:
     scores.add(points, inputs.target3d, views, inputs.seen, lifting_skeleton("coco17").bones)
 
 
+def estimated_prior(lifter: inference.Lifter3D, inputs: RecordingInput, rate: int) -> dict:
+    """What the default's motion prior estimated on `inputs` (`benchmarks.peers`' trajectory solved again, kept
+    whole): its joints' process noise (mm/s^2), its impacts and of how many accelerations."""
+    motion = lift_and_reconstruct(lifter, inputs, trajectory=TrajectoryConfig(), fps=float(rate))[0]
+    summary = recording_summary(motion, lifter.joint_names)
+    return {"motion_prior_mm_s2": summary["motion_prior_mm_s2"], "impacts": summary["impacts"],
+            "accelerations": int(np.isfinite(motion.impact_weight).sum())}  # fmt: skip
+
+
 def run(args: MotionArgs) -> dict:
     if not 3 <= args.cameras <= 8:
         raise SystemExit(f"--cameras {args.cameras}: expected 3 to 8")
@@ -170,6 +186,7 @@ def run(args: MotionArgs) -> dict:
     agreeing = np.ones(skeleton.num_joints, bool)
     started = time.perf_counter()
     cells: dict[str, dict[str, dict[str, list[dict]]]] = {}  # kind -> rate -> method -> [summary per seed]
+    priors: dict[str, dict[str, list[dict]]] = {}  # kind -> rate -> [take -> estimated prior, per seed]
     for rate in args.rates:
         for seed in args.seeds:
             found = recordings(args, rate, seed)
@@ -177,6 +194,9 @@ def run(args: MotionArgs) -> dict:
                                      for method, function in JAXPOSE_METHODS.items()}
                               for name, inputs in group.items()}
                        for kind, group in found.items()}  # fmt: skip
+            for kind, group in found.items():
+                estimated = {name: estimated_prior(lifter, inputs, rate) for name, inputs in group.items()}
+                priors.setdefault(kind, {}).setdefault(str(rate), []).append(estimated)
             flat = {name: inputs for group in found.values() for name, inputs in group.items()}
             for family, methods in (families.items() if python else ()):
                 work = args.output / "work" / f"{rate}fps_seed{seed}" / family
@@ -203,6 +223,7 @@ def run(args: MotionArgs) -> dict:
                   f" {time.perf_counter() - started:.0f} s."),
         "takes": takes(args),
         "results": cells,
+        "priors": priors,
     }  # fmt: skip
     write_report(args.output, report, markdown(report))
     return report
@@ -230,6 +251,30 @@ def markdown(report: dict) -> str:
                 columns = ("mpjpe_mm", "p_mpjpe_mm", "accel_error_mm_per_frame2", "covered_pct")
                 cells = [_cell([summary[column] for summary in seeds]) for column in columns]
                 lines.append(f"| {kind} | {', '.join(report['takes'][kind])} | {rate} | {method} | {' | '.join(cells)} |")
+    lines += [
+        "", "The world error split: per take and joint, its mean over the instants (the offset, its norm averaged over the"
+        " cells) and what varies about it (mm; mean over seeds ± spread).", "",
+        "| fps | motion | method | world MPJPE (mm) | offset (mm) | about the offset (mm) |", "|---|---|---|---|---|---|",
+    ]  # fmt: skip
+    for kind, rates in report["results"].items():
+        for rate, methods in rates.items():
+            for method, seeds in methods.items():
+                if method != "ground truth":
+                    columns = ("mpjpe_mm", "offset_mm", "about_offset_mm")
+                    cells = [_cell([summary[column] for summary in seeds]) for column in columns]
+                    lines.append(f"| {rate} | {kind} | {method} | {' | '.join(cells)} |")
+    lines += [
+        "", "The default's motion prior as estimated: each joint's process noise over the joints, takes and seeds (mm/s²"
+        " per axis, median (range)) and its impacts (accelerations the Student-t prior weighted below 0.5).", "",
+        "| fps | motion | process noise, median (range) (mm/s²) | impacts (% of accelerations) |", "|---|---|---|---|",
+    ]  # fmt: skip
+    for kind, rates in report["priors"].items():
+        for rate, seeds in rates.items():
+            solved = [take for seed in seeds for take in seed.values()]
+            noise = [value for take in solved for value in take["motion_prior_mm_s2"].values() if value is not None]
+            impacts = sum(take["impacts"] for take in solved), sum(take["accelerations"] for take in solved)
+            spread = f"{np.median(noise):.0f} ({min(noise):.0f}-{max(noise):.0f})" if noise else "-"
+            lines.append(f"| {rate} | {kind} | {spread} | {100 * impacts[0] / max(impacts[1], 1):.2f} |")
     return "\n".join(lines) + "\n"
 
 

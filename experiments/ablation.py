@@ -33,6 +33,7 @@ import numpy as np
 
 from experiments import cli, h36m, humaneva, synthetic
 from jaxpose.training.experiment import ExperimentConfig
+from jaxpose.training.run_directory import check_study_folder, write_study_file
 from jaxpose.training.runner import run
 from jaxpose.training import evaluation
 from jaxpose.losses import TERMS
@@ -142,6 +143,7 @@ def main(argv: list[str] | None = None) -> str:
     description = f"{__doc__}\n--dataset {dataset} --rows {rows}: flags below are those of {experiment.prog}."
     prog = f"{PROG} --dataset {dataset} --rows {rows}"
     base = cli.parse(experiment, argv, description, prog, presets)
+    check_study_folder(base.run.run_dir)  # the rows train in its sub-folders; the comparison is written into it
     load_splits = experiment.loader()
     results = [(label, run(config, load_splits)) for label, config in row_configs(base, rows)]
     joint_names = tuple(results[0][1]["joint_names"])
@@ -152,9 +154,8 @@ def main(argv: list[str] | None = None) -> str:
             evaluation.per_joint_table(per_joint_rows(results), "mpjpe", joint_names, "MPJPE (mm) per joint"),
         ]
     )
-    base.run.run_dir.mkdir(parents=True, exist_ok=True)
-    (base.run.run_dir / "comparison.md").write_text(text + "\n")
-    (base.run.run_dir / "comparison.json").write_text(json.dumps({label: r["results"] for label, r in results}, indent=2))
+    write_study_file(base.run.run_dir, "comparison.md", text + "\n")
+    write_study_file(base.run.run_dir, "comparison.json", json.dumps({label: r["results"] for label, r in results}, indent=2))
     print(text)
     return text
 

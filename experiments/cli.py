@@ -40,6 +40,7 @@ import jax
 import tyro
 
 from experiments import paper_tables
+from jaxpose.training.run_directory import RunDirectory
 from jaxpose.training.experiment import ExperimentConfig, recipe_summary
 from jaxpose.training.runner import run
 from jaxpose.training.splits import Splits
@@ -154,6 +155,6 @@ def main(experiment: Experiment, argv: Sequence[str] | None, description: str) -
     config = parse(experiment, argv, description)
     report = run(config, experiment.loader(config))
     if experiment.paper_table is not None and jax.process_index() == 0:
-        path = paper_tables.write(experiment.paper_table, report["results"], config.run.run_dir)
+        path = paper_tables.write(experiment.paper_table, report["results"], RunDirectory(config.run.run_dir))
         print(path.read_text())
     return report

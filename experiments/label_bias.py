@@ -36,6 +36,7 @@ import numpy as np
 
 from experiments import ablation, cli, h36m
 from jaxpose.training.experiment import ExperimentConfig
+from jaxpose.training.run_directory import check_study_folder, write_study_file
 from jaxpose.training.runner import run
 from jaxpose.training.splits import Splits
 from jaxpose.training import evaluation, pseudo_labelling
@@ -198,6 +199,7 @@ def main(argv: list[str] | None = None) -> str:
     base = cli.parse(h36m.EXPERIMENT, sys.argv[1:] if argv is None else argv, __doc__, PROG, presets)
     if base.loss.supervision != "self":
         raise SystemExit("error: the label-bias study trains self-supervised rows (and adds the supervised twin itself): leave --supervision self")
+    check_study_folder(base.run.run_dir)  # its rows train in sub-folders; the study's report is written into it
     load_splits = h36m.EXPERIMENT.loader()
     splits = load_splits(base.data)
     if splits.train.samples.target3d is None:
@@ -224,8 +226,7 @@ def main(argv: list[str] | None = None) -> str:
             evaluation.per_joint_table(ablation.per_joint_rows(results), "p_mpjpe", joint_names, "P-MPJPE (mm) per joint"),
         ]
     )
-    base.run.run_dir.mkdir(parents=True, exist_ok=True)
-    (base.run.run_dir / "label_bias.md").write_text(text + "\n")
+    write_study_file(base.run.run_dir, "label_bias.md", text + "\n")
     print(text)
     return text
 

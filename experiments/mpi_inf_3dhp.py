@@ -28,6 +28,7 @@ import tyro
 from jaxpose.training import evaluation
 
 from jaxpose.serving import inference
+from jaxpose.training.run_directory import RunDirectory, write_study_file
 from jaxpose.training.checkpoint import CheckpointError
 from jaxpose.data.dataset import consecutive_spans
 from jaxpose.formats.errors import DataFormatError
@@ -50,7 +51,8 @@ class Mpi3dhpEvaluation:
     sequences: tuple[str, ...] = SEQUENCES
     """Test sequences to evaluate."""
     out_dir: pathlib.Path | None = None
-    """Where report.md and report.json go; None = <run-dir>/mpi_inf_3dhp."""
+    """Where report.md and report.json go (a folder of its own: never the run's); None = <run-dir>_mpi_inf_3dhp
+    beside the run."""
     batch_size: int = 4096
     """Poses per inference call."""
     progress: bool = True
@@ -83,11 +85,15 @@ def evaluate(settings: Mpi3dhpEvaluation) -> dict:
         "by_sequence": evaluation.summarize(per_pose, test.sequence),
         "paper": PAPER_RESULT,
     }
-    out_dir = settings.out_dir or settings.run_dir / "mpi_inf_3dhp"
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "report.json").write_text(json.dumps(report, indent=2))
-    (out_dir / "report.md").write_text(render(report) + "\n")
+    write_study_file(output_folder(settings), "report.json", json.dumps(report, indent=2))
+    write_study_file(output_folder(settings), "report.md", render(report) + "\n")
     return report
+
+
+def output_folder(settings: Mpi3dhpEvaluation) -> pathlib.Path:
+    """--out-dir, else a folder beside the run: a run folder holds only what its training wrote."""
+    run = RunDirectory.of(settings.run_dir).path
+    return settings.out_dir or run.with_name(f"{run.name}_mpi_inf_3dhp")
 
 
 def render(report: dict) -> str:
@@ -143,7 +149,7 @@ def _load_h36m17_lifter(run_dir: pathlib.Path, batch_size: int) -> inference.Lif
 def main(argv: list[str] | None = None) -> dict:
     settings = tyro.cli(Mpi3dhpEvaluation, args=argv, description=__doc__, prog="python -m experiments.mpi_inf_3dhp")
     report = evaluate(settings)
-    print((settings.out_dir or settings.run_dir / "mpi_inf_3dhp").joinpath("report.md").read_text())
+    print(output_folder(settings).joinpath("report.md").read_text())
     return report
 
 

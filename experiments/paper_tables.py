@@ -16,7 +16,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
-TABLE_FILE = "table_paper_layout.md"
+from jaxpose.formats.outputs import atomic_output
+from jaxpose.training.run_directory import RunDirectory
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,8 +116,8 @@ def render(table: PaperTable, results: Mapping[str, Mapping], metric: str, title
     return "\n".join(lines)
 
 
-def write(table: PaperTable, results: Mapping[str, Mapping], run_dir: pathlib.Path) -> pathlib.Path:
-    """Write `<run_dir>/table_paper_layout.md`: the paper's metric with its reference rows, then
+def write(table: PaperTable, results: Mapping[str, Mapping], run: RunDirectory) -> pathlib.Path:
+    """Write the run's `RunDirectory.paper_table` (table_paper_layout.md): the paper's metric with its reference rows, then
     MPJPE (no alignment) in the same layout.  Returns the path."""
     parts = [
         render(table, results, table.metric, f"{table.name} layout: {table.caption}", with_references=True),
@@ -128,6 +129,6 @@ def write(table: PaperTable, results: Mapping[str, Mapping], run_dir: pathlib.Pa
             with_references=False,
         ),
     ]
-    path = run_dir / TABLE_FILE
-    path.write_text("\n\n".join(parts) + "\n")
-    return path
+    with atomic_output(run.paper_table) as temporary:
+        temporary.write_text("\n\n".join(parts) + "\n")
+    return run.paper_table

@@ -27,6 +27,7 @@ import numpy as np
 import tyro
 
 from jaxpose.training.experiment import RunConfig, TrainConfig
+from jaxpose.training.run_directory import check_study_folder, write_study_file
 from jaxpose.training.runner import run
 from jaxpose.training.splits import Splits
 from experiments.synthetic import DEFAULT, SyntheticData, load_splits
@@ -137,6 +138,7 @@ def markdown(rows: list[dict], trained: bool) -> str:
 
 def main(argv: list[str] | None = None) -> str:
     study = tyro.cli(Study, args=argv, description=__doc__)
+    check_study_folder(study.run_dir)  # its runs train in sub-folders; its table is written into it
     if study.train:
         compared = {f"{scenario}:{method}" for scenario in study.scenarios for method in study.methods}
         unknown = [run for run in study.train_runs if run not in compared]
@@ -160,10 +162,8 @@ def main(argv: list[str] | None = None) -> str:
         f"Pseudo-labels of the synthetic training split ({study.samples_per_subject} samples x 5 subjects,"
         f" 4 views, threshold {study.pseudo_labels.threshold_px:g} px).{budget}\n\n" + markdown(rows, study.train)
     )
-    study.run_dir.mkdir(parents=True, exist_ok=True)
-    (study.run_dir / "table.md").write_text(table + "\n")
     print(table)
-    print(f"written to {study.run_dir / 'table.md'}")
+    print(f"written to {write_study_file(study.run_dir, 'table.md', table + chr(10))}")
     return table
 
 

@@ -50,16 +50,17 @@ def load_splits(data: RigProjectConfig, progress: bool = True) -> Splits:
     data = data.resolved()  # one project, one cache entry and one record, however the command line named it
     project = load_rig_project(data, progress=progress)
     artifacts = ()
+    # The recovered rigs are the run's assets, where its folder will keep them (the record lists them).
+    rigs = RunDirectory.recovered_rig_files([session.name for session in project.sessions])  # none for a calibrated project
     if project.sessions:
 
         def write_calibration(run: RunDirectory) -> None:
             from jaxpose.calibration.rig_file import world_and_scale, write_recovered_rig  # the calibrate extra, which recovered it
 
-            several = len(project.sessions) > 1  # one file per session; one session keeps the one name
             for session in project.sessions:
                 calibration = session.calibration
-                json_path = run.recovered_session_cameras(session.name) if several else run.recovered_cameras
-                toml_path = run.recovered_session_toml(session.name) if several else run.recovered_toml
+                json_path = run.path / rigs[session.name]
+                toml_path = json_path.with_suffix(".toml")
                 json_path.parent.mkdir(exist_ok=True)
                 sizes = {"rig": [tuple(int(v) for v in size) for size in calibration.image_size]}
                 world, scale = world_and_scale(calibration)
@@ -70,7 +71,7 @@ def load_splits(data: RigProjectConfig, progress: bool = True) -> Splits:
 
         artifacts = (write_calibration,)
     sessions = {session.name: list(session.recordings) for session in project.sessions} if len(project.sessions) > 1 else None
-    record = RunRecord(min_confidence=data.min_confidence, layout=project.layout, project=recorded_settings(data, project.layout), sessions=sessions)
+    record = RunRecord(project=recorded_settings(data, project.layout), sessions=sessions, recovered_rigs=rigs)
     return Splits(
         train=project.train,
         test=project.validation,

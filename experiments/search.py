@@ -42,7 +42,7 @@ from scipy.stats import kendalltau, spearmanr
 
 from experiments import ablation, cli, rig
 from jaxpose.training.experiment import ExperimentConfig
-from jaxpose.training.run_directory import RunDirectory, check_resumable, read_jsonl
+from jaxpose.training.run_directory import RunDirectory, check_resumable, check_study_folder, read_jsonl, write_study_file
 from jaxpose.training.runner import run
 
 EXPERIMENTS = ablation.EXPERIMENTS | {"rig": rig.EXPERIMENT}
@@ -99,11 +99,11 @@ def _presets(experiment: cli.Experiment) -> dict[str, ExperimentConfig]:
     }
 
 
-def trained_report(experiment: cli.Experiment, config: ExperimentConfig) -> dict:
-    """The run's report: read where its directory holds a finished one of these settings, else trained
-    (or resumed) and evaluated by `jaxpose.training.runner.run`."""
+def trained_report(experiment: cli.Experiment, config: ExperimentConfig, run_folder: RunDirectory) -> dict:
+    """The run's report: read where its folder (`config.run.run_dir`'s) holds a finished one of these settings, else
+    trained (or resumed) and evaluated by `jaxpose.training.runner.run`."""
     check_resumable(config)  # a directory holding another recipe's run is refused, naming it
-    path = RunDirectory(config.run.run_dir).report_json
+    path = run_folder.report_json
     if path.exists():
         report = json.loads(path.read_text())
         if report.get("test_time_flip", False) == config.train.eval_flip:
@@ -111,7 +111,7 @@ def trained_report(experiment: cli.Experiment, config: ExperimentConfig) -> dict
     return run(config, experiment.loader(config))  # the run's progress bars and temporal window, for a rig project
 
 
-def summary(report: dict, run_dir: pathlib.Path) -> dict:
+def summary(report: dict, run_folder: RunDirectory) -> dict:
     """What the ranking reads of one run: the selection metric, P-MPJPE (group average; None without
     ground truth), samples trained, training samples/s (median of the log) and wall time."""
     results = report["results"]
@@ -119,7 +119,7 @@ def summary(report: dict, run_dir: pathlib.Path) -> dict:
     if results:
         own = results[report["method"]]
         truth = own.get("group_average", own["overall"])["p_mpjpe"]
-    rates = [record["samples_per_s"] for record in read_jsonl(RunDirectory(run_dir).metrics) if "samples_per_s" in record]
+    rates = [record["samples_per_s"] for record in read_jsonl(run_folder.metrics) if "samples_per_s" in record]
     batch = report["config"]["train"]["batch_size"]
     return {
         SELECTION_METRIC: report["ground_truth_free"][SELECTION_METRIC]["overall"],
@@ -213,17 +213,18 @@ def main(argv: Sequence[str] | None = None) -> str:
         f" those of {experiment.prog}, the base recipe."
     )
     base = cli.parse(experiment, argv, description, f"{PROG} --dataset {dataset}", _presets(experiment))
+    check_study_folder(base.run.run_dir)  # the variants train in its sub-folders; the ranking is written into it
     seeds = searched.seeds or [base.train.seed]
     variants = grid(searched.vary)
     rows: dict[str, list[dict]] = {}
     for variant in variants:
         for seed in seeds:
             config = variant_config(experiment, argv, base, variant, seed)
-            rows.setdefault(variant.name, []).append(summary(trained_report(experiment, config), config.run.run_dir))
+            run_folder = RunDirectory(config.run.run_dir)
+            rows.setdefault(variant.name, []).append(summary(trained_report(experiment, config, run_folder), run_folder))
             text = report_table(rows, seeds, base.train.max_samples)
-            base.run.run_dir.mkdir(parents=True, exist_ok=True)
-            (base.run.run_dir / "search.md").write_text(text)
-            (base.run.run_dir / "search.json").write_text(json.dumps({"runs": rows, "ranking": ranking(rows)}, indent=2))
+            write_study_file(base.run.run_dir, "search.md", text)
+            write_study_file(base.run.run_dir, "search.json", json.dumps({"runs": rows, "ranking": ranking(rows)}, indent=2))
     print(text)
     return text
 

@@ -29,7 +29,7 @@ from scipy.stats import spearmanr
 
 from experiments import rig as rig_job
 from jaxpose.training.experiment import ExperimentConfig
-from jaxpose.training.run_directory import RunDirectory
+from jaxpose.training.run_directory import RunDirectory, check_study_folder, write_study_file
 from jaxpose.training.runner import run
 from jaxpose.training import self_consistency
 from jaxpose.training.config import LossConfig, PseudoLabelConfig
@@ -89,7 +89,7 @@ def study(args: StudyArgs) -> str:
         lines = RunDirectory(config.run.run_dir).metrics.read_text().splitlines()
         series[recipe] = [record for record in map(json.loads, lines) if "eval_p_mpjpe" in record]
     text = report_table(finals, series)
-    (args.run_root / "validation_study.md").write_text(text)
+    write_study_file(args.run_root, "validation_study.md", text)
     print(text)
     return text
 
@@ -127,6 +127,7 @@ def report_table(finals: dict[str, dict], series: dict[str, list[dict]]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> str:
     args = tyro.cli(StudyArgs, args=argv, prog="python -m experiments.selection_study", description=__doc__.split("\n\n")[0])
+    check_study_folder(args.run_root)  # its runs train in sub-folders; its table is written into it
     return study(args)
 
 

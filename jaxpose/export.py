@@ -48,7 +48,7 @@ import tyro
 
 from jaxpose.training import checkpoint
 from jaxpose.formats.outputs import OutputError, atomic_output, check_output
-from jaxpose.serving.inference import Lifter3D, load, score_threshold
+from jaxpose.serving.inference import DEFAULT_MIN_CONFIDENCE, Lifter3D, load, parse_with_run
 from jaxpose.skeleton import ROOT
 
 INPUT_NAMES = ("keypoints", "K", "confidence")
@@ -155,9 +155,10 @@ class ExportArgs:
     flip: bool = False
     """Test-time flip augmentation inside both exported forms (`jaxpose.flip`): each pose and its mirror
     image are lifted and averaged, at twice the cost; the metadata's test_time_flip says which."""
-    min_confidence: float | None = None
+    min_confidence: float = DEFAULT_MIN_CONFIDENCE
     """Joints scored below this are lifted as missing, inside the exported graph.  Default: the threshold the
-    run was trained with (its run.json; a rig project's --data.min-confidence), else 0.05, as `jaxpose.predict`."""
+    run was trained with (its run.json; with RUN_DIR given, the default below is it), else 0.05, as
+    `jaxpose.predict`; a value given always wins."""
     overwrite: bool = False
     """Replace existing output files; without it the command stops before any work.  A file of the run
     directory is never replaced."""
@@ -175,23 +176,22 @@ def check_outputs(args: ExportArgs) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = tyro.cli(ExportArgs, args=argv, description=__doc__, prog="python -m jaxpose.export")
+    args, run, _ = parse_with_run(ExportArgs, argv, __doc__, "python -m jaxpose.export", run_field="run_dir")
     try:
         check_outputs(args)
-        lifter = load(args.run_dir)
-        if args.min_confidence is not None and not 0.0 <= args.min_confidence <= 1.0:
+        lifter = load(run)
+        if not 0.0 <= args.min_confidence <= 1.0:
             raise ValueError(f"--min-confidence must lie in [0, 1], got {args.min_confidence}")
     except (FileNotFoundError, checkpoint.CheckpointError, OutputError, ValueError) as error:
         raise SystemExit(f"error: {error}") from None
-    threshold = score_threshold(lifter, args.min_confidence)
     output = args.output.with_suffix(".onnx")
     with atomic_output(output.with_suffix(".json")) as temporary:
-        temporary.write_text(json.dumps(metadata(lifter, args.flip, threshold), indent=2) + "\n")
-    print(f"wrote {export_jax(lifter, output.with_suffix(JAX_SUFFIX), args.flip, threshold)} and {output.with_suffix('.json')}")
+        temporary.write_text(json.dumps(metadata(lifter, args.flip, args.min_confidence), indent=2) + "\n")
+    print(f"wrote {export_jax(lifter, output.with_suffix(JAX_SUFFIX), args.flip, args.min_confidence)} and {output.with_suffix('.json')}")
     if not args.onnx:
         return
     try:
-        print(f"wrote {export_onnx(lifter, output, args.flip, threshold)}")
+        print(f"wrote {export_onnx(lifter, output, args.flip, args.min_confidence)}")
     except ImportError as error:
         raise SystemExit(f"error: the ONNX export needs jax2onnx and onnx ({error}); pip install 'jaxpose[export]'") from None
     except Exception as error:  # noqa: BLE001 - a conversion failure: report it, the JAX form is written

@@ -65,6 +65,7 @@ from jaxpose import viz
 
 from jaxpose.serving import inference, lifting_figures, tracking
 from jaxpose.training.checkpoint import CheckpointError
+from jaxpose.training.run_directory import RunDirectory
 from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.formats import detection_file, gaps, intrinsics, pose_files
 from jaxpose.formats.outputs import OutputError, check_output, check_output_folder
@@ -145,8 +146,9 @@ class PredictArgs:
     time (docs/lifting.md, "Test-time flip")."""
 
 
-def run(args: PredictArgs) -> np.ndarray:
-    """The whole command: read, convert, lift, write, plot, animate.  Returns the poses f32[N, J, 3]."""
+def run(args: PredictArgs, run_dir: RunDirectory) -> np.ndarray:
+    """The whole command: read, convert, lift, write, plot, animate, with the lifter of `run_dir` (--checkpoint's
+    run, as the command line read it).  Returns the poses f32[N, J, 3]."""
     check_args(args)
     earlier = check_outputs(args)
     detections = detection_file.read_detections(args.input)
@@ -154,7 +156,7 @@ def run(args: PredictArgs) -> np.ndarray:
         print(detections.frames_note, file=sys.stderr)
     if detections.clipped_scores:
         print(f"{detections.clipped_scores} scores above 1 clipped to 1 (docs/files.md)", file=sys.stderr)
-    lifter = inference.load(args.checkpoint, batch_size=args.batch_size)
+    lifter = inference.load(run_dir, batch_size=args.batch_size)
     camera = input_camera(args, detections)
     layout = args.format or input_layout(lifter.skeleton, detections)
     scores = detections.scores if detections.scores is not None else np.ones(detections.keypoints.shape[:2], np.float32)
@@ -396,11 +398,11 @@ def drop_implausible(
 
 def main(argv: Sequence[str] | None = None) -> np.ndarray:
     """Entry point; input, checkpoint and shape errors end the process with a one-line message."""
-    args = inference.parse_with_run(PredictArgs, argv, __doc__, "python -m jaxpose.predict")
+    args, run_dir, _ = inference.parse_with_run(PredictArgs, argv, __doc__, "python -m jaxpose.predict")
     show_logs()
     enable_compilation_cache()  # the lifter's programs from disk on the next run
     try:
-        return run(args)
+        return run(args, run_dir)
     except (ValueError, FileNotFoundError, CheckpointError) as error:
         raise SystemExit(f"jaxpose.predict: error: {error}") from None
 

@@ -69,8 +69,9 @@ from jaxpose.formats.gaps import DEFAULT_MAX_GAP
 from jaxpose.reconstruction.motion_quality import motion_summary
 from jaxpose.reconstruction.trajectory import MIN_LENGTH_INSTANTS, TrajectoryConfig, limb_lengths
 from jaxpose.rig.config import RigProjectConfig, differences
-from jaxpose.training.run_directory import RunDirectory, record_named_in
+from jaxpose.training.run_directory import RunDirectory, parse_over_run
 from jaxpose.rig.recordings import find_project
+from jaxpose.rig.tracked import MIN_TRACK_SCORE
 
 # The fastest rig worth reconstructing (high-speed sport cameras; a detector per frame beyond it is not how
 # such footage is read): a larger --fps is a typo or frames numbered in another unit, and its prior would
@@ -78,6 +79,8 @@ from jaxpose.rig.recordings import find_project
 MAX_FPS = 10000.0
 LOCK_FILE = "reconstruct.lock"
 """Held in --output while a reconstruct writes there (`exclusive_folder`), removed at its end."""
+MD_LIMBS = ("elbow", "wrist", "knee", "ankle")
+"""report.md's person table shows the limbs ending at these joints (upper arms, forearms, thighs, shanks)."""
 INTERRUPTED_EXIT = 128 + signal.SIGINT  # the shell's code for a command ended by Ctrl-C: 130
 
 @dataclasses.dataclass(frozen=True)
@@ -144,8 +147,9 @@ def run(args: ReconstructArgs) -> dict:
 def _reconstruct(args: ReconstructArgs, found, ctrl_c: _CtrlC) -> dict:
     """`run` once the output folder is this process's."""
     earlier = check_outputs(args, found.names)
-    lifter = inference.load(args.checkpoint)
-    project = recording.load_every_instant(args.data, args.checkpoint, args.progress, found)
+    run = RunDirectory.of(args.checkpoint)
+    lifter = inference.load(run)
+    project = recording.load_every_instant(args.data, run, args.progress, found)
     dataset = project.instants
     if tuple(dataset.skeleton.joint_names) != tuple(lifter.joint_names):
         raise ValueError(
@@ -158,6 +162,10 @@ def _reconstruct(args: ReconstructArgs, found, ctrl_c: _CtrlC) -> dict:
         print(f"up axis {up_axis}, from the cameras (--up-axis to name it)", file=sys.stderr)
     rows, files = [], []
     names = [loaded.name for loaded in project.recordings]
+    instants_of = {loaded.name: loaded.instants for loaded in project.recordings}
+    for loaded in project.recordings:
+        dropped = f"; {loaded.implausible_tracks} tracks the detector scored low left out" if loaded.implausible_tracks else ""
+        print(f"recording {loaded.name}: {_people(len(loaded.people))} found{dropped}", file=sys.stderr)
     try:
         bar = tqdm(recording.recording_inputs(dataset), total=len(project.recordings), desc="recordings", unit="recording",
                    disable=not args.progress)  # fmt: skip
@@ -167,7 +175,7 @@ def _reconstruct(args: ReconstructArgs, found, ctrl_c: _CtrlC) -> dict:
             if not inputs.seen.any():  # nothing to fuse or lift: said, listed, and the other recordings go on
                 print(f"recording {inputs.name}: no camera detects the person at any instant (scores below --data.min-confidence"
                       f" {args.data.min_confidence:g}, or no detection): no file written", file=sys.stderr)  # fmt: skip
-                rows.append({"recording": inputs.name, "frames": len(inputs.frames), "skipped": "no detection", "files": []})
+                rows.append({"recording": inputs.name, "person": inputs.person, "frames": len(inputs.frames), "skipped": "no detection", "files": []})
                 continue
             trajectory = args.trajectory if args.smoothing else None
             motion, _ = recording.lift_and_reconstruct(
@@ -181,10 +189,11 @@ def _reconstruct(args: ReconstructArgs, found, ctrl_c: _CtrlC) -> dict:
             with ctrl_c.deferred():  # a recording's files are all written and listed, or none of them
                 written = motion_files.write_motion(args.output, motion, lifter.joint_names, args.fps, up_axis, args.c3d)
                 files += [str(path) for path in written]
-                rows.append(recording_summary(motion, lifter.joint_names) | quality | held | {"files": [path.name for path in written]})
+                person = person_summary(motion, inputs, instants_of.get(inputs.recording, len(inputs.frames)), lifter.skeleton.bones, lifter.joint_names)
+                rows.append(recording_summary(motion, lifter.joint_names) | person | quality | held | {"files": [path.name for path in written]})
         interrupted = None
     except KeyboardInterrupt:
-        done = {row["recording"] for row in rows}
+        done = {row.get("of_recording", row["recording"]) for row in rows}
         interrupted = {"after": len(rows), "of": len(names), "not_reconstructed": [name for name in names if name not in done]}
     left = sorted(str(path) for path in set(earlier) - {pathlib.Path(file) for file in files})
     if left and interrupted is None:  # as jaxpose.predict does: an earlier run's segments that this run has not
@@ -203,6 +212,9 @@ def _reconstruct(args: ReconstructArgs, found, ctrl_c: _CtrlC) -> dict:
         "trc_axes": motion_files.rotation_note(motion_files.opensim_rotation(up_axis), up_axis),
         "joint_names": list(lifter.joint_names),
         "fusion": dataclasses.asdict(args.fusion),
+        "people": {loaded.name: {"found": len(loaded.people), "instants": list(loaded.people), "tracks_left_out": loaded.implausible_tracks,
+                                 "person_instants_left_out": loaded.dropped_person_instants} for loaded in project.recordings},
+        "min_track_score": MIN_TRACK_SCORE,
         "recordings": rows,
         "earlier_files_left": left,
         "interrupted": interrupted,
@@ -267,28 +279,24 @@ def parse(argv: Sequence[str] | None) -> ReconstructArgs:
     """The command line over the run's settings: the project settings the run named by --checkpoint was trained
     with (its run.json) are the --data defaults, so `--help` shows them and every flag given wins; a flag given
     that differs from the run's value is said in one line.  Paths are taken absolute and resolved."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    try:
-        run, record = record_named_in(argv)
-    except ValueError as error:
-        raise SystemExit(f"jaxpose.reconstruct: error: {error}") from None
-    trained = None if record is None else record.project
-    default = ReconstructArgs(checkpoint=tyro.MISSING, output=tyro.MISSING, fps=tyro.MISSING, data=trained or RigProjectConfig())
-    args = tyro.cli(ReconstructArgs, default=default, args=argv, description=__doc__, prog="python -m jaxpose.reconstruct")
+    args, run, record = parse_over_run(
+        ReconstructArgs, argv, lambda record: {"data": (record and record.project) or RigProjectConfig()}, __doc__, "python -m jaxpose.reconstruct"
+    )  # fmt: skip
     args = dataclasses.replace(args, data=args.data.resolved())
+    trained = None if record is None else record.project
     if trained is None:
-        print(f"{run} records no project settings (a run from before run.json): the --data flags as given", file=sys.stderr)
+        print(f"{run.path} records no project settings (a run from before run.json): the --data flags as given", file=sys.stderr)
     else:
         for line in differences(args.data, trained):
             print(line, file=sys.stderr)
-    return dataclasses.replace(args, data=_session_recordings(args, record))
+    return dataclasses.replace(args, data=_session_recordings(args, run, record))
 
 
-def _session_recordings(args: ReconstructArgs, record) -> RigProjectConfig:
+def _session_recordings(args: ReconstructArgs, run: RunDirectory, record) -> RigProjectConfig:
     """--data with the recordings limited to the session whose recovered rig --data.calibration names (the
     run's recovered_sessions/SESSION.toml is that session's world, no other's); a recording of another session
     named by --data.recordings is refused."""
-    session = None if args.data.calibration is None else RunDirectory.of(args.checkpoint).session_of(args.data.calibration)
+    session = None if args.data.calibration is None else run.session_of(args.data.calibration)
     if session is None or record is None or not record.sessions or session not in record.sessions:
         return args.data
     own = tuple(record.sessions[session])
@@ -314,7 +322,7 @@ def check_outputs(args: ReconstructArgs, names: Sequence[str]) -> list[pathlib.P
     if colliding:
         first, second = colliding
         raise OutputError(
-            f"recordings {first!r} and {second!r}: a later segment of {first!r} is written as {second}.trc, the file of"
+            f"recordings {first!r} and {second!r}: a later segment or a person of {first!r} is written as {second}.trc, the file of"
             f" {second!r}; reconstruct them into separate --output folders (--data.recordings {first} / {second})"
         )
     check_report(args.output, args.overwrite)
@@ -323,6 +331,28 @@ def check_outputs(args: ReconstructArgs, names: Sequence[str]) -> list[pathlib.P
         listed = ", ".join(path.name for path in earlier[:4]) + (f" and {len(earlier) - 4} more" if len(earlier) > 4 else "")
         raise OutputError(f"--output {args.output}: holds {listed} of these recordings; pass --overwrite to replace them")
     return earlier
+
+
+def _people(count: int) -> str:
+    return "1 person" if count == 1 else f"{count} people"
+
+
+def person_summary(motion: recording.RecordingMotion, inputs: recording.RecordingInput, instants: int,
+                   bones: Sequence[tuple[int, int]], joint_names: Sequence[str]) -> dict:
+    """One person's place in their recording for the report: the recording, the person k, their first and last
+    frame, their coverage (the share of the recording's `instants` at which a camera sees them) and each limb's
+    median length over the motion (mm, "parent-child", null where never measured)."""
+    lengths = np.linalg.norm(motion.points[:, [child for child, _ in bones]] - motion.points[:, [parent for _, parent in bones]], axis=-1)
+    finite = np.isfinite(lengths)
+    median = [float(np.median(lengths[finite[:, b], b])) if finite[:, b].any() else None for b in range(len(bones))]
+    return {
+        "of_recording": inputs.recording or motion.name,
+        "person": inputs.person,
+        "last_frame": int(motion.frames[-1]),
+        "coverage": round(float(motion.seen.sum()) / max(instants, 1), 4),
+        "limb_length_mm": {f"{joint_names[parent]}-{joint_names[child]}": None if value is None else round(value, 1)
+                           for (child, parent), value in zip(bones, median)},
+    }  # fmt: skip
 
 
 def recording_summary(motion: recording.RecordingMotion, joint_names: Sequence[str]) -> dict:
@@ -373,6 +403,26 @@ def report_markdown(report: dict) -> str:
             f"| {row['recording']} | {row['frames']} | {row['instants_seen']} | {counts} | {row['interpolated_frames']}"
             f" | {row['segments']} | {row['dropped_frames']} |"
         )
+    people = report.get("people", {})
+    lines += [
+        "",
+        "People: per recording, the people found (tracked over time; a track whose detections' keypoints score below"
+        f" {report.get('min_track_score', '-')} in the median is left out as no person), and each person's files: its first"
+        " and last frame, its coverage (the share of the recording's instants at which a camera sees it) and its limbs'"
+        " median lengths (mm: the arms' and legs' here, report.json has every limb's).",
+        "",
+        "| recording | people found | tracks left out |",
+        "|---|---|---|",
+        *(f"| {name} | {entry['found']} | {entry['tracks_left_out']} |" for name, entry in people.items()),
+        "",
+        "| files | recording | person | first frame | last frame | coverage | limb lengths (mm, median) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for row in (row for row in report["recordings"] if "skipped" not in row):
+        limbs = [f"{name} {value:.0f}" for name, value in row["limb_length_mm"].items()
+                 if value is not None and any(part in name.split("-")[-1].lower() for part in MD_LIMBS)]  # fmt: skip
+        lines.append(f"| {row['recording']} | {row['of_recording']} | {row['person']} | {row['first_frame']} | {row['last_frame']}"
+                     f" | {row['coverage']:.1%} | {', '.join(limbs) or '-'} |")  # fmt: skip
     if report["smoothing"]:
         smoothing = (
             "solved over time (the trajectory), each limb held at its median length where both its joints are measured at"

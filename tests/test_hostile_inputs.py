@@ -45,7 +45,6 @@ import pathlib
 import pickle
 import re
 import shutil
-import types
 
 import numpy as np
 import paths
@@ -197,9 +196,10 @@ def test_a_run_folder_that_holds_other_files_is_refused_and_left_as_it_was(tmp_p
 
 
 def test_overwrite_removes_only_what_a_run_wrote(tmp_path):
-    """A run folder with a study's summary and a nested run (as experiments.search and ablation leave them):
-    --run.overwrite removes the run's own entries and keeps the others."""
-    from jaxpose.training.run_directory import RunDirectory, prepare_run_dir
+    """A run folder with a nested run: --run.overwrite removes the run's own entries and keeps the nested run.
+    Issue 52: a study's summary is never written into a run folder (the study has a folder of its own), and a
+    run folder holding one is refused as holding what no run wrote."""
+    from jaxpose.training.run_directory import RunDirectory, prepare_run_dir, write_study_file
 
     run_dir = tmp_path / "run"
     files = RunDirectory(run_dir)
@@ -207,11 +207,18 @@ def test_overwrite_removes_only_what_a_run_wrote(tmp_path):
     files.metrics.write_text("{}\n")
     (files.checkpoints / "100").mkdir(parents=True)
     files.report_md.write_text("old")
-    (run_dir / "search.md").write_text("summary")
+    with pytest.raises(SystemExit, match=r"run: is a run folder, which holds only its run; give the study a folder of its own"):
+        write_study_file(run_dir, "search.md", "summary")
     prepare_run_dir(_experiment(run_dir / "supervised", overwrite=False))
     prepare_run_dir(_experiment(run_dir, overwrite=True))
-    assert sorted(p.name for p in run_dir.iterdir()) == ["config.json", "plots", "run.json", "search.md", "supervised"]
+    assert sorted(p.name for p in run_dir.iterdir()) == ["config.json", "plots", "run.json", "supervised"]
     assert (run_dir / "supervised" / "run.json").is_file()
+    (run_dir / "search.md").write_text("summary")  # written beside the run by hand: not the run's
+    with pytest.raises(SystemExit, match=r"holds 1 entry that no jaxpose run wrote \(search.md\)"):
+        prepare_run_dir(_experiment(run_dir, overwrite=True))
+    study = write_study_file(tmp_path / "study", "search.md", "summary")  # a study's own folder, with its runs inside
+    prepare_run_dir(_experiment(tmp_path / "study" / "row", overwrite=False))
+    assert study.read_text() == "summary" and write_study_file(tmp_path / "study", "search.md", "again").read_text() == "again"
 
 
 def test_a_run_folder_from_before_the_record_is_still_a_run(tmp_path):
@@ -315,9 +322,10 @@ def test_the_run_record_carries_the_project_settings_to_the_commands_that_use_th
     its threshold; a flag given always wins (issue 52: also at the command's own default), and where it differs
     from the run's it is said in one line."""
     from jaxpose import reconstruct
-    from jaxpose.serving.inference import score_threshold
+    from jaxpose import export
+    from jaxpose.serving.inference import parse_with_run
     from jaxpose.rig.config import recorded_settings
-    from jaxpose.training.run_directory import RunRecord, prepare_run_dir, read_record, write_record
+    from jaxpose.training.run_directory import RunDirectory, RunRecord, prepare_run_dir, read_record, write_record
 
     trained = RigProjectConfig(
         root=tmp_path / "project", calibration=tmp_path / "rig.toml", calibration_unit="m", sync="auto", frame_offsets=("cam02=3",),
@@ -325,8 +333,8 @@ def test_the_run_record_carries_the_project_settings_to_the_commands_that_use_th
     )
     run_dir = tmp_path / "run"
     prepare_run_dir(_experiment(run_dir, overwrite=False))
-    write_record(run_dir, RunRecord(min_confidence=0.2, layout="coco17", project=recorded_settings(trained, "coco17")))
-    record = read_record(run_dir / "checkpoints")  # the checkpoints folder names the same run
+    write_record(RunDirectory(run_dir), RunRecord(project=recorded_settings(trained, "coco17")))
+    record = read_record(RunDirectory.of(run_dir / "checkpoints"))  # the checkpoints folder names the same run
     expected = dataclasses.replace(trained, skeleton="coco17", validation_fraction=0.2, train_stride=1)  # the split is not carried
     assert record.project == expected.resolved()
     argv = ["--checkpoint", str(run_dir), "--output", str(tmp_path / "motion"), "--fps", "50"]
@@ -337,11 +345,14 @@ def test_the_run_record_carries_the_project_settings_to_the_commands_that_use_th
     assert capsys.readouterr().err.splitlines() == [
         "--data.min-confidence 0.3 given; the run was trained with 0.2", "--data.sync given given; the run was trained with auto"
     ]
-    trained_lifter = types.SimpleNamespace(record=record, source=run_dir / "checkpoints")  # what score_threshold reads of a Lifter3D
-    assert score_threshold(trained_lifter, None) == 0.2
-    assert score_threshold(types.SimpleNamespace(record=None, source=tmp_path / "checkpoints"), None) == 0.05  # a run from before the record
-    assert score_threshold(trained_lifter, 0.05) == 0.05
-    assert "--min-confidence 0.05 differs from the run's 0.2" in capsys.readouterr().err
+    def export_threshold(run, *flags):
+        args, _, _ = parse_with_run(export.ExportArgs, [str(run), *flags], export.__doc__, "python -m jaxpose.export", run_field="run_dir")
+        return args.min_confidence
+
+    assert export_threshold(run_dir / "checkpoints") == 0.2
+    assert export_threshold(tmp_path / "old_run") == 0.05  # a run from before the record
+    assert export_threshold(run_dir, "--min-confidence", "0.05") == 0.05
+    assert "--min-confidence 0.05 given; the run was trained with 0.2" in capsys.readouterr().err
 
 
 @pytest.mark.trains  # the shared rig run (tests/conftest.py)

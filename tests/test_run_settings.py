@@ -5,17 +5,17 @@ project by an absolute, resolved path (defects 6, 7)."""
 
 import dataclasses
 import json
-import os
 import pathlib
 import re
 
 import pytest
 
 from experiments import rig as rig_job
-from jaxpose import predict, reconstruct
+from jaxpose import export, predict, reconstruct
+from jaxpose.model import ModelConfig
 from jaxpose.rig.config import RigProjectConfig, recorded_settings
 from jaxpose.synthetic.project import ExampleProjectConfig, write_rig_project
-from jaxpose.training.run_directory import RunRecord, read_record, write_record
+from jaxpose.training.run_directory import RunDirectory, RunRecord, read_record, write_record
 
 TRAINED = dict(min_confidence=0.3, sync="auto", max_sync_offset=4, frame_offsets=("cam02=3",), calibration_unit="m")
 
@@ -27,7 +27,7 @@ def run_dir(tmp_path):
     run.mkdir()
     (run / "run.json").write_text('{"jaxpose_run": 1}\n')
     trained = RigProjectConfig(root=tmp_path / "project", calibration=tmp_path / "rig.toml", **TRAINED)
-    write_record(run, RunRecord(min_confidence=0.3, layout="coco17", project=recorded_settings(trained, "coco17")))
+    write_record(RunDirectory(run), RunRecord(project=recorded_settings(trained, "coco17")))
     return run
 
 
@@ -93,13 +93,15 @@ def predict_run(tmp_path):
     run = tmp_path / "run"
     run.mkdir()
     (run / "run.json").write_text('{"jaxpose_run": 1}\n')
-    write_record(run, RunRecord(min_confidence=0.2, layout="coco17"))
+    write_record(RunDirectory(run), RunRecord(project=recorded_settings(RigProjectConfig(root=tmp_path / "project", min_confidence=0.2), "coco17")))
     return run
 
 
 def _predict_args(run, *flags):
     argv = ["--checkpoint", str(run), "--input", "in.json", "--output", "out.json", *flags]
-    return predict.inference.parse_with_run(predict.PredictArgs, argv, predict.__doc__, "python -m jaxpose.predict")
+    args, run_dir, _ = predict.inference.parse_with_run(predict.PredictArgs, argv, predict.__doc__, "python -m jaxpose.predict")
+    assert run_dir == RunDirectory.of(run)  # built once, from the command line, for the command
+    return args
 
 
 def test_predict_min_confidence_given_default_other_or_not(predict_run, capsys):
@@ -116,10 +118,35 @@ def test_predict_min_confidence_given_default_other_or_not(predict_run, capsys):
     assert _help_default(capsys.readouterr().out, "--min-confidence") == "0.2"
 
 
+def _export_args(run, *flags):
+    """export's command line of `flags`, with its positional RUN_DIR where "RUN" stands (else first)."""
+    argv = [str(run) if flag == "RUN" else flag for flag in flags] if "RUN" in flags else [str(run), *flags]
+    args, run_dir, _ = predict.inference.parse_with_run(export.ExportArgs, argv, export.__doc__, "python -m jaxpose.export", run_field="run_dir")
+    assert run_dir == RunDirectory.of(run)
+    return args
+
+
+def test_export_min_confidence_given_default_other_or_not(predict_run, capsys):
+    """The same mechanism for export, whose run is its positional RUN_DIR: it took None for "from the run" and
+    its --help showed no value.  The run is found wherever it stands among the flags."""
+    assert _export_args(predict_run, "--min-confidence", "0.05", "RUN").min_confidence == 0.05
+    assert "--min-confidence 0.05 given; the run was trained with 0.2" in capsys.readouterr().err
+    assert _export_args(predict_run, "--output", "x.onnx", "RUN", "--min-confidence", "0.4").min_confidence == 0.4
+    assert "--min-confidence 0.4 given; the run was trained with 0.2" in capsys.readouterr().err
+    assert _export_args(predict_run, "--flip", "RUN", "--output=x.onnx").min_confidence == 0.2
+    assert _export_args(predict_run / "checkpoints").min_confidence == 0.2
+    assert "trained with" not in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:
+        export.main([str(predict_run), "--help"])
+    assert stop.value.code == 0
+    assert _help_default(capsys.readouterr().out, "--min-confidence") == "0.2"
+
+
 def test_predict_of_a_run_without_a_record_uses_the_default_threshold(tmp_path):
     run = tmp_path / "old_run"
     (run / "checkpoints").mkdir(parents=True)
     assert _predict_args(run).min_confidence == predict.inference.DEFAULT_MIN_CONFIDENCE
+    assert _export_args(run).min_confidence == predict.inference.DEFAULT_MIN_CONFIDENCE
 
 
 def test_a_run_records_its_project_by_an_absolute_resolved_path(tmp_path, monkeypatch):
@@ -133,7 +160,7 @@ def test_a_run_records_its_project_by_an_absolute_resolved_path(tmp_path, monkey
     run = tmp_path / "run"
     run.mkdir()
     (run / "run.json").write_text('{"jaxpose_run": 1}\n')
-    write_record(run, RunRecord(project=recorded))
+    write_record(RunDirectory(run), RunRecord(project=recorded))
     monkeypatch.chdir(tmp_path)  # elsewhere: the same project
     args = _reconstruct_args(run.resolve())
     assert args.data.root == tmp_path.resolve() / "a" / "project"
@@ -149,15 +176,46 @@ def test_an_old_run_record_still_loads(tmp_path):
     project = {"root": "project", "calibration": None, "sync": "auto", "frame_offsets": ["cam02=3"], "skeleton": "coco17",
                "image_size": [1920, 1080], "min_confidence": 0.2}  # fmt: skip
     (run / "run.json").write_text(json.dumps({"jaxpose_run": 1, "trained_on": {"min_confidence": 0.2, "layout": "coco17", "project": project}}))
-    record = read_record(run / "checkpoints")
-    assert record == RunRecord(min_confidence=0.2, layout="coco17", project=RigProjectConfig(
+    record = read_record(RunDirectory.of(run / "checkpoints"))
+    assert record.min_confidence == 0.2 and record == RunRecord(project=RigProjectConfig(
         root=pathlib.Path("project"), sync="auto", frame_offsets=("cam02=3",), skeleton="coco17", image_size=(1920, 1080), min_confidence=0.2
     ))  # fmt: skip
-    typed = RunRecord(min_confidence=0.3, layout="coco17", project=recorded_settings(RigProjectConfig(root=tmp_path, **TRAINED), "coco17"),
+    typed = RunRecord(project=recorded_settings(RigProjectConfig(root=tmp_path, **TRAINED), "coco17"), skeleton="h36m17", model=ModelConfig(width=64),
+                      recovered_rigs={"a": "recovered_sessions/a.json"},
                       sessions={"a": ["walking01"]})  # fmt: skip
-    write_record(run, typed)
-    assert read_record(run) == typed
+    write_record(RunDirectory(run), typed)
+    assert read_record(RunDirectory(run)) == typed
     assert json.loads((run / "run.json").read_text())["jaxpose_run"] == 1  # the marker kept
+
+
+@pytest.mark.trains  # the shared synthetic run (tests/conftest.py)
+def test_the_run_record_is_the_one_owner_of_the_network_the_checkpoints_repeat(trained_run):
+    """Issue 52: what a run was trained on was written three times; run.json's record now holds the network too,
+    and every checkpoint's `lifter` item is derived from it (a step must restore alone)."""
+    from jaxpose.serving import inference
+    from jaxpose.training import checkpoint
+
+    run = RunDirectory(trained_run[0])
+    record = read_record(run)
+    restored = checkpoint.restore_lifter(run.checkpoints, inference.jax.sharding.SingleDeviceSharding(inference.jax.devices()[0]))
+    assert record.skeleton == "h36m17" and record.lifter() == restored[1]
+    assert record.model == ModelConfig(**json.loads(run.config.read_text())["model"])
+
+
+def test_recovered_rigs_are_the_runs_assets_listed_by_its_record(tmp_path):
+    """Issue 52: the recovered rig is stored with the run as an asset its record names; reconstruct reads it
+    through the record (a run from before the record listed them: the files its folder holds)."""
+    run = RunDirectory(tmp_path / "run")
+    assert RunDirectory.recovered_rig_files(["s"]) == {"s": "recovered_cameras.json"}
+    assert RunDirectory.recovered_rig_files(["a", "b"]) == {"a": "recovered_sessions/a.json", "b": "recovered_sessions/b.json"}
+    record = RunRecord(recovered_rigs=RunDirectory.recovered_rig_files(["a", "b"]))
+    assert run.recovered_rigs(record) == {"a": run.path / "recovered_sessions" / "a.json", "b": run.path / "recovered_sessions" / "b.json"}
+    assert run.recovered_rigs(RunRecord()) == {}  # a calibrated project's run, from before the list: none found
+    (run.path / "recovered_sessions").mkdir(parents=True)
+    for name in ("b", "a"):
+        (run.path / "recovered_sessions" / f"{name}.json").write_text("{}")
+    assert run.recovered_rigs(None) == run.recovered_rigs(record)  # a run from before the list: the files it holds
+    assert run.recovered_rigs(RunRecord(recovered_rigs={})) == {}  # a calibrated project's run: the record says none
 
 
 def test_a_sessions_rig_limits_reconstruct_to_that_sessions_recordings(tmp_path, capsys):
@@ -167,8 +225,8 @@ def test_a_sessions_rig_limits_reconstruct_to_that_sessions_recordings(tmp_path,
     run.mkdir()
     (run / "run.json").write_text('{"jaxpose_run": 1}\n')
     settings = recorded_settings(RigProjectConfig(root=tmp_path / "project"), "coco17")
-    write_record(run, RunRecord(project=settings, sessions={"a": ["walking01"], "b": ["turning02"]}))
-    assert read_record(run).sessions == {"a": ["walking01"], "b": ["turning02"]}
+    write_record(RunDirectory(run), RunRecord(project=settings, sessions={"a": ["walking01"], "b": ["turning02"]}))
+    assert read_record(RunDirectory(run)).sessions == {"a": ["walking01"], "b": ["turning02"]}
     rig = str(run / "recovered_sessions" / "a.toml")
     assert _reconstruct_args(run, "--data.calibration", rig).data.recordings == ("walking01",)
     assert "the rig of session a: its recordings only (walking01)" in capsys.readouterr().err
@@ -211,6 +269,7 @@ def test_recovered_rig_files_state_the_world_they_are_in(tmp_path):
         run.path.mkdir()
         (write_calibration,) = splits.artifacts
         write_calibration(run)
+        assert list(run.recovered_rigs(splits.record).values()) == [run.recovered_cameras]  # the asset the record lists
         metadata = tomllib.loads(run.recovered_toml.read_text())["metadata"]
         assert metadata["world"] == UPRIGHT and metadata["up"] in ("normal of the floor the ankles stand on", "the subject's body axis")
         assert metadata["scale"].startswith("limb prior (")  # no height given, the limbs too few to rescale: the rig's own

@@ -82,17 +82,21 @@ def colliding_names(names: Sequence[str]) -> tuple[str, str] | None:
     """Two recordings whose files could be one (`walking01`'s second segment and `walking01.seg1`), or None."""
     known = set(names)
     for name in names:
-        stem, _, segment = name.rpartition(".seg")
-        if stem in known and segment.isdigit():
-            return stem, name
+        for marker in (".seg", ".person"):  # a later segment's or a person's files
+            stem, _, number = name.rpartition(marker)
+            if stem in known and number.split(".")[0].isdigit():
+                return stem, name
     return None
 
 
 def existing_outputs(folder: pathlib.Path, name: str) -> list[pathlib.Path]:
-    """The files of recording `name` already in `folder`: what this command would write, or did."""
+    """The files of recording `name` already in `folder`: what this command would write, or did (its people's
+    ``<name>.person<k>.*`` too)."""
     found = [folder / f"{name}{suffix}" for suffix in (".csv", ".npz", ".trc", ".c3d")]
     segments = [path for suffix in (".trc", ".c3d") for path in sorted(folder.glob(f"{glob.escape(name)}.seg*{suffix}"))]
-    return [path for path in found if path.exists()] + segments
+    people = [path for suffix in (".csv", ".npz", ".trc", ".c3d") for path in sorted(folder.glob(f"{glob.escape(name)}.person*{suffix}"))
+              if path.name[len(name) + len(".person"):].split(".")[0].isdigit()]  # fmt: skip
+    return [path for path in found if path.exists()] + segments + people
 
 
 def write_motion(

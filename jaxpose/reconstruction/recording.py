@@ -2,7 +2,7 @@
 
     from jaxpose.serving import inference
     from jaxpose.reconstruction import recording
-    project = recording.load_every_instant(RigProjectConfig(root=PROJECT), run_dir=RUN)
+    project = recording.load_every_instant(RigProjectConfig(root=PROJECT), RunDirectory.of(RUN))
     lifter = inference.load(RUN)
     for inputs in recording.recording_inputs(project.instants):
         motion, lifted = recording.lift_and_reconstruct(lifter, inputs)
@@ -43,19 +43,19 @@ from jaxpose.rig.project import prepared_project
 from jaxpose.rig.cache import PreparedProject
 from jaxpose.rig.config import SPLIT_FIELDS, RigProjectConfig
 from jaxpose.rig.split import ProjectInstants, every_instant
-from jaxpose.training.run_directory import RECOVERED_SESSIONS_DIR, RunDirectory
+from jaxpose.training.run_directory import RECOVERED_SESSIONS_DIR, RunDirectory, read_record
 from jaxpose.rig.recordings import FoundProject, find_project
 from jaxpose.skeleton import ROOT, Skeleton
 
 log = logging.getLogger(__name__)
 
 
-def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: bool = True, found: FoundProject | None = None) -> ProjectInstants:
+def load_every_instant(data: RigProjectConfig, run: RunDirectory, progress: bool = True, found: FoundProject | None = None) -> ProjectInstants:
     """Every instant of every recording (of --data.recordings) of the project; `found`: its files as found
     already (`jaxpose.rig.recordings.find_project`), else found now.
 
-    The calibration: --data.calibration where given; else RUN/recovered_cameras.json where the run was
-    trained on a recovered rig (read from the prepared project the run was trained on where the cache still
+    The calibration: --data.calibration where given; else the run's recovered rig where it was trained on one
+    (the asset its record lists, `RunRecord.recovered_rigs`: RUN/recovered_cameras.json; read from the prepared project the run was trained on where the cache still
     holds it); else the project's own.  A project with none of these is refused, as are the split flags
     (`SPLIT_FIELDS`) set to anything but their defaults.  The prepared instants are those training read
     (`jaxpose.rig.project.prepared_project`): the same cache, whatever the run's split."""
@@ -65,8 +65,9 @@ def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: 
         flags = ", ".join("--data." + field.replace("_", "-") for field in changed)
         raise ValueError(f"{flags}: a reconstruction takes every instant of every recording; leave the split flags out")
     found = found or find_project(data.root, data.recordings, data.calibration)
-    recovered = RunDirectory(pathlib.Path(run_dir)).recovered_cameras
-    if data.calibration is None and recovered.is_file():
+    rigs = run.recovered_rigs(read_record(run))  # the run's assets, as its record lists them
+    if data.calibration is None and len(rigs) == 1:
+        (recovered,) = rigs.values()
         # the run's own, where the cache holds it
         prepared = _whole_project(data, found, progress) or prepared_project(data, found, progress, cached_only=True)
         if prepared is not None and _holds_rig(prepared, recovered):
@@ -76,14 +77,14 @@ def load_every_instant(data: RigProjectConfig, run_dir: pathlib.Path, progress: 
         data = dataclasses.replace(data, calibration=recovered)
         found = dataclasses.replace(found, calibration=recovered)
     elif not found.calibrated:
-        sessions = recovered.parent / RECOVERED_SESSIONS_DIR
-        if sessions.is_dir():
+        if rigs:
+            sessions = run.path / RECOVERED_SESSIONS_DIR
             raise ValueError(
-                f"{data.root}: no calibration file, and the run {run_dir} was trained on one recovered rig per session"
+                f"{data.root}: no calibration file, and the run {run.path} was trained on one recovered rig per session"
                 f" ({sessions}): pass the recordings' session's as --data.calibration {sessions}/SESSION.toml"
             )
         raise ValueError(
-            f"{data.root}: no calibration file, and the run {run_dir} has no {recovered.name} (it was trained on"
+            f"{data.root}: no calibration file, and the run {run.path} has no {run.recovered_cameras.name} (it was trained on"
             " a calibrated project): pass --data.calibration; a rig recovered again would have another world frame"
         )
     prepared = _whole_project(data, found, progress) or prepared_project(data, found, progress)
@@ -121,13 +122,17 @@ def _holds_rig(prepared: PreparedProject, recovered: pathlib.Path) -> bool:
 
 @dataclasses.dataclass(frozen=True)
 class RecordingInput:
-    """One recording's detections on its whole frame axis (F frames, C views, J joints).
+    """One person's detections in one recording, on their whole frame axis (F frames, C views, J joints).
 
-    frames:     i64[F] the instants, consecutive, first to last (the rig project's frame numbers).
+    name:       what the files are named: the recording's name where it has one person, else
+                ``<recording>.person<k>`` (`jaxpose.rig.split.person_names`).
+    frames:     i64[F] the instants, consecutive, the person's first to last (the rig project's frame numbers).
     cameras:    the recording's pinhole rig, fields [C, ...] (x_cam = R x_world + t, mm).
     keypoints:  f32[F, C, J, 2] undistorted pixels; 0 where not seen.
     confidence: f32[F, C, J]; 0 where not seen (and at every instant the project lacks).
     target3d:   f32[F, J, 3] world mm, the ground truth (NaN where none), or None.
+    recording:  the recording's name.
+    person:     k, the person (1, 2, ... in order of first appearance in the recording).
     """
 
     name: str
@@ -136,6 +141,8 @@ class RecordingInput:
     keypoints: np.ndarray
     confidence: np.ndarray
     target3d: np.ndarray | None
+    recording: str = ""
+    person: int = 1
 
     @property
     def seen(self) -> np.ndarray:
@@ -144,18 +151,19 @@ class RecordingInput:
 
 
 def recording_inputs(dataset: MultiViewDataset) -> Iterator[RecordingInput]:
-    """The recordings of a data set (labels "recording" and "frame", e.g. `load_every_instant`'s instants),
-    each undistorted and on its whole frame axis, in the order they appear."""
+    """The people of a data set's recordings (labels "recording", "sequence", "person" and "frame", e.g.
+    `load_every_instant`'s instants), each undistorted and on its whole frame axis, in the order they appear."""
     dataset = dataset.undistorted()
-    names = dataset.samples.labels["recording"]
+    labels = dataset.samples.labels
+    names = labels["sequence"]
     _, first = np.unique(names, return_index=True)
     for name in names[np.sort(first)]:
         rows = np.flatnonzero(names == name)
-        rows = rows[np.argsort(dataset.samples.labels["frame"][rows], kind="stable")]
+        rows = rows[np.argsort(labels["frame"][rows], kind="stable")]
         rigs = np.unique(dataset.samples.rig_index[rows])
         if len(rigs) != 1:
             raise ValueError(f"recording {name}: its instants have {len(rigs)} rigs; expected one")
-        frame = dataset.samples.labels["frame"][rows].astype(np.int64)
+        frame = labels["frame"][rows].astype(np.int64)
         index = frame - frame[0]
         F = int(index[-1]) + 1
         keypoints = np.zeros((F, *dataset.samples.keypoints2d.shape[1:]), np.float32)
@@ -166,7 +174,8 @@ def recording_inputs(dataset: MultiViewDataset) -> Iterator[RecordingInput]:
             target = np.full((F, *dataset.samples.target3d.shape[1:]), np.nan, np.float32)
             target[index] = dataset.samples.target3d[rows]
         cameras = dataset.rigs[int(rigs[0])]
-        yield RecordingInput(str(name), frame[0] + np.arange(F), cameras, keypoints, confidence, target)
+        yield RecordingInput(str(name), frame[0] + np.arange(F), cameras, keypoints, confidence, target,
+                             str(labels["recording"][rows[0]]), int(labels["person"][rows[0]]))  # fmt: skip
 
 
 def lift_views(lifter: Lifter3D, inputs: RecordingInput, roots: np.ndarray | None = None) -> np.ndarray:

@@ -55,9 +55,9 @@ class Association:
         return (self.detection >= 0).sum(-1) >= 2
 
 
-def _take(found: people.Proposals, hypotheses: np.ndarray, detected: np.ndarray) -> list[list[np.ndarray]]:
+def _take(found: people.Proposals, hypotheses: np.ndarray, detected: np.ndarray, windowed: bool) -> list[list[np.ndarray]]:
     """The greedy choice of the module docstring: for each instant, the list of its people as int[C]
-    detection indices (-1: none).  detected bool[n, C, K]."""
+    detection indices (-1: none).  detected bool[n, C, K]; `windowed`: the proposals are of windows of views."""
     n, H, C = found.match.shape
     a, p, b, q = hypotheses.T
     seeds_agree = (found.match[:, np.arange(H), a] == p) & (found.match[:, np.arange(H), b] == q)
@@ -71,7 +71,7 @@ def _take(found: people.Proposals, hypotheses: np.ndarray, detected: np.ndarray)
         for h in order:
             match = found.match[i, h].astype(np.int64)
             owners = {owner[a[h], p[h]], owner[b[h], q[h]]} - {-1}
-            if len(owners) == 2 or (owners and C <= SEED_VIEWS):  # one window: a person has all of its matches
+            if len(owners) == 2 or (owners and not windowed):  # one window: a person has all of its matches
                 continue
             views = found.matched[i, h] & (owner[np.arange(C), match] < 0)
             if owners:  # a seed already someone's: the proposal adds the views that person lacks (other windows)
@@ -140,7 +140,7 @@ SEED_VIEWS = 4  # views of a proposal window: every pair at most 3 apart (cyclic
 MIN_JOINTS_COMPARED = 3  # joints a detection and a person's projection must share to be compared
 
 
-def _complete(P, keypoints, confidence, detection, mirror, threshold_px) -> tuple[np.ndarray, np.ndarray]:
+def _complete(P, keypoints, confidence, detection, mirror, threshold_px, windowed) -> tuple[np.ndarray, np.ndarray]:
     """Give each person, in each view where it has no detection, the view's unused detection nearest to its
     projection (from all of its views) within `threshold_px`, or that detection with its left and right
     exchanged (`mirror`), nearest first -> (detection, mirrored bool[n, M, C])."""
@@ -166,7 +166,7 @@ def _complete(P, keypoints, confidence, detection, mirror, threshold_px) -> tupl
     cost = np.min(costs, 0)  # [R, C, K]
     flipped = np.argmin(costs, 0) == 1
     detection = detection.copy()
-    if C > SEED_VIEWS:  # one person proposed by two windows is two persons until here: one, where either fits the other
+    if windowed:  # one person proposed by two windows is two persons until here: one, where either fits the other
         row_of = {(instant, slot): i for i, (instant, slot) in enumerate(rows.tolist())}
         for i, (instant, slot) in enumerate(rows):
             if (detection[instant, slot] >= 0).sum() < 2:  # merged into another
@@ -222,17 +222,33 @@ def associate(
     of a detection to a person's projection for it to be that person (state it with the results); `mirror`
     int[J], the joint each joint is with left and right exchanged (`jaxpose.skeleton`): where given, a
     detection whose left and right the detector swapped joins its person, exchanged back."""
-    n, C, K, J = confidence.shape
     P = np.asarray(P, np.float32)
     found, hypotheses = _windowed_proposals(P, keypoints, confidence, threshold_px)
+    return _of_proposals(found, hypotheses, P, keypoints, confidence, threshold_px, mirror, windowed=P.shape[0] > SEED_VIEWS)
+
+
+def of_proposals(
+    found: people.Proposals, P: np.ndarray, keypoints: np.ndarray, confidence: np.ndarray,
+    threshold_px: float = people.DEFAULT_THRESHOLD_PX, mirror: np.ndarray | None = None,
+) -> Association:
+    """`associate` from the instants' proposals (`people.proposals` of every pair of views, of the same
+    keypoints, confidence and `threshold_px`), where the caller has them already (the rig loader:
+    `jaxpose.rig.tracked`)."""
+    C, K = confidence.shape[1:3]
+    return _of_proposals(found, people.pair_hypotheses(C, K), np.asarray(P, np.float32), keypoints, confidence, threshold_px, mirror, windowed=False)
+
+
+def _of_proposals(found, hypotheses, P, keypoints, confidence, threshold_px, mirror, windowed: bool) -> Association:
+    """The people of the instants from their proposals `found` (of the pairs `hypotheses` int[H, 4])."""
+    n, C, K, J = confidence.shape
     detected = (confidence > 0).any(-1)
-    chosen = _take(found, hypotheses, detected)
+    chosen = _take(found, hypotheses, detected, windowed)
     M = max((len(persons) for persons in chosen), default=0)
     detection = np.full((n, max(M, 1), C), -1, np.int32)
     for i, persons in enumerate(chosen):
         if persons:
             detection[i, : len(persons)] = persons
-    detection, mirrored = _complete(P, keypoints, confidence, detection, mirror, threshold_px)
+    detection, mirrored = _complete(P, keypoints, confidence, detection, mirror, threshold_px, windowed)
     points = np.full((*detection.shape[:2], J, 3), np.nan, np.float32)
     rows = np.argwhere((detection >= 0).sum(-1) >= 2)  # [R, 2] (instant, slot)
     if len(rows):

@@ -60,7 +60,7 @@ from jaxpose.rig.recovered import RecoveredSession
 
 log = logging.getLogger(__name__)
 
-VERSION = 6  # bump when the prepared arrays change meaning (3: every instant, the split applied after reading; 4: warnings; 5: one recovered rig per session; 6: each recovered rig names its world)
+VERSION = 7  # bump when the prepared arrays change meaning (3: every instant, the split applied after reading; 4: warnings; 5: one recovered rig per session; 6: each recovered rig names its world; 7: a row per (instant, person), the "person" array)
 PREFIX = "prepared-"
 PART = "instants"  # the prepared arrays' file prefix
 SELECTION = "rows-"  # a split's rows, written once inside the prepared folder
@@ -86,6 +86,12 @@ class RecordingSummary:
     ground_truth_instants: int
     warnings: tuple[str, ...] = ()
     """What reading it found suspect: an unreliable sync and why, a camera sharing no instant with the others."""
+    people: tuple[int, ...] = (1,)
+    """Its prepared rows of each person (1, 2, ...): one person's are every instant (`jaxpose.rig.tracked`)."""
+    implausible_tracks: int = 0
+    """Tracks left out as no person (the detector scored them low: `jaxpose.rig.tracked.plausible`)."""
+    dropped_person_instants: int = 0
+    """Person-instants in tracks left out (too short or implausible)."""
 
 
 @dataclasses.dataclass(frozen=True)

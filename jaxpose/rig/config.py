@@ -61,6 +61,10 @@ class RigProjectConfig:
     person_threshold_px: float = DEFAULT_THRESHOLD_PX
     """A view's detection belongs to the chosen person when it lies within this median distance (px)
     of that person's projection; views without one get confidence 0 at that instant."""
+    people: int | None = None
+    """How many people the recordings hold, where you know it: no more tracks than that are started, and a
+    person beyond them goes to the unseen track of the closest limb lengths (`jaxpose.rig.tracks`); None: as
+    many as the views agree on."""
     recovery_frames: int = 600
     """Without a calibration: the instants (spread over all recordings) the rig is recovered from
     (`jaxpose.calibrate`'s max_frames: 600 take ~25 s on 2 cores)."""
@@ -96,6 +100,8 @@ class RigProjectConfig:
             raise ValueError(f"--data.validation-fraction must lie in (0, 1), got {self.validation_fraction}")
         if self.train_stride < 1 or self.validation_stride < 1 or self.max_sync_offset < 0:
             raise ValueError("--data.train-stride and --data.validation-stride must be >= 1, --data.max-sync-offset >= 0")
+        if self.people is not None and self.people < 1:
+            raise ValueError(f"--data.people is how many people the recordings hold (at least 1), got {self.people}")
 
     def resolved(self) -> RigProjectConfig:
         """The same settings with the paths absolute and resolved, as the commands take them: the project's

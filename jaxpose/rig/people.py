@@ -1,9 +1,10 @@
 """One person per instant from detections of several people: the one the calibrated views agree on.
 
 Real recordings often show more than one person: a second subject, a passer-by, a reflection, or
-a detector's duplicate.  The lifter trains on one person per instant, so for every instant this
-module picks, in every view, the detection of the same person, using the geometry alone (no
-tracker, no appearance):
+a detector's duplicate.  Where the rig loader finds one person in a recording (or none;
+`jaxpose.rig.tracked` keeps every person where it finds several), this module picks for every
+instant, in every view, the detection of that person, using the geometry alone (no tracker, no
+appearance):
 
 1. Every pair of views and every pair of their detections proposes a 3D person: its joints
    triangulated from those two detections.

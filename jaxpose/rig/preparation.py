@@ -30,11 +30,12 @@ from jaxpose.chunks import ChunkedMap
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.layouts import lifting_skeleton
-from jaxpose.rig import cache, geometry, people
+from jaxpose.rig import cache, geometry, people, tracked, tracks
 from jaxpose.rig.cache import Assembly, PreparedProject, ProjectMeta, RecordingSummary, SessionSummary
 from jaxpose.rig.cameras import check_unit_against_people, distinct_rigs, in_view_order, read_calibrations
 from jaxpose.rig.config import RigProjectConfig
-from jaxpose.rig.recordings import FoundProject, Recording, ground_truth_on_instants, lifting_views, read_detections
+from jaxpose.formats.rig_folder import GROUND_TRUTH_NPZ
+from jaxpose.rig.recordings import FoundProject, Recording, ground_truth_on_instants, lifting_views, read_detections, truth_of_people
 from jaxpose.rig.recovered import RecoveredSession, ground_truth_into_recovered_world, recover_sessions
 from jaxpose.rig.timeline import SyncEstimate, align, estimate_recording_offsets, instants_of, lone_cameras, parse_frame_offsets
 from jaxpose.skeleton import Skeleton
@@ -140,7 +141,7 @@ def prepare(config: RigProjectConfig, found: FoundProject, progress: bool, entry
     rigs = geometry.Rigs.of([in_view_order(rig, camera_order) for rig in distinct])
     temporary = cache.start(entry)
     preparation = Preparation(
-        rigs, rig_index, tuple(camera_order), cache.Assembly(temporary), phases, threshold_px=config.person_threshold_px, recovered=bool(sessions),
+        rigs, rig_index, tuple(camera_order), cache.Assembly(temporary), phases, threshold_px=config.person_threshold_px, people=config.people, recovered=bool(sessions),
         check_unit=config.calibration_unit == "auto" and not sessions,
         labels={"subject": np.dtype(f"<U{len(f'rig{len(rig_index) - 1}')}"),
                 "recording": np.dtype(f"<U{max(len(recording.name) for recording in recordings)}")},
@@ -256,6 +257,8 @@ class Preparation:
     assembly: Assembly
     phases: Phases
     threshold_px: float
+    people: int | None
+    """--data.people: how many people there are, where known."""
     recovered: bool
     check_unit: bool
     labels: dict[str, np.dtype]
@@ -321,31 +324,51 @@ class Preparation:
         return undistorted, confidence, dataclasses.astuple(found)
 
     def _finish(self, part: Aligned, undistorted: np.ndarray, found: people.Proposals, units: "_UnitCheck | None") -> None:
-        """One recording's person chosen, its ground truth attached, its rows appended."""
+        """One recording's people found and tracked (`jaxpose.rig.tracked`), their ground truth attached, their
+        rows appended: person after person, each one's instants in order."""
         recording, rig_index = part.recording, self.rig_of[part.recording.name]
-        choice = people.choose(found, undistorted, part.confidence)
-        instants = part.instants
-        target, truth_instants = ground_truth_on_instants(recording.folder, lifting_skeleton(part.layout), part.layout, instants)
-        if target is not None and self.recovered:
-            target = ground_truth_into_recovered_world(target, choice.keypoints, choice.confidence, self.rigs.calibrations[rig_index])
+        skeleton = lifting_skeleton(part.layout)
+        chosen = tracked.everyone(found, self.rigs.P[rig_index], undistorted, part.confidence, skeleton, tracks.TrackSettings(people=self.people))
+        instants = part.instants[chosen.instant]
+        if chosen.people > 1 or chosen.implausible_tracks:
+            log.info("recording %s: %d people found%s", recording.name, chosen.people,
+                     f"; {chosen.implausible_tracks} tracks the detector scored low left out" if chosen.implausible_tracks else "")  # fmt: skip
+        target, truth_instants = ground_truth_on_instants(recording.folder, skeleton, part.layout, part.instants)
+        if target is not None:
+            if self.recovered:  # into the recovered world first, fitted on every row (trimmed: a passer-by's rows weigh little)
+                if target.shape[1] > 1:
+                    raise DataFormatError(recording.folder / GROUND_TRUTH_NPZ, "points3d of one person [N, J, 3] in a project without"
+                                          " calibration (several people are matched in the calibration's world)", f"{target.shape[1]} people")  # fmt: skip
+                moved = ground_truth_into_recovered_world(target[chosen.instant, 0], chosen.keypoints, chosen.confidence, self.rigs.calibrations[rig_index])
+                target = np.full(target.shape, np.nan, np.float32)
+                target[chosen.instant, 0] = moved
+            points = None
+            if target.shape[1] > 1 or chosen.people > 1:
+                points = geometry.triangulate_rows(self.rigs.P[rig_index], chosen.keypoints, chosen.confidence, method="normal")
+                points = np.where(((chosen.confidence > 0).sum(1) >= 2)[..., None], points, np.nan)
+            target = truth_of_people(target, chosen.instant, chosen.person, points)
         self.ground_truth_seen |= target is not None
         if units is not None:
-            units.add(rig_index, choice.keypoints, choice.confidence, lifting_skeleton(part.layout))
+            units.add(rig_index, chosen.keypoints, chosen.confidence, skeleton)
+        rows = len(instants)
         self.assembly.add({
-            "keypoints2d": choice.keypoints,
-            "confidence": choice.confidence,
-            "rig_index": np.full(len(instants), rig_index, np.int32),
+            "keypoints2d": chosen.keypoints,
+            "confidence": chosen.confidence,
+            "rig_index": np.full(rows, rig_index, np.int32),
             "target3d": target,
-            "subject": np.full(len(instants), f"rig{rig_index}", self.labels["subject"]),
-            "recording": np.full(len(instants), recording.name, self.labels["recording"]),
+            "subject": np.full(rows, f"rig{rig_index}", self.labels["subject"]),
+            "recording": np.full(rows, recording.name, self.labels["recording"]),
             "frame": instants.astype(np.int32),
+            "person": chosen.person,
         })  # fmt: skip
         self.summaries.append(RecordingSummary(
             name=recording.name, cameras=tuple(camera for camera in self.camera_order if camera in recording.cameras),
             instants=len(part.instants), calibration=part.calibration.source, offsets=dict(part.offsets),
             offsets_estimated=part.sync is not None, sync_reliable=None if part.sync is None else part.sync.reliable,
-            instants_with_choice=choice.instants_with_choice, views_without_match=choice.views_without_match,
+            instants_with_choice=chosen.instants_with_choice, views_without_match=chosen.views_without_match,
             ground_truth_instants=truth_instants, warnings=part.warnings,
+            people=tuple(int(count) for count in np.bincount(chosen.person)[1:]), implausible_tracks=chosen.implausible_tracks,
+            dropped_person_instants=chosen.dropped_instants,
         ))  # fmt: skip
 
 

@@ -7,11 +7,13 @@ a recording's ground truth on its instants (the folder is described in `jaxpose.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import pathlib
 from collections.abc import Mapping, Sequence
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from jaxpose.data import ground_truth
 from jaxpose.formats import detections_npz
@@ -32,6 +34,8 @@ from jaxpose.layouts import (
     to_lifting_skeleton,
 )
 from jaxpose.skeleton import DETECTOR_LAYOUTS, Skeleton
+
+log = logging.getLogger(__name__)
 
 MAX_PEOPLE = 4  # detections per camera and frame kept for the choice of person
 
@@ -252,22 +256,33 @@ def read_detections(recording: Recording, skeleton: str, progress: bool, parsed:
 
 
 def lifting_views(read: RecordingDetections, min_confidence: float) -> Views:
-    """The recording's `Views` in the lifting skeleton, scores below `min_confidence` made 0, at most `MAX_PEOPLE` detections per frame (the most confident: a crowd only costs memory), and at
-    least one (a camera that never saw anybody keeps an empty slot)."""
+    """The recording's `Views` in the lifting skeleton, scores below `min_confidence` made 0, at most `MAX_PEOPLE` detections per frame
+    (the most confident: a crowd only costs memory; the frames where more were left out are logged in one line per camera), and at
+    least one (a camera that never saw anybody keeps an empty slot).  A BODY_25 / BODY_25B layout is checked on every camera's
+    poses together (`check_body25_layout`): one camera's few people (a false detection, a person with arms down) can mislead it."""
     views = {}
     joints = len(layout_joint_names(read.layout))
+    pooled = []
     for name, detections in read.cameras.items():
         keypoints, scores = detections.keypoints, detections.scores
         if keypoints.shape[1] == 0:
             keypoints, scores = np.zeros((len(keypoints), 1, joints, 2), np.float32), np.zeros((len(keypoints), 1, joints), np.float32)
         if keypoints.shape[1] > MAX_PEOPLE:
+            crowded = int(((scores > 0).any(-1).sum(-1) > MAX_PEOPLE).sum())
+            log.warning("recording %s, camera %s: %d frames with more than %d people detected: the %d most confident of each kept",
+                        read.recording.name, name, crowded, MAX_PEOPLE, MAX_PEOPLE)  # fmt: skip
             order = np.argsort(-np.nan_to_num(scores).sum(-1), axis=1, kind="stable")[:, :MAX_PEOPLE]
             keypoints = np.take_along_axis(keypoints, order[..., None, None], axis=1)
             scores = np.take_along_axis(scores, order[..., None], axis=1)
-        check_body25_layout(read.layout, keypoints, scores, printable(read.recording.folder / name), "--data.skeleton")
+        pooled.append((keypoints.reshape(-1, *keypoints.shape[2:]), scores.reshape(-1, scores.shape[-1])))
+        views[name] = (detections.frames, keypoints, scores)
+    if pooled:
+        where = printable(read.recording.folder) + f" (cameras {', '.join(views)})"
+        check_body25_layout(read.layout, np.concatenate([k for k, _ in pooled]), np.concatenate([c for _, c in pooled]), where, "--data.skeleton")
+    for name, (frames, keypoints, scores) in views.items():
         keypoints, confidence = to_lifting_skeleton(read.layout, keypoints, scores)
         confidence = np.where(confidence >= min_confidence, confidence, 0.0).astype(np.float32)
-        views[name] = (detections.frames, keypoints, confidence)
+        views[name] = (frames, keypoints, confidence)
     return views
 
 
@@ -282,16 +297,49 @@ def one_person(keypoints: np.ndarray, confidence: np.ndarray) -> tuple[np.ndarra
 
 
 def ground_truth_on_instants(folder: pathlib.Path, skeleton: Skeleton, layout: str, instants: np.ndarray) -> tuple[np.ndarray | None, int]:
-    """The recording's ground truth on its instants: (f32[N, J, 3] world mm, NaN where unknown, or None; instants with it)."""
+    """The recording's ground truth on its instants: (f32[N, P, J, 3] world mm of its P people, NaN where
+    unknown, or None; instants with it)."""
     path = folder / GROUND_TRUTH_NPZ
     if not path.is_file():
         return None, 0
     truth = read_ground_truth(path)
-    if truth.points.shape[1] != 1:
-        raise DataFormatError(path, "points3d of one person [N, J, 3] (this path follows one person)", f"{truth.points.shape[1]} people")
     root_from = DETECTOR_LAYOUTS[layout].root_from if layout in DETECTOR_LAYOUTS else None
-    matched = ground_truth.on_skeleton(truth.points[:, 0], truth.joint_names, skeleton, root_from, f"{path}, array 'joint_names'")
-    target = np.full((len(instants), skeleton.num_joints, 3), np.nan, np.float32)
+    people = truth.points.shape[1]
+    matched = np.stack([
+        ground_truth.on_skeleton(truth.points[:, person], truth.joint_names, skeleton, root_from, f"{path}, array 'joint_names'")
+        for person in range(people)
+    ], 1)  # fmt: skip
+    target = np.full((len(instants), people, skeleton.num_joints, 3), np.nan, np.float32)
     _, rows, gt_rows = np.intersect1d(instants, truth.frames, return_indices=True)
     target[rows] = matched[gt_rows]
     return target, len(rows)
+
+
+TRUTH_MATCH_MM = 300.0
+"""The largest median joint distance (mm) of a prepared person from a ground-truth person for it to be that one."""
+
+
+def truth_of_people(target: np.ndarray, instant: np.ndarray, person: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Each prepared row's ground truth: target f32[N, P, J, 3] (`ground_truth_on_instants`), the rows' instant
+    int[R] and person int[R] and their triangulated joints f32[R, J, 3] (NaN where unseen) -> f32[R, J, 3].
+    With one ground-truth person and one prepared person, that person's; else each prepared person is given the
+    ground-truth person nearest to it (the median joint distance over the instants both have, one to one,
+    `scipy.optimize.linear_sum_assignment`) within `TRUTH_MATCH_MM`, and NaN where none is."""
+    if target.shape[1] == 1 and (person == person[0]).all():
+        return target[instant, 0]
+    ids = np.unique(person)
+    cost = np.full((len(ids), target.shape[1]), np.inf)
+    for row, k in enumerate(ids):
+        rows = person == k
+        distance = np.linalg.norm(target[instant[rows]] - points[rows, None], axis=-1)  # [r, P, J]
+        finite = np.isfinite(distance)
+        with np.errstate(invalid="ignore"):
+            median = np.array([np.median(distance[:, p][finite[:, p]]) if finite[:, p].any() else np.inf for p in range(target.shape[1])])
+        cost[row] = median
+    out = np.full((len(person), *target.shape[2:]), np.nan, np.float32)
+    rows, columns = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e12))
+    for row, column in zip(rows, columns):
+        if cost[row, column] <= TRUTH_MATCH_MM:
+            mine = person == ids[row]
+            out[mine] = target[instant[mine], column]
+    return out

@@ -29,10 +29,9 @@ from typing import Any, TypeVar
 import jax
 import jax.numpy as jnp
 import numpy as np
-import tyro
 
 from jaxpose.training import checkpoint
-from jaxpose.training.run_directory import RunDirectory, RunRecord, read_record, record_named_in
+from jaxpose.training.run_directory import RunDirectory, RunRecord, parse_over_run, read_record
 from jaxpose.camera import Cameras, masked_median, normalize_keypoints, undistort_points
 from jaxpose.model import ModelConfig
 from jaxpose.chunks import map_in_chunks
@@ -59,35 +58,24 @@ pixels away is a detector failure (docs/robust_input.md)."""
 T = TypeVar("T")
 
 
-def parse_with_run(args_type: type[T], argv: Sequence[str] | None, description: str, prog: str) -> T:
-    """The command line of a command that lifts with a run (`jaxpose.predict`, `jaxpose.export`), its
-    --min-confidence defaulting to the threshold the run named by --checkpoint was trained with (its run.json;
-    `DEFAULT_MIN_CONFIDENCE` for a run without one), so that `--help` shows the value used and a value given
-    always wins; one given that differs from the run's is said in one line."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    try:
-        run, record = record_named_in(argv)
-    except ValueError as error:
-        raise SystemExit(f"{prog}: error: {error}") from None
-    trained = None if record is None else record.min_confidence
-    required = {field.name: tyro.MISSING for field in dataclasses.fields(args_type) if field.default is dataclasses.MISSING}
-    default = args_type(**required, min_confidence=DEFAULT_MIN_CONFIDENCE if trained is None else trained)
-    args = tyro.cli(args_type, default=default, args=argv, description=description, prog=prog)
-    if trained is not None and args.min_confidence != trained:
-        print(f"--min-confidence {args.min_confidence:g} given; the run was trained with {trained:g} ({RunDirectory.of(run).record})", file=sys.stderr)
-    return args
+def parse_with_run(
+    args_type: type[T], argv: Sequence[str] | None, description: str, prog: str, run_field: str = "checkpoint"
+) -> tuple[T, RunDirectory | None, RunRecord | None]:
+    """The command line of a command that lifts with a run (`jaxpose.predict`, `jaxpose.export`) over the run's
+    settings (`parse_over_run`): --min-confidence defaults to the threshold the run was trained with (its
+    run.json; `DEFAULT_MIN_CONFIDENCE` for a run without one); one given that differs from the run's is said in
+    one line.  Returns the arguments, the run's folder and its record, for `load`."""
 
+    def trained(record: RunRecord | None) -> float | None:
+        return None if record is None else record.min_confidence
 
-def score_threshold(lifter: "Lifter3D", given: float | None) -> float:
-    """--min-confidence of `jaxpose.export` (its run is a positional argument, not read before parsing): the value given, else the threshold the
-    lifter's run recorded it was trained with (`Lifter3D.record`), else `DEFAULT_MIN_CONFIDENCE`; a value
-    given that differs from the run's is said in one line."""
-    trained = None if lifter.record is None else lifter.record.min_confidence
-    if given is None:
-        return DEFAULT_MIN_CONFIDENCE if trained is None else trained
-    if trained is not None and given != trained:
-        print(f"--min-confidence {given:g} differs from the run's {trained:g} ({RunDirectory.of(lifter.source).record}): using {given:g}", file=sys.stderr)
-    return given
+    def defaults(record: RunRecord | None) -> dict[str, float]:
+        return {"min_confidence": DEFAULT_MIN_CONFIDENCE if trained(record) is None else trained(record)}
+
+    args, run, record = parse_over_run(args_type, argv, defaults, description, prog, run_field)
+    if trained(record) is not None and args.min_confidence != trained(record):
+        print(f"--min-confidence {args.min_confidence:g} given; the run was trained with {trained(record):g} ({run.record})", file=sys.stderr)
+    return args, run, record
 
 
 def implausible_joints(
@@ -437,14 +425,16 @@ def _check_intrinsics(intrinsics, image_size, count: int) -> np.ndarray:
     return K
 
 
-def load(path: str | pathlib.Path, batch_size: int = DEFAULT_BATCH_SIZE) -> Lifter3D:
-    """The lifter of a run: `path` is the run directory or its checkpoints/ directory.
+def load(path: str | pathlib.Path | RunDirectory, batch_size: int = DEFAULT_BATCH_SIZE) -> Lifter3D:
+    """The lifter of a run: `path` is the run directory or its checkpoints/ directory (or the `RunDirectory`
+    a command built for it, `parse_with_run`).
 
     Restores the newest readable checkpoint (on the default device), with the run's record (`Lifter3D.record`).  Raises FileNotFoundError for a
     missing run directory or checkpoints/, and `jaxpose.training.checkpoint.CheckpointError` when no step
     can be read.
     """
-    run = RunDirectory.of(path)
+    run = path if isinstance(path, RunDirectory) else RunDirectory.of(path)
+    path = path.path if isinstance(path, RunDirectory) else path
     if not run.checkpoints.is_dir():
         raise FileNotFoundError(
             f"{path} does not exist; expected a run directory (with checkpoints/) or its checkpoints/" if not pathlib.Path(path).exists()
@@ -465,5 +455,5 @@ def load(path: str | pathlib.Path, batch_size: int = DEFAULT_BATCH_SIZE) -> Lift
         source=checkpoints,
         eval_step=make_eval_step(model, network.model),
         batch_size=batch_size,
-        record=read_record(run.path),
+        record=read_record(run),
     )

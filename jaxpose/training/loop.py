@@ -3,8 +3,8 @@ test subset now and then, checkpoint, and stop cleanly on Ctrl-C or SIGTERM."""
 
 from __future__ import annotations
 
+import dataclasses
 import logging
-import pathlib
 import signal
 import time
 from collections.abc import Callable
@@ -15,7 +15,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from jaxpose.training.experiment import ExperimentConfig
-from jaxpose.training.run_directory import RunDirectory, RunLog
+from jaxpose.training.run_directory import RunDirectory, RunLog, RunRecord, read_record, write_record
 from jaxpose.training import checkpoint, parallel
 from jaxpose.training.evaluator import Evaluator
 from jaxpose.data.dataset import MultiViewDataset
@@ -78,7 +78,7 @@ def periodic_evaluation(config: ExperimentConfig, test: MultiViewDataset, model)
 
 
 def train(
-    config: ExperimentConfig, stream: TrainingStream, run_dir: pathlib.Path, test_set: MultiViewDataset | None = None
+    config: ExperimentConfig, stream: TrainingStream, run: RunDirectory, test_set: MultiViewDataset | None = None
 ) -> tuple[TrainState, Any]:
     """Train (or resume) on `stream` (its data set must carry pseudo-labels) for its budget, or up to
     `train.max_steps`.  Returns (state, model).  With `train.eval_every`, a subset of `test_set` is
@@ -97,13 +97,19 @@ def train(
     state, dropout_key = parallel.replicate((init_train_state(model, optimizer, init_key), dropout_key), mesh)
     # The step's switch for the gradient shares, on the devices once (the logged steps measure them).
     measure_shares = parallel.replicate({False: np.False_, True: np.True_}, mesh)
-    manager = checkpoint.checkpoint_manager(RunDirectory(run_dir).checkpoints, cfg.keep_checkpoints)
-    lifter = checkpoint.LifterRecord(skeleton, config.model)
+    manager = checkpoint.checkpoint_manager(run.checkpoints, cfg.keep_checkpoints)
+    # The network joins the run's record (run.json, the one record of what it was trained on); every checkpoint
+    # repeats it, derived from the record, because a step must restore alone: Orbax needs the network's shapes
+    # before it reads the variables, and a checkpoints/ folder copied without its run.json still loads.
+    record = dataclasses.replace(read_record(run) or RunRecord(), skeleton=skeleton.name, model=config.model)
+    if jax.process_index() == 0:
+        write_record(run, record)
+    lifter = record.lifter()
     restored = checkpoint.restore_latest(manager, state, discard_unreadable=True)
     if restored is not None:
         state = restored
         log.info("resumed from step %d of %d", int(state.step), total_steps)
-    run_log = RunLog(run_dir, int(jax.device_get(state.step)), config.run.tensorboard)
+    run_log = RunLog(run, int(jax.device_get(state.step)), config.run.tensorboard)
     learning_rate = config.optimizer.learning_rate_schedule(total_steps)
     evaluate = periodic_evaluation(config, test_set, model) if cfg.eval_every > 0 and test_set is not None else None
     train_step = make_train_step(
@@ -147,7 +153,7 @@ def train(
                     checkpoint.save(manager, state, lifter)
                 if interrupt.received is not None:
                     manager.wait_until_finished()
-                    raise Interrupted(f"stopped by signal {interrupt.received} at step {done}; checkpoint saved in {run_dir}")
+                    raise Interrupted(f"stopped by signal {interrupt.received} at step {done}; checkpoint saved in {run.path}")
     finally:
         bar.close()
         run_log.close()

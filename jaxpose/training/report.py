@@ -4,7 +4,6 @@ report.{json,md} with the reference rows and the ground-truth-free measures, and
 from __future__ import annotations
 
 import json
-import pathlib
 
 import jax
 import numpy as np
@@ -27,7 +26,7 @@ def evaluate_and_report(
     budget: Budget,
     state: TrainState,
     model,
-    run_dir: pathlib.Path,
+    run: RunDirectory,
     method_name: str,
     wall_time: float,
 ) -> dict:
@@ -44,7 +43,7 @@ def evaluate_and_report(
     if rows:
         joint_names = tuple(joint_names[j] for j in evaluator.truth.joints)
         motion_step = f"between test samples {evaluation.frame_step(*evaluator.motion_axes())} frames apart"
-    history = read_jsonl(RunDirectory(run_dir).metrics)
+    history = read_jsonl(run.metrics)
     last_train = next((r for r in reversed(history) if "loss" in r), {})
     shares = {k.removeprefix(GRADIENT_SHARE_PREFIX): v for k, v in last_train.items() if k.startswith(GRADIENT_SHARE_PREFIX)}
     report = {
@@ -58,14 +57,17 @@ def evaluate_and_report(
         "final_gradient_shares": shares,
         "train_steps": int(state.step),
         "training_budget": {"steps": budget.total_steps, "steps_per_epoch": budget.steps_per_epoch, "capped": budget.capped},
+        "samples_per_person": {part: samples_per_person(dataset) for part, dataset in (("train", splits.train), ("test", test))},
         "test_time_flip": config.train.eval_flip,
         "wall_time_s": wall_time,
         "devices": [str(d) for d in jax.devices()],
         "config": to_json_dict(config),
     }
     if jax.process_index() == 0:
-        RunDirectory(run_dir).report_json.write_text(json.dumps(report, indent=2))
+        run.report_json.write_text(json.dumps(report, indent=2))
         tables = [*splits.notes, *([f"Training budget: trained {budget.note()}."] if budget.capped else [])]
+        if report["samples_per_person"]["train"]:
+            tables.append(samples_per_person_table(report["samples_per_person"]))
         if config.train.eval_flip:
             tables.append("Test-time flip (--train.eval-flip): every view's pose and its mirror image lifted and averaged.")
         if rows:
@@ -82,10 +84,29 @@ def evaluate_and_report(
         tables.append(ground_truth_free_table(consistency, splits.view_names()))
         if shares:
             tables.append(gradient_share_table(shares, int(state.step)))
-        RunDirectory(run_dir).report_md.write_text("\n\n".join(tables) + "\n")
+        run.report_md.write_text("\n\n".join(tables) + "\n")
         reference = evaluator.truth.target if rows and len(joint_names) == test.skeleton.num_joints else evaluator.triangulation
-        _plots(config, test, pred, reference, run_dir)
+        _plots(config, test, pred, reference, run)
     return report
+
+
+def samples_per_person(dataset: MultiViewDataset) -> dict[str, int]:
+    """{person: samples} of a data set whose samples are people of recordings (label "person", named by
+    "sequence": `jaxpose.rig.split.person_names`); {} for other data sets."""
+    labels = dataset.samples.labels
+    if "person" not in labels:
+        return {}
+    names, counts = np.unique(np.asarray(labels["sequence"]).astype(str), return_counts=True)
+    return {str(name): int(count) for name, count in zip(names, counts)}
+
+
+def samples_per_person_table(counts: dict[str, dict[str, int]]) -> str:
+    """Markdown: the training and test samples of each person (every person's instants are samples)."""
+    people = sorted(set(counts["train"]) | set(counts["test"]))
+    lines = ["**Samples per person** (each person's instants, with their own pseudo-labels)", "", "| person | train | test |", "|---|---|---|"]
+    lines += [f"| {name} | {counts['train'].get(name, 0)} | {counts['test'].get(name, 0)} |" for name in people]
+    lines.append(f"| all | {sum(counts['train'].values())} | {sum(counts['test'].values())} |")
+    return "\n".join(lines)
 
 
 def ground_truth_free_table(consistency: dict, camera_names: tuple[str, ...]) -> str:
@@ -142,8 +163,8 @@ EVALUATION_LABELS = {
 }
 
 
-def _plots(config, test: MultiViewDataset, pred, target, run_dir: pathlib.Path) -> None:
-    records = read_jsonl(RunDirectory(run_dir).metrics)
+def _plots(config, test: MultiViewDataset, pred, target, run: RunDirectory) -> None:
+    records = read_jsonl(run.metrics)
     history = [r for r in records if "loss" in r]
     evaluations = [r for r in records if any(key.startswith("eval_") for key in r)]
     if evaluations:
@@ -153,18 +174,18 @@ def _plots(config, test: MultiViewDataset, pred, target, run_dir: pathlib.Path) 
         }
         figure = viz.figure_loss_curves(curves, log_y=False)
         figure.suptitle("periodic evaluation on a test subset (monitoring only; the report is the final checkpoint)")
-        viz.save_figure(figure, RunDirectory(run_dir).plot("periodic_evaluation.png"))
+        viz.save_figure(figure, run.plot("periodic_evaluation.png"))
     if history:
         keys = [k for k in ("loss", *TERMS, "supervised") if k in history[-1]]
         curves = {k: [(r["step"], r[k]) for r in history if k in r] for k in keys}
-        viz.save_figure(viz.figure_loss_curves(curves), RunDirectory(run_dir).plot("loss_curves.png"))
+        viz.save_figure(viz.figure_loss_curves(curves), run.plot("loss_curves.png"))
         share_keys = [f"{GRADIENT_SHARE_PREFIX}{term}" for term in TERMS if f"{GRADIENT_SHARE_PREFIX}{term}" in history[-1]]
         if share_keys:
             shares = {k.removeprefix(GRADIENT_SHARE_PREFIX): [(r["step"], r[k]) for r in history if k in r] for k in share_keys}
             figure = viz.figure_loss_curves(shares, log_y=False, overlay=True)
-            viz.save_figure(figure, RunDirectory(run_dir).plot("gradient_shares.png"))
+            viz.save_figure(figure, run.plot("gradient_shares.png"))
     count = min(config.run.plot_samples, len(test))
     if count:
         picks = np.linspace(0, len(test) - 1, count).astype(int)
         figure = viz.figure_gt_vs_prediction(target[picks, 0], pred[picks, 0], test.skeleton)
-        viz.save_figure(figure, RunDirectory(run_dir).plot("gt_vs_prediction.png"))
+        viz.save_figure(figure, run.plot("gt_vs_prediction.png"))

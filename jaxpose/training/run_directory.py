@@ -4,8 +4,9 @@ only ever a run folder.
 
 A run folder is marked at creation by its record, `run.json`.  A folder that holds anything a run did not
 write (a project, a thesis) is refused before anything is written, with or without --run.overwrite, and
---run.overwrite removes only the entries a run writes (`RUN_ENTRIES`), never a nested run or a study's
-summary beside it.  A run folder written before the record existed is recognised by its entries.
+--run.overwrite removes only the entries a run writes (`RUN_ENTRIES`), never a nested run.  A study of
+experiments/ writes its summary into a folder of its own, never into a run's (`write_study_file`).  A run
+folder written before the record existed is recognised by its entries.
 """
 
 from __future__ import annotations
@@ -16,17 +17,26 @@ import json
 import logging
 import pathlib
 import shutil
+import sys
 import time
-from collections.abc import Iterator, Mapping, Sequence
+import typing
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from typing import Any, TypeVar
 
 import jax
+import tyro
 
 from jaxpose.formats.files import from_typed_json, typed_json
 from jaxpose.formats.outputs import atomic_output, exclusive_folder
+from jaxpose.model import ModelConfig
 from jaxpose.rig.config import RigProjectConfig
+from jaxpose.skeleton import get_skeleton
+from jaxpose.training.checkpoint import LifterRecord
 from jaxpose.training.experiment import ExperimentConfig, TrainConfig, dumps, to_json_dict
 
 log = logging.getLogger("jaxpose")
+
+T = TypeVar("T")
 
 
 LOCK_FILE = "run.lock"
@@ -34,6 +44,7 @@ RECORD_FILE = "run.json"
 RECOVERED_CAMERAS_FILE = "recovered_cameras.json"
 RECOVERED_TOML_FILE = "recovered_cameras.toml"
 RECOVERED_SESSIONS_DIR = "recovered_sessions"
+PAPER_TABLE_FILE = "table_paper_layout.md"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,20 +98,33 @@ class RunDirectory:
         """The same rig as a Pose2Sim/Anipose calibration TOML (metres), for the other tools."""
         return self.path / RECOVERED_TOML_FILE
 
-    def recovered_session_cameras(self, session: str) -> pathlib.Path:
-        """The rig recovered for one session of a project of several (cameras moved between sessions):
-        recovered_sessions/SESSION.json, a jaxpose camera file."""
-        return self.path / RECOVERED_SESSIONS_DIR / f"{session}.json"
+    @staticmethod
+    def recovered_rig_files(sessions: Sequence[str]) -> dict[str, str]:
+        """Where a run keeps the rigs recovered for `sessions` (`RunRecord.recovered_rigs`), by session: one
+        session's as recovered_cameras.json, several as recovered_sessions/SESSION.json (paths in the run folder)."""
+        if len(sessions) == 1:
+            return {sessions[0]: RECOVERED_CAMERAS_FILE}
+        return {session: f"{RECOVERED_SESSIONS_DIR}/{session}.json" for session in sessions}
 
-    def recovered_session_toml(self, session: str) -> pathlib.Path:
-        """The same session's rig as a Pose2Sim/Anipose calibration TOML (metres): recovered_sessions/SESSION.toml."""
-        return self.path / RECOVERED_SESSIONS_DIR / f"{session}.toml"
+    def recovered_rigs(self, record: RunRecord | None) -> dict[str, pathlib.Path]:
+        """The run's recovered rigs by session (jaxpose camera files; the TOML beside each), as its record lists
+        them; for a run from before the record listed them, the ones its folder holds."""
+        if record is not None and record.recovered_rigs is not None:
+            return {session: self.path / name for session, name in record.recovered_rigs.items()}
+        if self.recovered_cameras.is_file():
+            return {"": self.recovered_cameras}
+        return {path.stem: path for path in sorted((self.path / RECOVERED_SESSIONS_DIR).glob("*.json"))}
 
     def session_of(self, calibration: pathlib.Path) -> str | None:
         """The session whose recovered rig `calibration` is (recovered_sessions/SESSION.json or .toml), or None."""
         folder = (self.path / RECOVERED_SESSIONS_DIR).resolve()
         calibration = calibration.resolve()
         return calibration.stem if calibration.parent == folder and calibration.suffix in (".json", ".toml") else None
+
+    @property
+    def paper_table(self) -> pathlib.Path:
+        """The report's results in the paper's table layout (`experiments.paper_tables`), for the experiments of one."""
+        return self.path / PAPER_TABLE_FILE
 
     @property
     def plots(self) -> pathlib.Path:
@@ -112,35 +136,52 @@ class RunDirectory:
 
 @dataclasses.dataclass(frozen=True)
 class RunRecord:
-    """What a run was trained on beyond its config, kept in run.json for the commands that use the run
-    (`jaxpose.predict`, `reconstruct`, `export`): how a detection became the lifter's input, and a rig
-    project's settings.  Each applies them unless overridden, and says in one line where an override differs."""
+    """What a run was trained on, kept in run.json: the one record of it.  The commands that use the run
+    (`jaxpose.predict`, `reconstruct`, `export`) take their defaults from it (`parse_over_run`), each applying
+    them unless overridden and saying in one line where an override differs.  config.json holds the settings as
+    they were given, which a resume must continue (`check_resumable`); each checkpoint repeats the network
+    (`lifter`, derived from this record) because a step must restore alone."""
 
-    min_confidence: float | None = None
-    """Keypoints scored below this were missing in training (None: the data set's 2D taken as given)."""
-    layout: str | None = None
-    """The detector keypoint layout trained on (a `jaxpose.layouts` name; None: the data set's own joints)."""
     project: RigProjectConfig | None = None
     """A rig project's settings (`jaxpose.rig.config.recorded_settings`: sync, frame offsets, calibration and
-    its unit, score threshold, ..., the paths resolved; its recordings and split left at their defaults)."""
+    its unit, score threshold, the detector layout as `skeleton`, ..., the paths resolved; its recordings and
+    split left at their defaults); None for the other data sets."""
     sessions: Mapping[str, Sequence[str]] | None = None
-    """A rig project of several sessions without a calibration: each session's recordings, by session name
-    (its rig is `RunDirectory.recovered_session_toml`); None otherwise."""
+    """A rig project of several sessions without a calibration: each session's recordings, by session name;
+    None otherwise."""
+    recovered_rigs: Mapping[str, str] | None = None
+    """The rigs recovered from the recordings of a project without a calibration, stored with the run as its
+    assets (`RunDirectory.recovered_rig_files`): by session, the jaxpose camera file's path in the run folder,
+    the Pose2Sim/Anipose TOML beside it with the suffix .toml.  Empty for a calibrated project; None for the
+    other data sets or a run from before the record listed them (`RunDirectory.recovered_rigs` finds them)."""
+    skeleton: str | None = None
+    """The joints the lifter lifts (a `jaxpose.skeleton` name); None for a run from before the record held it."""
+    model: ModelConfig | None = None
+    """The lifter's network; None for a run from before the record held it."""
+
+    @property
+    def min_confidence(self) -> float | None:
+        """Keypoints scored below this were missing in training: the rig project's --data.min-confidence (None:
+        the data set's 2D taken as given)."""
+        return None if self.project is None else self.project.min_confidence
+
+    def lifter(self) -> LifterRecord:
+        """The network, as each checkpoint repeats it (its `lifter` item)."""
+        return LifterRecord(get_skeleton(self.skeleton), self.model)
 
 
-def write_record(run_dir: pathlib.Path, record: RunRecord) -> None:
+def write_record(run: RunDirectory, record: RunRecord) -> None:
     """Add `record` to the run's run.json (atomically: a failed write keeps the marker as it was)."""
-    path = RunDirectory(run_dir).record
+    path = run.record
     content = json.loads(path.read_text()) if path.exists() else {"jaxpose_run": 1}
     content["trained_on"] = typed_json(record)
     with atomic_output(path) as temporary:
         temporary.write_text(json.dumps(content, indent=1, default=str) + "\n")  # default: the paths as text
 
 
-def read_record(run_dir: pathlib.Path) -> RunRecord | None:
-    """The record of the run `run_dir` (or of its checkpoints/ folder), or None for a run written before
-    records existed."""
-    path = RunDirectory.of(run_dir).record
+def read_record(run: RunDirectory) -> RunRecord | None:
+    """The record of the run, or None for a run written before records existed."""
+    path = run.record
     if not path.is_file():
         return None
     try:
@@ -150,25 +191,75 @@ def read_record(run_dir: pathlib.Path) -> RunRecord | None:
         raise ValueError(f"{path}: not a run record jaxpose wrote ({error})") from None
 
 
-def record_named_in(argv: Sequence[str]) -> tuple[pathlib.Path | None, RunRecord | None]:
-    """(the run `--checkpoint RUN` names in a command line, its record): read before the command line is
-    parsed, because the run's settings are its defaults (`--help` shows them, every flag given wins).  (None,
-    None) without the flag; (RUN, None) for a run from before records.  Raises ValueError for an unreadable record."""
-    for index, argument in enumerate(argv):
-        if argument.startswith("--checkpoint="):
-            run = pathlib.Path(argument.split("=", 1)[1])
-        elif argument == "--checkpoint" and index + 1 < len(argv):
-            run = pathlib.Path(argv[index + 1])
+def parse_over_run(
+    args_type: type[T], argv: Sequence[str] | None, run_defaults: Callable[[RunRecord | None], Mapping[str, Any]],
+    description: str, prog: str, run_field: str = "checkpoint",
+) -> tuple[T, RunDirectory | None, RunRecord | None]:
+    """The command line of a command that uses a run (`jaxpose.predict`, `export`, `reconstruct`): the run it
+    names (its `run_field`: --checkpoint RUN, or export's positional RUN_DIR) is read before the command line is
+    parsed, and `run_defaults(record)` (field name: value, from the run's record; None for a run from before
+    records) are the command's defaults, so `--help` shows the values that will be used and every flag given
+    wins, also one given at the command's own default.  Returns (the arguments, the run's `RunDirectory`,
+    built once here for the whole command, its record); (args, None, None) where the command line names no run."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    named = _named_run(argv, args_type, run_field)
+    run = None if named is None else RunDirectory.of(pathlib.Path(named))
+    try:
+        record = None if run is None else read_record(run)
+    except ValueError as error:
+        raise SystemExit(f"{prog}: error: {error}") from None
+    required = {
+        field.name: tyro.MISSING for field in dataclasses.fields(args_type)
+        if field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING
+    }  # fmt: skip
+    default = args_type(**(required | dict(run_defaults(record))))
+    return tyro.cli(args_type, default=default, args=argv, description=description, prog=prog), run, record
+
+
+def _named_run(argv: Sequence[str], args_type: type, field: str) -> str | None:
+    """The value `argv` gives the field `field` of `args_type`: its flag's (--checkpoint RUN or --checkpoint=RUN,
+    the last one given, as the parser takes it), else the first positional argument (every flag but a bool's
+    takes one value)."""
+    flag = "--" + field.replace("_", "-")
+    given = [
+        argument.split("=", 1)[1] if argument.startswith(flag + "=") else argv[index + 1]
+        for index, argument in enumerate(argv)
+        if argument.startswith(flag + "=") or (argument == flag and index + 1 < len(argv))
+    ]  # fmt: skip
+    if given:
+        return given[-1]
+    hints = typing.get_type_hints(args_type)
+    takes_value = {"--" + name.replace("_", "-") for name, hint in hints.items() if hint is not bool}
+    expects_value = False
+    for argument in argv:
+        if argument.startswith("-"):
+            expects_value = argument in takes_value
+        elif expects_value:
+            expects_value = False
         else:
-            continue
-        return run, read_record(run)
-    return None, None
+            return argument
+    return None
 
 
 # What a run writes into its folder, and what --run.overwrite may remove.
-RUN_ENTRIES = frozenset({RECORD_FILE, LOCK_FILE, "config.json", "metrics.jsonl", "checkpoints", "tensorboard", "report.json", "report.md", "plots", RECOVERED_CAMERAS_FILE, RECOVERED_TOML_FILE, RECOVERED_SESSIONS_DIR})
-# What the studies of experiments/ write beside the runs they train inside a run folder (kept by --run.overwrite).
-STUDY_ENTRIES = frozenset({"comparison.md", "comparison.json", "search.md", "search.json", "label_bias.md", "table_paper_layout.md", "mpi_inf_3dhp"})
+RUN_ENTRIES = frozenset({RECORD_FILE, LOCK_FILE, "config.json", "metrics.jsonl", "checkpoints", "tensorboard", "report.json", "report.md", "plots", PAPER_TABLE_FILE, RECOVERED_CAMERAS_FILE, RECOVERED_TOML_FILE, RECOVERED_SESSIONS_DIR})
+
+
+def check_study_folder(folder: pathlib.Path) -> None:
+    """Refuse a run folder as a study's folder (`write_study_file`): called by a study before it trains anything."""
+    if (folder / RECORD_FILE).is_file() or ((folder / "config.json").is_file() and (folder / "checkpoints").is_dir()):
+        raise SystemExit(f"{folder}: is a run folder, which holds only its run; give the study a folder of its own (its --run.run-dir)")
+
+
+def write_study_file(folder: pathlib.Path, name: str, text: str) -> pathlib.Path:
+    """Write a study's summary (experiments/: comparison.md, search.md, ...) into the study's own folder, the one
+    that holds the runs it trained, each in a sub-folder: never into a run folder, which only the training that
+    owns it writes (through `RunDirectory`).  Atomic; rewritten as the study goes on."""
+    check_study_folder(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    with atomic_output(folder / name) as temporary:
+        temporary.write_text(text)
+    return folder / name
 
 
 def _written_by_jaxpose(entry: pathlib.Path) -> bool:
@@ -182,12 +273,12 @@ def _written_by_jaxpose(entry: pathlib.Path) -> bool:
 
 
 def foreign_entries(run_dir: pathlib.Path) -> list[str]:
-    """The names in `run_dir` that no jaxpose run or study wrote (none where it does not exist)."""
+    """The names in `run_dir` that no jaxpose run wrote (none where it does not exist)."""
     if not run_dir.is_dir():
         return []
     return sorted(
         entry.name for entry in run_dir.iterdir()
-        if entry.name not in RUN_ENTRIES | STUDY_ENTRIES and not _written_by_jaxpose(entry)
+        if entry.name not in RUN_ENTRIES and not _written_by_jaxpose(entry)
     )  # fmt: skip
 
 
@@ -217,26 +308,28 @@ def _identity(config_json: dict) -> dict:
     return identity
 
 
-def holds_a_run(run_dir: pathlib.Path) -> bool:
+def holds_a_run(files: RunDirectory) -> bool:
     """Whether run_dir holds something a different config must not take over: a committed checkpoint
     (Orbax names them by step) or a finished run's report.  A start that failed before its first
     checkpoint (a batch larger than the data, a crash while compiling) left nothing to resume."""
-    files = RunDirectory(run_dir)
     committed = files.checkpoints.is_dir() and any(entry.name.isdigit() for entry in files.checkpoints.iterdir())
     return committed or files.report_json.exists()
 
 
-def check_resumable(config: ExperimentConfig) -> None:
-    """Fail early (before any data are loaded) if run_dir is not a run folder, or holds a run of a different config."""
+def check_resumable(config: ExperimentConfig) -> RunDirectory:
+    """Fail early (before any data are loaded) if run_dir is not a run folder, or holds a run of a different
+    config; returns its `RunDirectory`."""
     check_run_folder(config.run.run_dir)
-    config_path = RunDirectory(config.run.run_dir).config
-    if config.run.overwrite or not config_path.exists() or not holds_a_run(config.run.run_dir):
-        return
+    files = RunDirectory(config.run.run_dir)
+    config_path = files.config
+    if config.run.overwrite or not config_path.exists() or not holds_a_run(files):
+        return files
     if _identity(json.loads(config_path.read_text())) != _identity(to_json_dict(config)):
         raise SystemExit(
             f"{config.run.run_dir} holds a run with a different config ({config_path}); resume it with the same"
             " settings, pick another --run.run-dir, or pass --run.overwrite to start over."
         )
+    return files
 
 
 @contextlib.contextmanager
@@ -251,11 +344,11 @@ def exclusive(run_dir: pathlib.Path) -> Iterator[None]:
         yield
 
 
-def prepare_run_dir(config: ExperimentConfig) -> pathlib.Path:
-    """Create (or check, for a resume) the run directory, mark it, and write config.json."""
-    check_resumable(config)
-    run_dir = config.run.run_dir
-    files = RunDirectory(run_dir)
+def prepare_run_dir(config: ExperimentConfig) -> RunDirectory:
+    """Create (or check, for a resume) the run directory, mark it, and write config.json.  Returns its
+    `RunDirectory`, which the run passes on to everything that writes or reads its files."""
+    files = check_resumable(config)
+    run_dir = files.path
     if config.run.overwrite and run_dir.exists() and jax.process_index() == 0:
         for entry in run_dir.iterdir():  # what a run wrote, but the lock this run holds
             if entry.name in RUN_ENTRIES and entry.name != LOCK_FILE:
@@ -266,7 +359,7 @@ def prepare_run_dir(config: ExperimentConfig) -> pathlib.Path:
         if not files.record.exists():
             files.record.write_text(json.dumps({"jaxpose_run": 1, "created": time.strftime("%Y-%m-%d %H:%M:%S")}, indent=1) + "\n")
         files.config.write_text(dumps(config))
-    return run_dir
+    return files
 
 
 def _append_jsonl(path: pathlib.Path, record: dict) -> None:
@@ -287,8 +380,8 @@ class RunLog:
     """The run's metric lines: appended to metrics.jsonl and, where tensorboardX is installed, written
     as TensorBoard scalars (`<group>/<name>`) to <run_dir>/tensorboard.  Process 0 writes."""
 
-    def __init__(self, run_dir: pathlib.Path, start_step: int, tensorboard: bool):
-        self.path = RunDirectory(run_dir).metrics
+    def __init__(self, run: RunDirectory, start_step: int, tensorboard: bool):
+        self.path = run.metrics
         _truncate_log(self.path, start_step)
         self.writer = None
         if not tensorboard or jax.process_index() != 0:
@@ -300,7 +393,7 @@ class RunLog:
             return
         # purge_step: a resumed run replays the steps after its checkpoint; TensorBoard drops their
         # first logging, as `_truncate_log` does for metrics.jsonl.
-        self.writer = SummaryWriter(str(RunDirectory(run_dir).tensorboard), purge_step=start_step or None, flush_secs=5)
+        self.writer = SummaryWriter(str(run.tensorboard), purge_step=start_step or None, flush_secs=5)
 
     def write(self, group: str, record: dict) -> None:
         _append_jsonl(self.path, record)

@@ -27,7 +27,7 @@ import numpy as np
 
 from jaxpose.training.experiment import ExperimentConfig, check_config
 from jaxpose.training.report import evaluate_and_report
-from jaxpose.training.run_directory import RunDirectory, check_resumable, exclusive, prepare_run_dir, write_record
+from jaxpose.training.run_directory import check_resumable, exclusive, prepare_run_dir, write_record
 from jaxpose.training.splits import Splits
 from jaxpose.training.loop import Diverged, Interrupted, train
 from jaxpose.training.stream import TrainingStream
@@ -100,23 +100,23 @@ def _run_holding_the_directory(
     for start in range(0, len(trained), VALIDATION_ROWS):
         validate_batch(train_set.batch(trained[start : start + VALIDATION_ROWS], config.model.temporal_window))
     splits = dataclasses.replace(splits, train=train_set)
-    run_dir = prepare_run_dir(config)
+    run_folder = prepare_run_dir(config)  # the run's folder, for the whole run
     if jax.process_index() == 0:
-        write_record(run_dir, splits.record)
+        write_record(run_folder, splits.record)
         for write in splits.artifacts:
-            write(RunDirectory(run_dir))
+            write(run_folder)
     try:
-        state, model = train(config, stream, run_dir, splits.test)
+        state, model = train(config, stream, run_folder, splits.test)
     except Interrupted as stop:
         log.warning("%s", stop)
         raise SystemExit(130) from None
     except Diverged as error:
         raise SystemExit(f"error: {error}") from None
     method = "Lifter, supervised (3D ground truth)" if config.loss.supervision == "full" else "Lifter, self-supervised (ours)"
-    report = evaluate_and_report(config, splits, stream.budget, state, model, run_dir, method, time.perf_counter() - begin)
+    report = evaluate_and_report(config, splits, stream.budget, state, model, run_folder, method, time.perf_counter() - begin)
     if jax.process_index() == 0:
-        print(RunDirectory(run_dir).report_md.read_text())
-        print(f"run directory: {run_dir}  (wall time {time.perf_counter() - begin:.0f} s)")
+        print(run_folder.report_md.read_text())
+        print(f"run directory: {run_folder.path}  (wall time {time.perf_counter() - begin:.0f} s)")
     return report
 
 

@@ -10,10 +10,11 @@ import pathlib
 import numpy as np
 import pytest
 
-from experiments import ablation, cli, h36m, humaneva, mpi_inf_3dhp, paper_tables, rig_from_h36m
+from experiments import ablation, cli, h36m, humaneva, mpi_inf_3dhp, rig_from_h36m
 from jaxpose.training.experiment import mocap_calibration, other_training_calibration
 from help_text import assert_every_flag_documented, assert_help_documents_every_field
 from jaxpose.formats.camera_file import load_cameras, save_cameras
+from jaxpose.training.run_directory import RunDirectory
 from jaxpose.formats.h36m_cameras import read_h36m_cameras
 from jaxpose.datasets.h36m import CAMERA_NAMES
 from fixtures_real_data import HUMANEVA_CAMERA_NAMES, H36M_SUBJECTS, TINY_TRAINING, write_humaneva_files
@@ -71,7 +72,7 @@ def test_h36m_martinez_layout_supervised(sh_run):
     run_dir, report = sh_run
     assert "Lifter, supervised (3D ground truth)" in report["results"]
     assert (run_dir / "report.md").exists() and (run_dir / "report.json").exists()
-    rows = _table_rows(run_dir / paper_tables.TABLE_FILE, TABLE_II_HEADER)
+    rows = _table_rows(RunDirectory(run_dir).paper_table, TABLE_II_HEADER)
     ours = rows[0]
     assert ours[0] == "Lifter, supervised (3D ground truth)"
     by_column = dict(zip(TABLE_II_HEADER.strip("| ").split(" | "), ours))
@@ -87,7 +88,7 @@ def test_h36m_videopose3d_layout_self_supervised(cpn_run):
     assert set(report["results"]["Lifter, self-supervised (ours)"]["groups"]) == {"Directions", "Photo", "WalkDog", "Walking"}
     config = json.loads((run_dir / "config.json").read_text())
     assert config["data"]["detections"] == "cpn" and config["model"]["width"] == 32
-    text = (run_dir / paper_tables.TABLE_FILE).read_text()
+    text = (RunDirectory(run_dir).paper_table).read_text()
     assert TABLE_II_HEADER in text and "MPJPE (mm, root-relative, no alignment" in text
 
 
@@ -103,7 +104,7 @@ def test_humaneva_table_iii_layout(tmp_path):
     groups = report["results"]["Lifter, self-supervised (ours)"]["groups"]
     assert set(groups) == {"Walk S1", "Walk S2", "Jog S1", "Jog S2"}  # no Gestures: the protocol tests Walk, Jog
     assert (run_dir / "report.md").exists()
-    ours = _table_rows(run_dir / paper_tables.TABLE_FILE, TABLE_III_HEADER)[0]
+    ours = _table_rows(RunDirectory(run_dir).paper_table, TABLE_III_HEADER)[0]
     assert [cell == "-" for cell in ours[1:7]] == [False, False, True, False, False, True]
     float(ours[7])
 

@@ -49,3 +49,19 @@ def test_an_unwritable_run_directory_is_one_sentence(tmp_path):
     with pytest.raises(SystemExit, match=r"--run.run-dir .*file/run: cannot be written"):
         with exclusive(blocker / "run"):
             pass
+
+
+@pytest.mark.parametrize("study", ["ablation", "search"])
+def test_a_study_refuses_a_run_folder_before_training(tmp_path, study):
+    """Issue 52: the studies wrote comparison.md / search.md into whatever --run.run-dir named, a run folder
+    too; a study's summary goes into a folder of its own, and a run folder is refused before anything trains."""
+    import importlib
+    import json
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "run.json").write_text(json.dumps({"jaxpose_run": 1}))
+    before = sorted(path.name for path in run.iterdir())
+    with pytest.raises(SystemExit, match=r"run: is a run folder, which holds only its run; give the study a folder of its own"):
+        importlib.import_module(f"experiments.{study}").main(["--dataset", "synthetic", "--run.run-dir", str(run)])
+    assert sorted(path.name for path in run.iterdir()) == before

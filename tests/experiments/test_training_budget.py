@@ -173,7 +173,7 @@ def test_a_start_that_left_no_checkpoint_does_not_block_another_config(tmp_path)
     config = _tiny(tmp_path / "run")
     prepare_run_dir(config)  # config.json, as a start that failed before its first checkpoint leaves it
     changed = _tiny(tmp_path / "run", batch_size=16)
-    assert prepare_run_dir(changed) == tmp_path / "run"
+    assert prepare_run_dir(changed).path == tmp_path / "run"
     assert json.loads((tmp_path / "run" / "config.json").read_text())["train"]["batch_size"] == 16
     (tmp_path / "run" / "checkpoints" / "3").mkdir(parents=True)  # a committed checkpoint: a run to resume
     with pytest.raises(SystemExit, match="different config"):

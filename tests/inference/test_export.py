@@ -32,9 +32,9 @@ def _poses(test, count: int):
 
 
 def _threshold(exported, run_dir) -> float:
-    """The score threshold the export put in the graph: the run's (`inference.score_threshold`), in the metadata."""
+    """The score threshold the export put in the graph: the run's (the synthetic run records none: the default), in the metadata."""
     threshold = json.loads(exported.with_suffix(".json").read_text())["min_confidence"]
-    assert threshold == inference.score_threshold(inference.load(run_dir), None) == 0.05
+    assert inference.load(run_dir).record.min_confidence is None and threshold == inference.DEFAULT_MIN_CONFIDENCE == 0.05
     return threshold
 
 

@@ -23,7 +23,7 @@ from jaxpose.reconstruction.motion_files import (
 )
 from jaxpose.reconstruction import recording
 from jaxpose.rig.config import RigProjectConfig
-from jaxpose.training.run_directory import RECOVERED_CAMERAS_FILE, RECOVERED_SESSIONS_DIR
+from jaxpose.training.run_directory import RECOVERED_CAMERAS_FILE, RECOVERED_SESSIONS_DIR, RunDirectory, read_record, write_record
 
 FPS = 50.0
 
@@ -128,7 +128,7 @@ def test_no_smoothing_gives_each_instants_own_estimate(project, run_dir, tmp_pat
     plain = _reconstruct(run_dir, project, tmp_path / "plain", "--no-smoothing")
     assert plain["trajectory"] is None and "each instant alone" in (tmp_path / "plain" / "report.md").read_text()
     lifter = inference.load(run_dir)
-    dataset = recording.load_every_instant(RigProjectConfig(root=project), run_dir, progress=False).instants
+    dataset = recording.load_every_instant(RigProjectConfig(root=project), RunDirectory.of(run_dir), progress=False).instants
     for inputs, row, smoothed in zip(recording.recording_inputs(dataset), plain["recordings"], smooth["recordings"]):
         motion, _ = recording.lift_and_reconstruct(lifter, inputs)
         saved = np.load(tmp_path / "plain" / f"{inputs.name}.npz")
@@ -150,13 +150,15 @@ def test_an_uncalibrated_project_is_taken_in_the_runs_recovered_rig(project, run
     (root / "calibration.toml").unlink()
     with pytest.raises(SystemExit, match=RECOVERED_CAMERAS_FILE):
         _reconstruct(run_dir, root, tmp_path / "refused", "--up-axis", "+z")
-    sessions_run = tmp_path / "sessions_run"  # a run of several sessions: which file to pass is said
-    shutil.copytree(run_dir, sessions_run)
-    (sessions_run / RECOVERED_SESSIONS_DIR).mkdir()
+    sessions_run = RunDirectory(tmp_path / "sessions_run")  # a run of several sessions (its record lists their rigs): which file to pass is said
+    shutil.copytree(run_dir, sessions_run.path)
+    write_record(sessions_run, dataclasses.replace(read_record(sessions_run), recovered_rigs=RunDirectory.recovered_rig_files(["a", "b"])))
     with pytest.raises(SystemExit, match=f"one recovered rig per session .*--data.calibration .*{RECOVERED_SESSIONS_DIR}/SESSION.toml"):
-        _reconstruct(sessions_run, root, tmp_path / "refused_sessions", "--up-axis", "+z")
+        _reconstruct(sessions_run.path, root, tmp_path / "refused_sessions", "--up-axis", "+z")
     recovered_run = tmp_path / "recovered_run"
     shutil.copytree(run_dir, recovered_run)
+    trained = RunDirectory(recovered_run)  # as trained on a recovered rig: its record lists it
+    write_record(trained, dataclasses.replace(read_record(trained), recovered_rigs=RunDirectory.recovered_rig_files(["session1"])))
     # The "recovered" rig: the calibration's cameras turned and moved into another world frame.
     turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     cameras = calibration.cameras

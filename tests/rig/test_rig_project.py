@@ -301,14 +301,14 @@ def test_a_project_without_calibration_recovers_the_rig(tmp_path):
     run.path.mkdir()
     save_cameras(run.recovered_cameras, {"rig": (list(recovered.camera_names), recovered.cameras)})
     config = RigProjectConfig(root=root, image_size=(1920, 1080), recovery_frames=120)
-    every = recording.load_every_instant(config, run.path, progress=False)
+    every = recording.load_every_instant(config, run, progress=False)
     assert every.prepared == data.prepared.replace("prepared and written to", "read from")
     assert len(every.instants) == len(data.train) + len(data.validation)
     np.testing.assert_array_equal(every.instants.rigs.R, data.validation.rigs.R)
     # Another rig in the run's file (not the one the cache holds): prepared in that rig's world instead.
     moved = dataclasses.replace(recovered.cameras, t=np.asarray(recovered.cameras.t) + 100.0)
     save_cameras(run.recovered_cameras, {"rig": (list(recovered.camera_names), moved)})
-    elsewhere = recording.load_every_instant(config, run.path, progress=False)
+    elsewhere = recording.load_every_instant(config, run, progress=False)
     assert elsewhere.prepared.startswith("prepared and written") and elsewhere.recordings[0].calibration == str(run.recovered_cameras)
 
 

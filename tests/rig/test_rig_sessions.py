@@ -100,11 +100,14 @@ def test_sessions_are_found_and_each_gets_its_own_rig(tmp_path):
 
     run = RunDirectory(tmp_path / "run")
     run.path.mkdir()
-    for write in load_splits(config, progress=False).artifacts:
+    splits = load_splits(config, progress=False)
+    for write in splits.artifacts:
         write(run)
     assert not run.recovered_toml.exists() and not run.recovered_cameras.exists()
+    rigs = run.recovered_rigs(splits.record)  # the run's assets, as its record lists them
+    assert rigs == {session.name: run.path / "recovered_sessions" / f"{session.name}.json" for session in project.sessions}
     for session in project.sessions:
-        for path in (run.recovered_session_toml(session.name), run.recovered_session_cameras(session.name)):
+        for path in (rigs[session.name].with_suffix(".toml"), rigs[session.name]):
             written = read_rig_calibration(path)
             assert written.camera_names == CAMERAS
             np.testing.assert_allclose(written.cameras.R, session.calibration.cameras.R, atol=1e-6)

@@ -93,6 +93,10 @@ def test_the_benchmark_on_one_short_take(tmp_path, rig_run):
     rows = [line for line in table if line.startswith("| jog |")]
     assert len(rows) == 2 and all(len(row.split("|")) == 10 and "±" in row for row in rows)
     assert json.loads((tmp_path / "out" / "report.json").read_text())["results"]["jog"]["30"]
+    priors = [seed["02/02_03"] for seed in report["priors"]["jog"]["30"]]  # the default's estimate, per seed
+    assert len(priors) == 2 and all(len(prior["motion_prior_mm_s2"]) == 18 and prior["accelerations"] == 18 * 15
+                                    and min(prior["motion_prior_mm_s2"].values()) > 0 for prior in priors)  # fmt: skip
+    assert any(line.startswith("| 30 | jog | ") and "(" in line for line in table)
 
 
 def test_a_bad_take_stops_the_benchmark_with_one_line_naming_it(tmp_path):

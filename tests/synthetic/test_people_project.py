@@ -219,14 +219,15 @@ def test_ground_truth_person_axis_read_and_checked(tmp_path):
     assert "\n" not in str(error.value)
 
 
-def test_single_person_path_refuses_several_people_truth(three):
-    """The one-person rig loader cannot say which ground-truth person it follows: one line, not a guess."""
-    from jaxpose.formats.errors import DataFormatError
+def test_rig_loader_reads_every_ground_truth_person(three):
+    """The rig loader takes the ground truth of every person (matched to the people it tracks later:
+    tests/rig/test_every_person.py), on the instants asked, NaN at an instant the file lacks."""
     from jaxpose.rig.recordings import ground_truth_on_instants
     from jaxpose.skeleton import COCO_17
 
-    with pytest.raises(DataFormatError, match="ground_truth.npz.*3 people"):
-        ground_truth_on_instants(three / THREE.recording_names[0], COCO_17, "coco17", np.arange(60))
+    target, count = ground_truth_on_instants(three / THREE.recording_names[0], COCO_17, "coco17", np.arange(-1, 60))
+    assert target.shape == (61, 3, COCO_17.num_joints, 3) and count == 60
+    assert np.isnan(target[0]).all() and np.isfinite(target[1:]).any()
 
 
 def test_person_0_is_the_single_person_projects_subject(three, tmp_path):
