@@ -328,7 +328,7 @@ class Preparation:
         rows appended: person after person, each one's instants in order."""
         recording, rig_index = part.recording, self.rig_of[part.recording.name]
         skeleton = lifting_skeleton(part.layout)
-        chosen = tracked.everyone(found, self.rigs.P[rig_index], undistorted, part.confidence, skeleton, tracks.TrackSettings(people=self.people))
+        chosen = tracked.everyone(found, self.rigs.P[rig_index], undistorted, part.confidence, skeleton, self.threshold_px, tracks.TrackSettings(people=self.people))
         instants = part.instants[chosen.instant]
         if chosen.people > 1 or chosen.implausible_tracks:
             log.info("recording %s: %d people found%s", recording.name, chosen.people,

@@ -63,17 +63,18 @@ def plausible(scores: np.ndarray) -> bool:
 
 def everyone(
     found: people.Proposals, P: np.ndarray, keypoints: np.ndarray, confidence: np.ndarray, skeleton: Skeleton,
-    settings: tracks.TrackSettings = tracks.TrackSettings(),
+    threshold_px: float, settings: tracks.TrackSettings = tracks.TrackSettings(),
 ) -> TrackedPeople:
     """Every person of one recording of n instants (the module docstring): `found` their proposals
     (`people.proposals`), P f32[C, 3, 4] the recording's projection matrices (undistorted pixels, world mm),
-    keypoints f32[n, C, K, J, 2] undistorted, confidence f32[n, C, K, J]."""
+    keypoints f32[n, C, K, J, 2] undistorted, confidence f32[n, C, K, J], threshold_px the distance the
+    proposals were made with (`RigProjectConfig.person_threshold_px`), which completes each person too."""
     n, C, K, J = confidence.shape
     if K == 1:  # one detection per view at every instant: one person, unless the views disagree (the choice's case)
         return _one_person(found, keypoints, confidence, 0, 0)
     detected = (confidence > 0).any(-1)  # [n, C, K]
     with_choice = int((detected.sum(-1) > 1).any(-1).sum())
-    instants_people = association.of_proposals(found, P, keypoints, confidence)
+    instants_people = association.of_proposals(found, P, keypoints, confidence, threshold_px)
     limbs = np.array(skeleton.bones, np.int64).reshape(-1, 2)
     followed = tracks.follow(instants_people.points, instants_people.present, limbs, settings)
     kept = []

@@ -165,3 +165,95 @@ def test_track_points_fill_short_gaps_only():
     out = tracks.track_points(points, identity, 1, max_gap=10)
     np.testing.assert_allclose(out[5:8, 0, :, 0], np.arange(5, 8)[:, None].repeat(2, 1))
     assert np.isnan(out[15:27]).all() and np.isfinite(out[:15]).all() and np.isfinite(out[27:]).all()
+
+
+def stack(instants):
+    """Instants of `scene` (keypoints, confidence, truth, ...) -> keypoints [n, C, K, J, 2], confidence
+    [n, C, K, J] padded with nobody to the most detections of any view, and each instant's truth."""
+    K = max(keypoints.shape[2] for keypoints, *_ in instants)
+    pad = lambda array: np.pad(array, [(0, 0), (0, 0), (0, K - array.shape[2])] + [(0, 0)] * (array.ndim - 3))  # noqa: E731
+    keypoints = np.concatenate([pad(keypoints) for keypoints, *_ in instants])
+    confidence = np.concatenate([pad(confidence) for _, confidence, *_ in instants])
+    return keypoints, confidence, [truth for _, _, truth, _ in instants]
+
+
+def test_hostile_sequence_count_changing_every_instant():
+    """Four people, 1 to 4 of them in view at each instant (the count changes every instant), an instant with
+    50 false detections in one view, a person with every joint missing in a view, a fifth person seen by one
+    view only for 20 instants: every real person found with exactly its detections, one identity each from
+    the first instant to the last, nothing lost (every detection with a joint seen is in a person or counted
+    unmatched), no track for the one-view person or the crowd."""
+    rng = np.random.default_rng(5)
+    n = 80
+    home = np.array([[-1500.0, -1500.0], [1500.0, -1500.0], [1500.0, 1500.0], [-1500.0, 1500.0], [0.0, 0.0]])
+    instants, who = [], []
+    for i in range(n):
+        here = [m for m in range(4) if m < 1 + (i + m) % 4] if i % 2 else [m for m in range(4) if m >= 3 - i % 4]
+        centres = home[here] + [[10.0 * i, 5.0 * i]]
+        hidden = []
+        if 30 <= i < 50:  # a fifth person, in view 2 only
+            centres = np.concatenate([centres, home[4:]])
+            hidden = [(len(here), c) for c in range(C) if c != 2]
+        instant = list(scene(centres, rng, hidden=hidden))
+        if i == 40:  # 50 false detections in view 0
+            keypoints, confidence = instant[0], instant[1]
+            crowd = rng.uniform(0, 1000, (1, 50, 17, 2)).astype(np.float32)
+            keypoints = np.concatenate([keypoints, np.zeros((1, C, 50, 17, 2), np.float32)], 2)
+            confidence = np.concatenate([confidence, np.zeros((1, C, 50, 17), np.float32)], 2)
+            keypoints[0, 0, -50:], confidence[0, 0, -50:] = crowd[0], 0.5
+            instant[:2] = keypoints, confidence
+        if i == 41:  # every joint of a person missing in view 1: that person seen by the other views
+            instant[1][0, 1, instant[2][0, 1]] = 0.0
+            instant[2][0, 1] = -1
+        instants.append(instant)
+        who.append(here)
+    keypoints, confidence, truths = stack(instants)
+    found = association.associate(P, keypoints, confidence, threshold_px=20.0)
+    detected = (confidence > 0).any(-1)
+    assert found.unmatched + (found.detection >= 0).sum() == detected.sum()  # nothing lost
+    for i, (truth, here) in enumerate(zip(truths, who)):
+        real = {tuple(row) for row in truth[: len(here)].tolist()}
+        assert {tuple(row) for row in found.detection[i][found.present[i]].tolist()} == real, i
+    followed = tracks.follow(found.points, found.present, LIMBS, tracks.TrackSettings(fps=25.0))
+    assert followed.count == 4 and followed.dropped == 0
+    identity_of = {}
+    for i, (truth, here) in enumerate(zip(truths, who)):
+        for m, row in zip(here, truth.tolist()):
+            slot = next(s for s in range(found.detection.shape[1]) if found.detection[i, s].tolist() == row)
+            identity_of.setdefault(m, set()).add(int(followed.identity[i, slot]))
+    assert sorted(identity_of) == [0, 1, 2, 3] and all(len(ids) == 1 for ids in identity_of.values())
+    assert sorted(next(iter(ids)) for ids in identity_of.values()) == [0, 1, 2, 3]
+
+
+def test_tracks_sporadic_false_people_never_take_a_returning_person():
+    """Two false detections agreeing across views now and then (a brief person every 15 instants) while a
+    person is away: they never become a track, and the person coming back keeps their identity."""
+    n = 200
+    points = np.full((n, 3, 17, 3), np.nan, np.float32)
+    present = np.zeros((n, 3), bool)
+    points[:, 0] = BODY + np.array([-2000.0, 0, 0], np.float32)
+    points[:, 1] = BODY + np.array([1500.0, 0, 0], np.float32)
+    present[:, :2] = True
+    present[60:140, 1] = False  # away for 3.2 s at 25 fps
+    for i in range(10, n, 15):  # a false person near where the second left, at one instant in 15
+        present[i, 2] = True
+        points[i, 2] = BODY + np.array([1200.0, 600.0, 0], np.float32)
+    points[~present] = np.nan
+    followed = tracks.follow(points, present, LIMBS, tracks.TrackSettings(fps=25.0))
+    assert followed.count == 2 and followed.dropped == present[:, 2].sum()
+    assert (followed.identity[present[:, 1], 1] == 1).all() and (followed.identity[:, 2] == -1).all()
+
+
+def test_tracks_someone_coming_back_far_away_is_reidentified_by_limbs():
+    """A person leaves for 4 s and comes back 5 m from where they left (beyond every gate): the same identity,
+    from their limb lengths; a different body coming back there is a new person."""
+    n = 250
+    other = BODY * np.array([1.15, 1.15, 1.15], np.float32)  # another body: every limb 15% longer
+    for body, expected in ((BODY, 1), (other, 2)):
+        points = np.full((n, 2, 17, 3), np.nan, np.float32)
+        points[:, 0] = other * 0.9 + np.array([0.0, 2500.0, 0], np.float32)
+        points[:100, 1] = BODY + np.array([-2500.0, 0, 0], np.float32)
+        points[200:, 1] = body + np.array([2500.0, 0, 0], np.float32)
+        present = np.isfinite(points).all((-1, -2))
+        followed = tracks.follow(points, present, LIMBS, tracks.TrackSettings(fps=25.0))
+        assert followed.count == 1 + expected and (followed.identity[200:, 1] == expected).all()
