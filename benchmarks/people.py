@@ -1,7 +1,7 @@
 """Several people on Campus: association across views (`jaxpose.rig.association`), tracks over time
 (`jaxpose.rig.tracks`), scored by the field's measure, beside the one-person path (`jaxpose.rig.people.choose`).
 
-    python -m benchmarks.people [--campus ../shared/data/multiperson/campus] [--seeds 0 1 2]
+    python -m benchmarks.people [--campus ../shared/data/multiperson/campus] [--seeds 0 1 2] [--without-calibration]
 
 Campus (3 cameras, 360x288 px, 25 fps, 2,000 frames, 3D ground truth of up to 3 people) with its given
 calibration (pinhole: its ground truth projects onto its 2D annotations without the distortion it lists).
@@ -16,6 +16,11 @@ another frame placed anywhere in the image).  Scores, on the frames whose ground
 - identity switches: a ground-truth person paired (within 500 mm) with another track than at its last pairing;
 - false people: output people paired with no ground-truth person (one-to-one, within 500 mm); missed: the reverse;
 - instants per second of association and tracks.
+
+--without-calibration: the rig recovered from the people instead (`without_calibration`: the detections matched
+across views by their epipolar geometry, `jaxpose.calibration.matching`, then `jaxpose.calibration.calibrate` with
+Campus' intrinsics), its error against Campus' calibration, and the PCP of the same association and tracks through it
+beside the calibrated run's.
 """
 
 from __future__ import annotations
@@ -234,15 +239,93 @@ def speed(instants: int = 100) -> None:
             print(f"{count:>6} {cameras:>7} {instants / (time.perf_counter() - start):>8.0f}")
 
 
+# Without calibration -------------------------------------------------------------------------------------------
+# The Campus 14 joints as a jaxpose skeleton, for calibration's limb-length scale (its names give the limbs).
+CAMPUS_SKELETON_NAMES = ("RAnkle", "RKnee", "RHip", "LHip", "LKnee", "LAnkle", "RWrist", "RElbow", "RShoulder", "LShoulder",
+                         "LElbow", "LWrist", "Neck", "HeadTop")  # fmt: skip
+MATCH_THRESHOLD_PX = 8.0  # matching without a rig: the largest median epipolar distance of one person's joints
+
+
+def campus_cameras(root: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Campus' calibration as (K f64[C, 3, 3] pixels, R f64[C, 3, 3], t f64[C, 3] mm), world to camera."""
+    calibration = json.loads((root / "calibration.json").read_text())["cameras"]
+    width, height = json.loads((root / "annotation_2d.json").read_text())["image_wh"]
+    K, R, t = [], [], []
+    for camera in CAMERAS:
+        Tw = np.array(calibration[camera]["Tw"])  # camera to world, cm
+        K.append(np.array(calibration[camera]["K"]) * np.array([[width], [height], [1]]))
+        R.append(Tw[:3, :3].T)
+        t.append(-Tw[:3, :3].T @ Tw[:3, 3] * 10.0)
+    return np.array(K), np.array(R), np.array(t)
+
+
+def recovered_rig(campus: Campus, K: np.ndarray, keypoints: np.ndarray, confidence: np.ndarray, seed: int):
+    """The rig recovered from the simulated detections (Campus' intrinsics K given, its extrinsics not):
+    (the `jaxpose.calibration.Calibration`, the `MatchedPeople` it was recovered from)."""
+    from jaxpose.calibration import CalibrationConfig, RigDetections, calibrate
+    from jaxpose.calibration.matching import match_people
+    from jaxpose.skeleton import Skeleton
+
+    config = CalibrationConfig(seed=seed)
+    matched = match_people(keypoints, confidence, threshold_px=MATCH_THRESHOLD_PX, min_joints=config.min_joints,
+                           min_confidence=config.min_confidence, seed=seed)  # fmt: skip
+    # Parents only make the joint set a valid tree; calibration reads the limbs from the names.
+    skeleton = Skeleton("campus14", CAMPUS_SKELETON_NAMES, (-1, 0, 1, 2, 3, 4, 7, 8, 12, 12, 9, 10, 2, 12), ())
+    detections = RigDetections(matched.keypoints, matched.confidence, CAMERAS, np.array([campus.image_size] * len(CAMERAS)),
+                               skeleton, K=K, source=f"Campus, seed {seed}")  # fmt: skip
+    return calibrate(detections, config), matched
+
+
+def without_calibration(root: Path, seeds: list[int], people_count: int | None) -> None:
+    """The Campus rig recovered from the people per seed: its error against Campus' calibration and the PCP
+    of the association and tracks through it beside the calibrated run's.  The recovered world is Campus' only
+    up to a similarity: the recovered cameras are moved onto the true ones by the similarity that fits them
+    best (`jaxpose.calibration.compare_rigs`: rotation from the camera orientations, scale and offset from the
+    centres), and the people are then triangulated through the moved cameras."""
+    from jaxpose.calibration import compare_rigs
+
+    campus = load_campus(root)
+    K, R, t = campus_cameras(root)
+    print(f"Campus without its calibration: {len(campus.truth)} frames, 3 cameras, intrinsics given; detector {NOISE};"
+          f" matching {MATCH_THRESHOLD_PX} px, association {THRESHOLD_PX} px")  # fmt: skip
+    print(f"{'seed':>4} {'rows':>5} {'rot deg 0/1/2':>16} {'centre mm 0/1/2':>16} {'scale':>6} {'reproj px':>9} {'s':>5}"
+          f" {'PCP given':>9} {'PCP recovered':>13} {'IDsw':>9}")  # fmt: skip
+    given, recovered = [], []
+    for seed in seeds:
+        keypoints, confidence = simulate(campus, seed)
+        calibration, matched = recovered_rig(campus, K, keypoints, confidence, seed)
+        error = compare_rigs(calibration.cameras.R, calibration.cameras.t, R, t)
+        R_aligned = error.aligned_R
+        t_aligned = -np.einsum("cij,cj->ci", R_aligned, error.aligned_centres)
+        P = np.einsum("cij,cjk->cik", calibration.cameras.K, np.concatenate([R_aligned, t_aligned[..., None]], -1))
+        scores = []
+        for rig in (campus.P, P.astype(np.float32)):
+            _, _, points, _ = several(dataclasses.replace(campus, P=rig), keypoints, confidence, people_count)
+            identity = np.where(np.isfinite(points).all(-1).any(-1), np.arange(points.shape[1]), -1)
+            scores.append(score(campus, points, identity))
+        given.append(scores[0]["average"])
+        recovered.append(scores[1]["average"])
+        rotation = "/".join(f"{v:.2f}" for v in error.rotation_deg)
+        centre = "/".join(f"{v:.0f}" for v in error.centre_mm)
+        print(f"{seed:>4} {len(matched.instant):>5} {rotation:>16} {centre:>16} {error.scale_error:>+6.1%}"
+              f" {np.max(calibration.reprojection_median_px):>9.2f} {calibration.seconds:>5.0f} {scores[0]['average']:>9.1f}"
+              f" {scores[1]['average']:>13.1f} {scores[0]['switches']:>4}/{scores[1]['switches']:<4}")  # fmt: skip
+    print(f"mean average PCP over seeds: calibration given {np.mean(given):.1f}%, rig recovered from the people {np.mean(recovered):.1f}%")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--campus", type=Path, default=CAMPUS)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--people", type=int, default=None, help="the number of people, when known")
     parser.add_argument("--speed", action="store_true", help="instants per second at 2-6 people, 3-16 cameras instead")
+    parser.add_argument("--without-calibration", action="store_true", help="the rig recovered from the people instead, beside the given one")
     args = parser.parse_args()
     if args.speed:
         speed()
+        return
+    if args.without_calibration:
+        without_calibration(args.campus, args.seeds, args.people)
         return
     campus = load_campus(args.campus)
     print(f"Campus: {len(campus.truth)} frames, 3 cameras; detector {NOISE}; association threshold {THRESHOLD_PX} px")

@@ -34,7 +34,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from jaxpose.camera import projection_matrices
+from jaxpose.camera import Cameras, projection_matrices
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.formats.rig_folder import GROUND_TRUTH_NPZ
@@ -65,11 +65,6 @@ def rig_detections(
     (--data.image-size) serves the cameras none gives one.  A `RigDetections`."""
     from jaxpose.calibration import RigDetections  # the calibrate extra
 
-    keypoints, confidence = [], []
-    for candidates, candidate_confidence in aligned:
-        single_keypoints, single_confidence = one_person(candidates, candidate_confidence)
-        keypoints.append(single_keypoints)
-        confidence.append(single_confidence)
     # Per camera, by name from every recording's detections.npz: image size and, where given, intrinsics.
     given: dict[str, dict[str, np.ndarray]] = {}
     for cameras in known:
@@ -91,17 +86,57 @@ def rig_detections(
     intrinsics = [given.get(camera, {}) for camera in camera_order]
     given_K = all("K" in fields for fields in intrinsics)
     given_dist = given_K and all("dist" in fields for fields in intrinsics)
+    K = np.stack([fields["K"] for fields in intrinsics]).astype(np.float64) if given_K else None
+    dist = np.stack([fields["dist"] for fields in intrinsics]).astype(np.float64) if given_dist else None
+    model = intrinsics[0].get("model", "opencv")
+    lenses = None
+    if dist is not None:  # the epipolar geometry that matches people holds for undistorted pixels
+        C = len(camera_order)
+        cameras = Cameras(K=K, R=np.broadcast_to(np.eye(3), (C, 3, 3)), t=np.zeros((C, 3)), dist=dist, distortion_model=model)
+        lenses = RigCalibration(camera_names=tuple(camera_order), cameras=cameras, image_size=np.stack(sizes), source="given lenses", unit="mm")
+    keypoints, confidence = [], []
+    for candidates, candidate_confidence in aligned:
+        rows = people_rows(candidates, candidate_confidence, lenses)
+        keypoints.append(rows[0])
+        confidence.append(rows[1])
     return RigDetections(
         keypoints=np.concatenate(keypoints),
         confidence=np.concatenate(confidence),
         camera_names=tuple(camera_order),
         image_size=np.stack(sizes),
         skeleton=skeleton,
-        K=np.stack([fields["K"] for fields in intrinsics]).astype(np.float64) if given_K else None,
-        dist=np.stack([fields["dist"] for fields in intrinsics]).astype(np.float64) if given_dist else None,
-        distortion_model=intrinsics[0].get("model", "opencv"),
+        K=K,
+        dist=dist,
+        distortion_model=model,
         source=f"{root} (recording {names[0]}" + (f" and {len(names) - 1} more)" if len(names) > 1 else ")"),
     )
+
+
+def people_rows(keypoints: np.ndarray, confidence: np.ndarray, lenses: RigCalibration | None):
+    """One recording's instants (keypoints [N, C, P, J, 2], confidence [N, C, P, J]) as the single-person
+    rows a rig is recovered from: where several people are seen (some view holds more than one detection in
+    most instants with detections; an occasional passer-by or false detection is not several people), every
+    person the views' epipolar geometry matches
+    (`jaxpose.calibration.matching.match_people`, on pixels undistorted through `lenses` where the
+    recordings give them with distortion), one row each; else each instant's views that hold one detection
+    (`one_person`).  (keypoints f32[R, C, J, 2], confidence f32[R, C, J])."""
+    from jaxpose.calibration import CalibrationConfig  # the calibrate extra
+    from jaxpose.calibration.matching import match_people
+
+    detected = (confidence > 0).any(-1).sum(-1)  # [N, C] detections per view
+    if not (detected > 1).any(-1).sum() > 0.5 * (detected > 0).any(-1).sum():
+        return one_person(keypoints, confidence)
+    config = CalibrationConfig()
+    pixels = None
+    if lenses is not None:
+        pixels = np.stack([undistort_views(lenses, name, keypoints[:, c]) for c, name in enumerate(lenses.camera_names)], 1)
+    matched = match_people(keypoints, confidence, threshold_px=config.ransac_threshold_px, min_joints=config.min_joints,
+                           min_confidence=config.min_confidence, seed=config.seed, pixels=pixels)  # fmt: skip
+    log.info(
+        "several people in view: %d people-instants matched across views without a rig (%d of %d instants), %d detections"
+        " fit no one", len(matched.instant), len(np.unique(matched.instant)), len(keypoints), matched.unmatched,
+    )  # fmt: skip
+    return matched.keypoints, matched.confidence
 
 
 def recover_rig(detections, *, max_frames: int, height_mm: float | None = None):
