@@ -12,7 +12,7 @@ matrix, a wrong pairing (two people at different places) with none.  So:
    the others its outliers (a pair needs `MIN_PAIRINGS` pairings to be estimated);
 2. a pairing's cost is the median over its common joints of their symmetric epipolar distance (pixels);
 3. per instant, people are taken greedily, the cheapest pairing of two free detections first (cost at most
-   `threshold_px`), then each other view's free detection that costs at most `threshold_px` against every
+   `threshold_px`, each the other's cheapest in its view), then each other view's free detection that costs at most `threshold_px` against every
    detection the person has so far (the cheapest).
 
 Each person becomes one row of single-person detections ([R, C, J]: confidence 0 in the views without
@@ -70,6 +70,15 @@ def _epipolar_costs(F: np.ndarray, a: np.ndarray, b: np.ndarray, both: np.ndarra
         warnings.simplefilter("ignore", RuntimeWarning)  # pairings without a common joint: all-NaN
         median = np.nanmedian(distance, axis=-1)
     return np.where(np.isnan(median), np.inf, median)
+
+
+def mutual(cost: np.ndarray, threshold_px: float) -> np.ndarray:
+    """bool[K, K]: the pairings of one instant within the threshold whose two detections are each other's
+    cheapest (a person missed in one view leaves their detection in the other without a partner, rather than
+    paired with the nearest of the others)."""
+    best_q = cost == cost.min(1, keepdims=True)
+    best_p = cost == cost.min(0, keepdims=True)
+    return best_q & best_p & (cost <= threshold_px)
 
 
 def _fundamental(a: np.ndarray, b: np.ndarray, both: np.ndarray, threshold_px: float, rng: np.random.Generator):
@@ -135,7 +144,7 @@ def match_people(
             (cost, a, p, b, q)
             for (a, b), table in costs.items()
             if a < b
-            for p, q in zip(*np.nonzero(table[n] <= threshold_px))
+            for p, q in zip(*np.nonzero(mutual(table[n], threshold_px)))
             for cost in (table[n, p, q],)
         ]
         for _, a, p, b, q in sorted(candidates):

@@ -80,3 +80,20 @@ def test_too_few_instants_to_relate_the_views_are_refused_in_one_line():
     with pytest.raises(CalibrationError, match="no two views see people together often enough") as error:
         match_people(keypoints[:2, :, :3], confidence[:2, :, :3], threshold_px=8.0, min_joints=6, min_confidence=0.3)
     assert "\n" not in str(error.value)
+
+
+def test_a_detections_npz_with_several_people_is_read_one_row_per_person(tmp_path):
+    """`jaxpose.calibrate`'s reader: a person axis is matched into rows (each a person seen by >= 2 views)."""
+    from jaxpose.calibration import CalibrationConfig, read_detections_npz
+    from jaxpose.formats.errors import DataFormatError
+
+    keypoints, confidence, owner = scene(dataclasses.replace(CONFIG, frames_per_recording=40), false_rate=0.0)
+    path = tmp_path / "detections.npz"
+    np.savez(path, keypoints=keypoints, confidence=confidence, camera_names=np.array(CONFIG.camera_names),
+             image_size=np.tile(CONFIG.image_size, (CONFIG.cameras, 1)), skeleton=np.array("h36m17"))  # fmt: skip
+    detections = read_detections_npz(path, people=CalibrationConfig())
+    assert detections.keypoints.shape[1:] == (CONFIG.cameras, 17, 2)
+    assert len(detections.keypoints) >= 0.95 * 40 * CONFIG.people
+    assert ((detections.confidence > 0).any(-1).sum(1) >= 2).all()
+    with pytest.raises(DataFormatError, match="one person per view"):
+        read_detections_npz(path)
