@@ -19,7 +19,8 @@ another frame placed anywhere in the image).  Scores, on the frames whose ground
 
 --without-calibration: the rig recovered from the people instead (`without_calibration`: the detections matched
 across views by their epipolar geometry, `jaxpose.calibration.matching`, then `jaxpose.calibration.calibrate` with
-Campus' intrinsics), its error against Campus' calibration, and the PCP of the same association and tracks through it
+Campus' intrinsics; everyone associated through that rig and the rig recovered again, as the rig loader does), its
+error against Campus' calibration (both rigs), and the PCP of the same association and tracks through it
 beside the calibrated run's.
 """
 
@@ -260,20 +261,29 @@ def campus_cameras(root: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def recovered_rig(campus: Campus, K: np.ndarray, keypoints: np.ndarray, confidence: np.ndarray, seed: int):
-    """The rig recovered from the simulated detections (Campus' intrinsics K given, its extrinsics not):
-    (the `jaxpose.calibration.Calibration`, the `MatchedPeople` it was recovered from)."""
+    """The rig recovered from the simulated detections (Campus' intrinsics K given, its extrinsics not) as the
+    rig loader recovers it from several people (`jaxpose.rig.recovered.people_rows`): the people matched across
+    views without a rig, a first rig, everyone associated through it, the rig again.  (the second
+    `jaxpose.calibration.Calibration`, the first's, the rows of each)."""
     from jaxpose.calibration import CalibrationConfig, RigDetections, calibrate
-    from jaxpose.calibration.matching import match_people
+    from jaxpose.formats.rig_cameras import RigCalibration
+    from jaxpose.rig.recovered import explains_better, people_rows
     from jaxpose.skeleton import Skeleton
 
     config = CalibrationConfig(seed=seed)
-    matched = match_people(keypoints, confidence, threshold_px=MATCH_THRESHOLD_PX, min_joints=config.min_joints,
-                           min_confidence=config.min_confidence, seed=seed)  # fmt: skip
     # Parents only make the joint set a valid tree; calibration reads the limbs from the names.
     skeleton = Skeleton("campus14", CAMPUS_SKELETON_NAMES, (-1, 0, 1, 2, 3, 4, 7, 8, 12, 12, 9, 10, 2, 12), ())
-    detections = RigDetections(matched.keypoints, matched.confidence, CAMERAS, np.array([campus.image_size] * len(CAMERAS)),
-                               skeleton, K=K, source=f"Campus, seed {seed}")  # fmt: skip
-    return calibrate(detections, config), matched
+    sizes = np.array([campus.image_size] * len(CAMERAS))
+    rig, calibrations, rows = None, [], []
+    for _ in range(2):
+        xy, weight = people_rows(keypoints, confidence, None, rig, match_px=MATCH_THRESHOLD_PX, association_px=THRESHOLD_PX)
+        detections = RigDetections(xy, weight, CAMERAS, sizes, skeleton, K=K, source=f"Campus, seed {seed}")
+        calibration = calibrate(detections, config)
+        rig = RigCalibration(camera_names=CAMERAS, cameras=calibration.cameras, image_size=sizes, source="recovered", unit="mm")
+        calibrations.append(calibration)
+        rows.append(len(xy))
+    kept = calibrations[1] if explains_better(calibrations[1], calibrations[0], detections) else calibrations[0]
+    return kept, calibrations, rows
 
 
 def without_calibration(root: Path, seeds: list[int], people_count: int | None) -> None:
@@ -288,12 +298,14 @@ def without_calibration(root: Path, seeds: list[int], people_count: int | None) 
     K, R, t = campus_cameras(root)
     print(f"Campus without its calibration: {len(campus.truth)} frames, 3 cameras, intrinsics given; detector {NOISE};"
           f" matching {MATCH_THRESHOLD_PX} px, association {THRESHOLD_PX} px")  # fmt: skip
-    print(f"{'seed':>4} {'rows':>5} {'rot deg 0/1/2':>16} {'centre mm 0/1/2':>16} {'scale':>6} {'reproj px':>9} {'s':>5}"
+    print(f"{'seed':>4} {'rows from':<10} {'rows':>5} {'rot deg 0/1/2':>16} {'centre mm 0/1/2':>16} {'scale':>6} {'reproj px':>9} {'s':>5}"
           f" {'PCP given':>9} {'PCP recovered':>13} {'IDsw':>9}")  # fmt: skip
     given, recovered = [], []
     for seed in seeds:
         keypoints, confidence = simulate(campus, seed)
-        calibration, matched = recovered_rig(campus, K, keypoints, confidence, seed)
+        calibration, (first, again), rows = recovered_rig(campus, K, keypoints, confidence, seed)
+        before = compare_rigs(first.cameras.R, first.cameras.t, R, t)
+        after = compare_rigs(again.cameras.R, again.cameras.t, R, t)
         error = compare_rigs(calibration.cameras.R, calibration.cameras.t, R, t)
         R_aligned = error.aligned_R
         t_aligned = -np.einsum("cij,cj->ci", R_aligned, error.aligned_centres)
@@ -307,9 +319,13 @@ def without_calibration(root: Path, seeds: list[int], people_count: int | None) 
         recovered.append(scores[1]["average"])
         rotation = "/".join(f"{v:.2f}" for v in error.rotation_deg)
         centre = "/".join(f"{v:.0f}" for v in error.centre_mm)
-        print(f"{seed:>4} {len(matched.instant):>5} {rotation:>16} {centre:>16} {error.scale_error:>+6.1%}"
-              f" {np.max(calibration.reprojection_median_px):>9.2f} {calibration.seconds:>5.0f} {scores[0]['average']:>9.1f}"
-              f" {scores[1]['average']:>13.1f} {scores[0]['switches']:>4}/{scores[1]['switches']:<4}")  # fmt: skip
+        for name, count, rig_error, recovered_run in (("matched", rows[0], before, first), ("associated", rows[1], after, again)):
+            print(f"{seed:>4} {name:<10} {count:>5} {'/'.join(f'{v:.2f}' for v in rig_error.rotation_deg):>16}"
+                  f" {'/'.join(f'{v:.0f}' for v in rig_error.centre_mm):>16} {rig_error.scale_error:>+6.1%}"
+                  f" {np.max(recovered_run.reprojection_median_px):>9.2f} {recovered_run.seconds:>5.0f}")  # fmt: skip
+        print(f"{seed:>4} {'kept: ' + ('associated' if calibration is again else 'matched'):<16} {rotation:>16} {centre:>16}"
+              f" {error.scale_error:>+6.1%} {'':>9} {'':>5} {scores[0]['average']:>9.1f} {scores[1]['average']:>13.1f}"
+              f" {scores[0]['switches']:>4}/{scores[1]['switches']:<4}")  # fmt: skip
     print(f"mean average PCP over seeds: calibration given {np.mean(given):.1f}%, rig recovered from the people {np.mean(recovered):.1f}%")
 
 

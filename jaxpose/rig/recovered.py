@@ -3,6 +3,10 @@ ground truth brought into a recovered rig's world.
 
 `jaxpose.calibrate` recovers a rig from the person seen by every camera (the instants where each view
 sees exactly one person), with the image sizes and any intrinsics the recordings' detections.npz give.
+With several people in view (`several_people`) the people are first matched across views by their
+epipolar geometry (`jaxpose.calibration.matching`), one row per person and instant; the rig recovered
+from those then associates everyone (`jaxpose.rig.association`), and the rig is recovered again from
+those rows (`people_rows`).
 A recovered rig has its own world frame, so a ground truth in the motion capture's world is moved into
 it for evaluation (`ground_truth_into_recovered_world`).
 
@@ -38,7 +42,9 @@ from jaxpose.camera import Cameras, projection_matrices
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.formats.rig_folder import GROUND_TRUTH_NPZ
+from jaxpose.rig import association
 from jaxpose.rig.geometry import triangulate_rows, undistort_views
+from jaxpose.rig.people import DEFAULT_THRESHOLD_PX
 from jaxpose.rig.recordings import one_person, recording_folders
 from jaxpose.rotations import similarity
 from jaxpose.skeleton import Skeleton
@@ -57,12 +63,14 @@ def rig_detections(
     *,
     image_size: tuple[int, int] | None,
     root: pathlib.Path,
+    rig: RigCalibration | None = None,
 ):
     """The detections `jaxpose.calibrate` recovers a rig from: the instants of some recordings (`aligned`:
     each recording's keypoints and confidence on one time axis, `jaxpose.rig.timeline.align`), each
     view's detection where it saw one person, one recording after the other; `known`: what each
     recording's detections.npz gives of its cameras (image size, intrinsics); `image_size`
-    (--data.image-size) serves the cameras none gives one.  A `RigDetections`."""
+    (--data.image-size) serves the cameras none gives one; with several people in view, each person a row
+    (`people_rows`, through `rig` where one was recovered from them already).  A `RigDetections`."""
     from jaxpose.calibration import RigDetections  # the calibrate extra
 
     # Per camera, by name from every recording's detections.npz: image size and, where given, intrinsics.
@@ -96,7 +104,7 @@ def rig_detections(
         lenses = RigCalibration(camera_names=tuple(camera_order), cameras=cameras, image_size=np.stack(sizes), source="given lenses", unit="mm")
     keypoints, confidence = [], []
     for candidates, candidate_confidence in aligned:
-        rows = people_rows(candidates, candidate_confidence, lenses)
+        rows = people_rows(candidates, candidate_confidence, lenses, rig)
         keypoints.append(rows[0])
         confidence.append(rows[1])
     return RigDetections(
@@ -112,31 +120,79 @@ def rig_detections(
     )
 
 
-def people_rows(keypoints: np.ndarray, confidence: np.ndarray, lenses: RigCalibration | None):
+def several_people(confidence: np.ndarray) -> bool:
+    """Whether a recording (confidence [N, C, P, J]) shows several people: some view holds more than one
+    detection in most instants with detections (an occasional passer-by or false detection is not several people)."""
+    detected = (confidence > 0).any(-1).sum(-1)  # [N, C] detections per view
+    return bool((detected > 1).any(-1).sum() > 0.5 * (detected > 0).any(-1).sum())
+
+
+def people_rows(
+    keypoints: np.ndarray,
+    confidence: np.ndarray,
+    lenses: RigCalibration | None,
+    rig: RigCalibration | None = None,
+    *,
+    match_px: float | None = None,
+    association_px: float = DEFAULT_THRESHOLD_PX,
+):
     """One recording's instants (keypoints [N, C, P, J, 2], confidence [N, C, P, J]) as the single-person
-    rows a rig is recovered from: where several people are seen (some view holds more than one detection in
-    most instants with detections; an occasional passer-by or false detection is not several people), every
-    person the views' epipolar geometry matches
-    (`jaxpose.calibration.matching.match_people`, on pixels undistorted through `lenses` where the
-    recordings give them with distortion), one row each; else each instant's views that hold one detection
-    (`one_person`).  (keypoints f32[R, C, J, 2], confidence f32[R, C, J])."""
+    rows a rig is recovered from, (keypoints f32[R, C, J, 2], confidence f32[R, C, J]):
+
+    - with several people in view (`several_people`) and no rig yet: every person the views' epipolar geometry
+      matches (`jaxpose.calibration.matching.match_people`, median epipolar distance <= `match_px`, default the
+      calibration's RANSAC threshold; on pixels undistorted through `lenses` where the recordings give them with
+      distortion), one row each;
+    - with several people and a `rig` recovered from those: every person associated through it
+      (`jaxpose.rig.association`, within `association_px`), one row each: cleaner rows, seen by more views, for the
+      rig recovered again;
+    - else each instant's views that hold one detection (`one_person`).
+    """
     from jaxpose.calibration import CalibrationConfig  # the calibrate extra
     from jaxpose.calibration.matching import match_people
 
-    detected = (confidence > 0).any(-1).sum(-1)  # [N, C] detections per view
-    if not (detected > 1).any(-1).sum() > 0.5 * (detected > 0).any(-1).sum():
+    if not several_people(confidence):
         return one_person(keypoints, confidence)
+    C = keypoints.shape[1]
+    if rig is not None:
+        pixels = np.stack([undistort_views(rig, name, keypoints[:, c]) for c, name in enumerate(rig.camera_names)], 1)
+        P = np.asarray(projection_matrices(rig.cameras.without_distortion()), np.float32)
+        found = association.associate(P, pixels, confidence, association_px)
+        instant, slot = np.nonzero(found.present)
+        index = found.detection[instant, slot]  # [R, C], -1 where the person has no detection in the view
+        chosen = (instant[:, None], np.arange(C), np.maximum(index, 0))
+        log.info("several people in view: %d people-instants associated through the first rig, %d detections fit no one",
+                 len(instant), found.unmatched)  # fmt: skip
+        return keypoints[chosen], np.where(index[..., None] >= 0, confidence[chosen], 0.0).astype(np.float32)
     config = CalibrationConfig()
     pixels = None
     if lenses is not None:
         pixels = np.stack([undistort_views(lenses, name, keypoints[:, c]) for c, name in enumerate(lenses.camera_names)], 1)
-    matched = match_people(keypoints, confidence, threshold_px=config.ransac_threshold_px, min_joints=config.min_joints,
-                           min_confidence=config.min_confidence, seed=config.seed, pixels=pixels)  # fmt: skip
+    matched = match_people(
+        keypoints, confidence, threshold_px=config.ransac_threshold_px if match_px is None else match_px,
+        min_joints=config.min_joints, min_confidence=config.min_confidence, seed=config.seed, pixels=pixels,
+    )  # fmt: skip
     log.info(
         "several people in view: %d people-instants matched across views without a rig (%d of %d instants), %d detections"
         " fit no one", len(matched.instant), len(np.unique(matched.instant)), len(keypoints), matched.unmatched,
     )  # fmt: skip
     return matched.keypoints, matched.confidence
+
+
+def explains_better(again, first, detections) -> bool:
+    """Whether the rig recovered again from everyone associated through the first (`again`, a
+    `jaxpose.calibration.Calibration`) explains those rows (`detections`) at least as well as the `first` does:
+    the worst camera's median re-projection error (`jaxpose.calibration.sessions.rig_fit_px`).  A recovery
+    started afresh can fall into a wrong valley (on Campus, 1 seed of 3: 11 px where the first rig gave 2);
+    the first rig is kept then, and the log says so."""
+    from jaxpose.calibration.sessions import rig_fit_px
+
+    fit_again, fit_first = (float(np.nanmax(rig_fit_px(c.cameras, detections))) for c in (again, first))
+    if fit_again <= fit_first:
+        return True
+    log.warning("the rig recovered again from everyone re-projects them at %.2f px (worst camera's median), the first"
+                " rig at %.2f px: the first is kept", fit_again, fit_first)  # fmt: skip
+    return False
 
 
 def recover_rig(detections, *, max_frames: int, height_mm: float | None = None):
@@ -331,6 +387,14 @@ def recover_sessions(
         )
         try:
             rig, calibration = recover_rig(pooled, max_frames=max_frames, height_mm=height_mm)
+            if any(several_people(aligned[i][1]) for i in members):
+                # Several people: recovered again from everyone associated through that rig (the matching without a
+                # rig keeps people seen by two views and lets some wrong pairings in; the association does neither).
+                pooled = rig_detections([names[i] for i in members], [known[i] for i in members], [aligned[i] for i in members],
+                                        camera_order, skeleton, image_size=image_size, root=root, rig=rig)  # fmt: skip
+                again = recover_rig(pooled, max_frames=max_frames, height_mm=height_mm)
+                if explains_better(again[1], calibration, pooled):
+                    rig, calibration = again
         except CalibrationError as error:
             raise ValueError(_unrecoverable(session.name, session.recordings, detections, grouping.method, error)) from None
         reprojection = float(np.max(calibration.reprojection_median_px))
