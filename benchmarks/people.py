@@ -276,7 +276,7 @@ def recovered_rig(campus: Campus, K: np.ndarray, keypoints: np.ndarray, confiden
     sizes = np.array([campus.image_size] * len(CAMERAS))
     rig, calibrations, rows = None, [], []
     for _ in range(2):
-        xy, weight = people_rows(keypoints, confidence, None, rig, match_px=MATCH_THRESHOLD_PX, association_px=THRESHOLD_PX)
+        xy, weight = people_rows(keypoints, confidence, None, rig, match_px=MATCH_THRESHOLD_PX)
         detections = RigDetections(xy, weight, CAMERAS, sizes, skeleton, K=K, source=f"Campus, seed {seed}")
         calibration = calibrate(detections, config)
         rig = RigCalibration(camera_names=CAMERAS, cameras=calibration.cameras, image_size=sizes, source="recovered", unit="mm")
@@ -297,7 +297,7 @@ def without_calibration(root: Path, seeds: list[int], people_count: int | None) 
     campus = load_campus(root)
     K, R, t = campus_cameras(root)
     print(f"Campus without its calibration: {len(campus.truth)} frames, 3 cameras, intrinsics given; detector {NOISE};"
-          f" matching {MATCH_THRESHOLD_PX} px, association {THRESHOLD_PX} px")  # fmt: skip
+          f" matching {MATCH_THRESHOLD_PX} px (the rig's rows associated at twice that), association {THRESHOLD_PX} px")  # fmt: skip
     print(f"{'seed':>4} {'rows from':<10} {'rows':>5} {'rot deg 0/1/2':>16} {'centre mm 0/1/2':>16} {'scale':>6} {'reproj px':>9} {'s':>5}"
           f" {'PCP given':>9} {'PCP recovered':>13} {'IDsw':>9}")  # fmt: skip
     given, recovered = [], []

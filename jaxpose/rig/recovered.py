@@ -44,7 +44,6 @@ from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.formats.rig_folder import GROUND_TRUTH_NPZ
 from jaxpose.rig import association
 from jaxpose.rig.geometry import triangulate_rows, undistort_views
-from jaxpose.rig.people import DEFAULT_THRESHOLD_PX
 from jaxpose.rig.recordings import one_person, recording_folders
 from jaxpose.rotations import similarity
 from jaxpose.skeleton import Skeleton
@@ -71,7 +70,7 @@ def rig_detections(
     recording's detections.npz gives of its cameras (image size, intrinsics); `image_size`
     (--data.image-size) serves the cameras none gives one; with several people in view, each person a row
     (`people_rows`, through `rig` where one was recovered from them already).  A `RigDetections`."""
-    from jaxpose.calibration import RigDetections  # the calibrate extra
+    from jaxpose.calibration import CalibrationError, RigDetections  # the calibrate extra
 
     # Per camera, by name from every recording's detections.npz: image size and, where given, intrinsics.
     given: dict[str, dict[str, np.ndarray]] = {}
@@ -103,8 +102,11 @@ def rig_detections(
         cameras = Cameras(K=K, R=np.broadcast_to(np.eye(3), (C, 3, 3)), t=np.zeros((C, 3)), dist=dist, distortion_model=model)
         lenses = RigCalibration(camera_names=tuple(camera_order), cameras=cameras, image_size=np.stack(sizes), source="given lenses", unit="mm")
     keypoints, confidence = [], []
-    for candidates, candidate_confidence in aligned:
-        rows = people_rows(candidates, candidate_confidence, lenses, rig)
+    for name, (candidates, candidate_confidence) in zip(names, aligned):
+        try:
+            rows = people_rows(candidates, candidate_confidence, lenses, rig)
+        except CalibrationError as error:  # the recording alone cannot relate its views: one line naming it
+            raise ValueError(f"{root / name}: its rig cannot be recovered from the people in view: {error}") from None
         keypoints.append(rows[0])
         confidence.append(rows[1])
     return RigDetections(
@@ -134,7 +136,6 @@ def people_rows(
     rig: RigCalibration | None = None,
     *,
     match_px: float | None = None,
-    association_px: float = DEFAULT_THRESHOLD_PX,
 ):
     """One recording's instants (keypoints [N, C, P, J, 2], confidence [N, C, P, J]) as the single-person
     rows a rig is recovered from, (keypoints f32[R, C, J, 2], confidence f32[R, C, J]):
@@ -144,8 +145,8 @@ def people_rows(
       calibration's RANSAC threshold; on pixels undistorted through `lenses` where the recordings give them with
       distortion), one row each;
     - with several people and a `rig` recovered from those: every person associated through it
-      (`jaxpose.rig.association`, within `association_px`), one row each: cleaner rows, seen by more views, for the
-      rig recovered again;
+      (`jaxpose.rig.association`, within twice the matching threshold: rows for a rig need to be clean, not
+      complete), one row each: cleaner rows, seen by more views, for the rig recovered again;
     - else each instant's views that hold one detection (`one_person`).
     """
     from jaxpose.calibration import CalibrationConfig  # the calibrate extra
@@ -153,24 +154,25 @@ def people_rows(
 
     if not several_people(confidence):
         return one_person(keypoints, confidence)
+    config = CalibrationConfig()
+    match_px = config.ransac_threshold_px if match_px is None else match_px
     C = keypoints.shape[1]
     if rig is not None:
         pixels = np.stack([undistort_views(rig, name, keypoints[:, c]) for c, name in enumerate(rig.camera_names)], 1)
         P = np.asarray(projection_matrices(rig.cameras.without_distortion()), np.float32)
-        found = association.associate(P, pixels, confidence, association_px)
+        found = association.associate(P, pixels, confidence, 2 * match_px)
         instant, slot = np.nonzero(found.present)
         index = found.detection[instant, slot]  # [R, C], -1 where the person has no detection in the view
         chosen = (instant[:, None], np.arange(C), np.maximum(index, 0))
         log.info("several people in view: %d people-instants associated through the first rig, %d detections fit no one",
                  len(instant), found.unmatched)  # fmt: skip
         return keypoints[chosen], np.where(index[..., None] >= 0, confidence[chosen], 0.0).astype(np.float32)
-    config = CalibrationConfig()
     pixels = None
     if lenses is not None:
         pixels = np.stack([undistort_views(lenses, name, keypoints[:, c]) for c, name in enumerate(lenses.camera_names)], 1)
     matched = match_people(
-        keypoints, confidence, threshold_px=config.ransac_threshold_px if match_px is None else match_px,
-        min_joints=config.min_joints, min_confidence=config.min_confidence, seed=config.seed, pixels=pixels,
+        keypoints, confidence, threshold_px=match_px, min_joints=config.min_joints, min_confidence=config.min_confidence,
+        seed=config.seed, pixels=pixels,
     )  # fmt: skip
     log.info(
         "several people in view: %d people-instants matched across views without a rig (%d of %d instants), %d detections"
