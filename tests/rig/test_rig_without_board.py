@@ -37,3 +37,22 @@ def test_the_rig_is_recovered_from_three_people_without_a_calibration(tmp_path):
     size = np.linalg.norm(reference.cameras.t, axis=-1).mean()
     print("rotation deg", error.rotation_deg, "centre mm", error.centre_mm, "rig size mm", size)
     assert error.rotation_deg.max() < 1.0 and error.centre_mm.max() < 0.02 * size
+
+
+def test_an_occasional_passer_by_keeps_the_one_person_rows():
+    """Several people means some view holds more than one detection in most instants: a passer-by in 10% of
+    the instants leaves the rows those of `one_person` (the instants where each view holds one detection)."""
+    from jaxpose.rig.recordings import one_person
+    from jaxpose.rig.recovered import people_rows, several_people
+
+    rng = np.random.default_rng(0)
+    keypoints = rng.uniform(0, 1000, (50, 3, 2, 17, 2)).astype(np.float32)
+    confidence = np.zeros((50, 3, 2, 17), np.float32)
+    confidence[:, :, 0] = 0.9
+    confidence[:5, 1, 1] = 0.9  # the passer-by, in view 1
+    assert not several_people(confidence)
+    rows = people_rows(keypoints, confidence, None)
+    for got, expected in zip(rows, one_person(keypoints, confidence)):
+        np.testing.assert_array_equal(got, expected)
+    confidence[:30, 1, 1] = 0.9
+    assert several_people(confidence)
