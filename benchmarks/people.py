@@ -261,10 +261,11 @@ def campus_cameras(root: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def recovered_rig(campus: Campus, K: np.ndarray, keypoints: np.ndarray, confidence: np.ndarray, seed: int):
-    """The rig recovered from the simulated detections (Campus' intrinsics K given, its extrinsics not) as the
+    """The rig recovered from the simulated detections (Campus' intrinsics K given or None, its extrinsics not) as the
     rig loader recovers it from several people (`jaxpose.rig.recovered.people_rows`): the people matched across
-    views without a rig, a first rig, everyone associated through it, the rig again.  (the second
-    `jaxpose.calibration.Calibration`, the first's, the rows of each)."""
+    views without a rig, a first rig, everyone associated through it, the rig again, the second kept where it
+    explains those rows at least as well (`explains_better`).  (the kept `jaxpose.calibration.Calibration`, both
+    calibrations, the rows each was recovered from)."""
     from jaxpose.calibration import CalibrationConfig, RigDetections, calibrate
     from jaxpose.formats.rig_cameras import RigCalibration
     from jaxpose.rig.recovered import explains_better, people_rows
@@ -286,24 +287,26 @@ def recovered_rig(campus: Campus, K: np.ndarray, keypoints: np.ndarray, confiden
     return kept, calibrations, rows
 
 
-def without_calibration(root: Path, seeds: list[int], people_count: int | None) -> None:
+def without_calibration(root: Path, seeds: list[int], people_count: int | None, intrinsics: bool = True) -> None:
     """The Campus rig recovered from the people per seed: its error against Campus' calibration and the PCP
     of the association and tracks through it beside the calibrated run's.  The recovered world is Campus' only
     up to a similarity: the recovered cameras are moved onto the true ones by the similarity that fits them
     best (`jaxpose.calibration.compare_rigs`: rotation from the camera orientations, scale and offset from the
-    centres), and the people are then triangulated through the moved cameras."""
+    centres), and the people are then triangulated through the moved cameras.  `intrinsics`: Campus' K given
+    (else the focal lengths are estimated too, from an image-size guess)."""
     from jaxpose.calibration import compare_rigs
 
     campus = load_campus(root)
     K, R, t = campus_cameras(root)
-    print(f"Campus without its calibration: {len(campus.truth)} frames, 3 cameras, intrinsics given; detector {NOISE};"
+    print(f"Campus without its calibration: {len(campus.truth)} frames, 3 cameras, intrinsics {'given' if intrinsics else 'estimated'};"
+          f" detector {NOISE};"
           f" matching {MATCH_THRESHOLD_PX} px (the rig's rows associated at twice that), association {THRESHOLD_PX} px")  # fmt: skip
     print(f"{'seed':>4} {'rows from':<10} {'rows':>5} {'rot deg 0/1/2':>16} {'centre mm 0/1/2':>16} {'scale':>6} {'reproj px':>9} {'s':>5}"
           f" {'PCP given':>9} {'PCP recovered':>13} {'IDsw':>9}")  # fmt: skip
     given, recovered = [], []
     for seed in seeds:
         keypoints, confidence = simulate(campus, seed)
-        calibration, (first, again), rows = recovered_rig(campus, K, keypoints, confidence, seed)
+        calibration, (first, again), rows = recovered_rig(campus, K if intrinsics else None, keypoints, confidence, seed)
         before = compare_rigs(first.cameras.R, first.cameras.t, R, t)
         after = compare_rigs(again.cameras.R, again.cameras.t, R, t)
         error = compare_rigs(calibration.cameras.R, calibration.cameras.t, R, t)
@@ -336,12 +339,13 @@ def main() -> None:
     parser.add_argument("--people", type=int, default=None, help="the number of people, when known")
     parser.add_argument("--speed", action="store_true", help="instants per second at 2-6 people, 3-16 cameras instead")
     parser.add_argument("--without-calibration", action="store_true", help="the rig recovered from the people instead, beside the given one")
+    parser.add_argument("--unknown-intrinsics", action="store_true", help="with --without-calibration: the focal lengths estimated too")
     args = parser.parse_args()
     if args.speed:
         speed()
         return
     if args.without_calibration:
-        without_calibration(args.campus, args.seeds, args.people)
+        without_calibration(args.campus, args.seeds, args.people, intrinsics=not args.unknown_intrinsics)
         return
     campus = load_campus(args.campus)
     print(f"Campus: {len(campus.truth)} frames, 3 cameras; detector {NOISE}; association threshold {THRESHOLD_PX} px")
