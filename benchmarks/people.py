@@ -323,9 +323,10 @@ def without_calibration(root: Path, seeds: list[int], people_count: int | None, 
         rotation = "/".join(f"{v:.2f}" for v in error.rotation_deg)
         centre = "/".join(f"{v:.0f}" for v in error.centre_mm)
         for name, count, rig_error, recovered_run in (("matched", rows[0], before, first), ("associated", rows[1], after, again)):
+            focal = "" if intrinsics else "  focal " + "/".join(f"{v:+.1%}" for v in recovered_run.cameras.K[:, 0, 0] / K[:, 0, 0] - 1)
             print(f"{seed:>4} {name:<10} {count:>5} {'/'.join(f'{v:.2f}' for v in rig_error.rotation_deg):>16}"
                   f" {'/'.join(f'{v:.0f}' for v in rig_error.centre_mm):>16} {rig_error.scale_error:>+6.1%}"
-                  f" {np.max(recovered_run.reprojection_median_px):>9.2f} {recovered_run.seconds:>5.0f}")  # fmt: skip
+                  f" {np.max(recovered_run.reprojection_median_px):>9.2f} {recovered_run.seconds:>5.0f}{focal}")  # fmt: skip
         print(f"{seed:>4} {'kept: ' + ('associated' if calibration is again else 'matched'):<16} {rotation:>16} {centre:>16}"
               f" {error.scale_error:>+6.1%} {'':>9} {'':>5} {scores[0]['average']:>9.1f} {scores[1]['average']:>13.1f}"
               f" {scores[0]['switches']:>4}/{scores[1]['switches']:<4}")  # fmt: skip
