@@ -185,8 +185,8 @@ def explains_better(again, first, detections) -> bool:
     """Whether the rig recovered again from everyone associated through the first (`again`, a
     `jaxpose.calibration.Calibration`) explains those rows (`detections`) at least as well as the `first` does:
     the worst camera's median re-projection error (`jaxpose.calibration.sessions.rig_fit_px`).  A recovery
-    started afresh can fall into a wrong valley (on Campus, 1 seed of 3: 11 px where the first rig gave 2);
-    the first rig is kept then, and the log says so."""
+    started afresh can fall into a wrong valley (on Campus with the rows associated at 15 px, 1 seed of 3: 11 px
+    where the first rig gave 2); the first rig is kept then, and the log says so."""
     from jaxpose.calibration.sessions import rig_fit_px
 
     fit_again, fit_first = (float(np.nanmax(rig_fit_px(c.cameras, detections))) for c in (again, first))
@@ -391,7 +391,7 @@ def recover_sessions(
             rig, calibration = recover_rig(pooled, max_frames=max_frames, height_mm=height_mm)
             if any(several_people(aligned[i][1]) for i in members):
                 # Several people: recovered again from everyone associated through that rig (the matching without a
-                # rig keeps people seen by two views and lets some wrong pairings in; the association does neither).
+                # rig lets some wrong pairings in; the association checks each person's triangulation in every view).
                 pooled = rig_detections([names[i] for i in members], [known[i] for i in members], [aligned[i] for i in members],
                                         camera_order, skeleton, image_size=image_size, root=root, rig=rig)  # fmt: skip
                 again = recover_rig(pooled, max_frames=max_frames, height_mm=height_mm)
