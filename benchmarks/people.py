@@ -2,7 +2,7 @@
 (`jaxpose.rig.tracks`), scored on Campus by the field's measure beside the one-person path
 (`jaxpose.rig.people.choose`), on synthetic projects whose truth is known, and timed.
 
-    python -m benchmarks.people [--campus ../shared/data/multiperson/campus] [--seeds 0 1 2]
+    python -m benchmarks.people [--campus ../shared/data/multiperson/campus] [--seeds 0 1 2] [--without-calibration]
     python -m benchmarks.people --synthetic 2 3 4 5 [--seeds 0 1 2] [--frames 300]
     python -m benchmarks.people --speed
     python -m benchmarks.people --pose2sim [--venv ~/.cache/jaxpose-peers/venv] [--repeats 5]
@@ -28,6 +28,12 @@ identity switches, false and missed people as above, and each person's MPJPE bes
 reconstructed alone (`alone`).  `--speed`: instants per second at 2-6 people and 3-16 cameras.  `--pose2sim`:
 beside Pose2Sim's person association on its multi-person demo, run in the peers' environment
 (`benchmarks/peers.py` makes it).
+
+--without-calibration: the rig recovered from the people instead (`without_calibration`: the detections matched
+across views by their epipolar geometry, `jaxpose.calibration.matching`, then `jaxpose.calibration.calibrate` with
+Campus' intrinsics; everyone associated through that rig and the rig recovered again, as the rig loader does), its
+error against Campus' calibration (both rigs), and the PCP of the same association and tracks through it
+beside the calibrated run's.
 """
 
 from __future__ import annotations
@@ -500,6 +506,99 @@ def versus_pose2sim(demo: Path, calibration: Path, venv: Path, repeats: int) -> 
             print(f"Pose2Sim / {name.split(':')[1].strip()}: {pose2sim / np.median(times):.0f}x (medians)")
 
 
+# Without calibration -------------------------------------------------------------------------------------------
+# The Campus 14 joints as a jaxpose skeleton, for calibration's limb-length scale (its names give the limbs).
+CAMPUS_SKELETON_NAMES = ("RAnkle", "RKnee", "RHip", "LHip", "LKnee", "LAnkle", "RWrist", "RElbow", "RShoulder", "LShoulder",
+                         "LElbow", "LWrist", "Neck", "HeadTop")  # fmt: skip
+MATCH_THRESHOLD_PX = 4.0  # matching without a rig: the largest median epipolar distance (px) of one person's joints (360x288 images)
+
+
+def campus_cameras(root: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Campus' calibration as (K f64[C, 3, 3] pixels, R f64[C, 3, 3], t f64[C, 3] mm), world to camera."""
+    calibration = json.loads((root / "calibration.json").read_text())["cameras"]
+    width, height = json.loads((root / "annotation_2d.json").read_text())["image_wh"]
+    K, R, t = [], [], []
+    for camera in CAMERAS:
+        Tw = np.array(calibration[camera]["Tw"])  # camera to world, cm
+        K.append(np.array(calibration[camera]["K"]) * np.array([[width], [height], [1]]))
+        R.append(Tw[:3, :3].T)
+        t.append(-Tw[:3, :3].T @ Tw[:3, 3] * 10.0)
+    return np.array(K), np.array(R), np.array(t)
+
+
+def recovered_rig(campus: Campus, K: np.ndarray, keypoints: np.ndarray, confidence: np.ndarray, seed: int):
+    """The rig recovered from the simulated detections (Campus' intrinsics K given or None, its extrinsics not) as the
+    rig loader recovers it from several people (`jaxpose.rig.recovered.people_rows`): the people matched across
+    views without a rig, a first rig, everyone associated through it, the rig again, the second kept where it
+    explains those rows at least as well (`explains_better`).  (the kept `jaxpose.calibration.Calibration`, both
+    calibrations, the rows each was recovered from)."""
+    from jaxpose.calibration import CalibrationConfig, RigDetections, calibrate
+    from jaxpose.formats.rig_cameras import RigCalibration
+    from jaxpose.rig.recovered import explains_better, people_rows
+    from jaxpose.skeleton import Skeleton
+
+    config = CalibrationConfig(seed=seed)
+    # Parents only make the joint set a valid tree; calibration reads the limbs from the names.
+    skeleton = Skeleton("campus14", CAMPUS_SKELETON_NAMES, (-1, 0, 1, 2, 3, 4, 7, 8, 12, 12, 9, 10, 2, 12), ())
+    sizes = np.array([campus.image_size] * len(CAMERAS))
+    rig, calibrations, rows = None, [], []
+    for _ in range(2):
+        xy, weight = people_rows(keypoints, confidence, None, rig, match_px=MATCH_THRESHOLD_PX)
+        detections = RigDetections(xy, weight, CAMERAS, sizes, skeleton, K=K, source=f"Campus, seed {seed}")
+        calibration = calibrate(detections, config)
+        rig = RigCalibration(camera_names=CAMERAS, cameras=calibration.cameras, image_size=sizes, source="recovered", unit="mm")
+        calibrations.append(calibration)
+        rows.append(len(xy))
+    kept = calibrations[1] if explains_better(calibrations[1], calibrations[0], detections) else calibrations[0]
+    return kept, calibrations, rows
+
+
+def without_calibration(root: Path, seeds: list[int], people_count: int | None, intrinsics: bool = True) -> None:
+    """The Campus rig recovered from the people per seed: its error against Campus' calibration and the PCP
+    of the association and tracks through it beside the calibrated run's.  The recovered world is Campus' only
+    up to a similarity: the recovered cameras are moved onto the true ones by the similarity that fits them
+    best (`jaxpose.calibration.compare_rigs`: rotation from the camera orientations, scale and offset from the
+    centres), and the people are then triangulated through the moved cameras.  `intrinsics`: Campus' K given
+    (else the focal lengths are estimated too, from an image-size guess)."""
+    from jaxpose.calibration import compare_rigs
+
+    campus = load_campus(root)
+    K, R, t = campus_cameras(root)
+    print(f"Campus without its calibration: {len(campus.truth)} frames, 3 cameras, intrinsics {'given' if intrinsics else 'estimated'};"
+          f" detector {NOISE};"
+          f" matching {MATCH_THRESHOLD_PX} px (the rig's rows associated at twice that), association {THRESHOLD_PX} px")  # fmt: skip
+    print(f"{'seed':>4} {'rows from':<10} {'rows':>5} {'rot deg 0/1/2':>16} {'centre mm 0/1/2':>16} {'scale':>6} {'reproj px':>9} {'s':>5}"
+          f" {'PCP given':>9} {'PCP recovered':>13} {'IDsw':>9}")  # fmt: skip
+    given, recovered = [], []
+    for seed in seeds:
+        keypoints, confidence = simulate(campus, seed)
+        calibration, (first, again), rows = recovered_rig(campus, K if intrinsics else None, keypoints, confidence, seed)
+        before = compare_rigs(first.cameras.R, first.cameras.t, R, t)
+        after = compare_rigs(again.cameras.R, again.cameras.t, R, t)
+        error = compare_rigs(calibration.cameras.R, calibration.cameras.t, R, t)
+        R_aligned = error.aligned_R
+        t_aligned = -np.einsum("cij,cj->ci", R_aligned, error.aligned_centres)
+        P = np.einsum("cij,cjk->cik", calibration.cameras.K, np.concatenate([R_aligned, t_aligned[..., None]], -1))
+        scores = []
+        for rig in (campus.P, P.astype(np.float32)):
+            _, _, points, _ = several(dataclasses.replace(campus, P=rig), keypoints, confidence, people_count)
+            identity = np.where(np.isfinite(points).all(-1).any(-1), np.arange(points.shape[1]), -1)
+            scores.append(score(campus, points, identity))
+        given.append(scores[0]["average"])
+        recovered.append(scores[1]["average"])
+        rotation = "/".join(f"{v:.2f}" for v in error.rotation_deg)
+        centre = "/".join(f"{v:.0f}" for v in error.centre_mm)
+        for name, count, rig_error, recovered_run in (("matched", rows[0], before, first), ("associated", rows[1], after, again)):
+            focal = "" if intrinsics else "  focal " + "/".join(f"{v:+.1%}" for v in recovered_run.cameras.K[:, 0, 0] / K[:, 0, 0] - 1)
+            print(f"{seed:>4} {name:<10} {count:>5} {'/'.join(f'{v:.2f}' for v in rig_error.rotation_deg):>16}"
+                  f" {'/'.join(f'{v:.0f}' for v in rig_error.centre_mm):>16} {rig_error.scale_error:>+6.1%}"
+                  f" {np.max(recovered_run.reprojection_median_px):>9.2f} {recovered_run.seconds:>5.0f}{focal}")  # fmt: skip
+        print(f"{seed:>4} {'kept: ' + ('associated' if calibration is again else 'matched'):<16} {rotation:>16} {centre:>16}"
+              f" {error.scale_error:>+6.1%} {'':>9} {'':>5} {scores[0]['average']:>9.1f} {scores[1]['average']:>13.1f}"
+              f" {scores[0]['switches']:>4}/{scores[1]['switches']:<4}")  # fmt: skip
+    print(f"mean average PCP over seeds: calibration given {np.mean(given):.1f}%, rig recovered from the people {np.mean(recovered):.1f}%")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--campus", type=Path, default=CAMPUS)
@@ -511,6 +610,8 @@ def main() -> None:
     parser.add_argument("--pose2sim", action="store_true", help="beside Pose2Sim's person association on its multi-person demo instead")
     parser.add_argument("--venv", type=Path, default=PEERS_VENV, help="the peers' environment (benchmarks/peers.py)")
     parser.add_argument("--repeats", type=int, default=5, help="timed calls after the first (--pose2sim)")
+    parser.add_argument("--without-calibration", action="store_true", help="the rig recovered from the people instead, beside the given one")
+    parser.add_argument("--unknown-intrinsics", action="store_true", help="with --without-calibration: the focal lengths estimated too")
     args = parser.parse_args()
     if args.speed:
         speed()
@@ -520,6 +621,9 @@ def main() -> None:
         return
     if args.synthetic is not None:
         synthetic(args.seeds, args.synthetic or [2, 3, 4, 5], args.frames)
+        return
+    if args.without_calibration:
+        without_calibration(args.campus, args.seeds, args.people, intrinsics=not args.unknown_intrinsics)
         return
     campus = load_campus(args.campus)
     print(f"Campus: {len(campus.truth)} frames, 3 cameras; detector {NOISE}; association threshold {THRESHOLD_PX} px")

@@ -40,7 +40,8 @@ class CalibrateArgs:
     """Recover a multi-camera rig from the detections of the person it films."""
 
     input: Path
-    """An .npz of multi-view detections (keypoints [N, C, J, 2] px, camera_names, image_size, skeleton;
+    """An .npz of multi-view detections (keypoints [N, C, J, 2] px, or [N, C, P, J, 2] with several people per view;
+    camera_names, image_size, skeleton;
     optional confidence, K, dist, distortion_model), or a Human3.6M data folder (h36m.zip tree)."""
     output: Path
     """The camera file to write (.json); the report and figure go beside it (<output>.md, <output>.png)."""
@@ -72,7 +73,7 @@ def read_input(args: CalibrateArgs) -> RigDetections:
         sizes = np.array([H36M_IMAGE_SIZES[name] for name in CAMERA_NAMES])
         detections = from_dataset(dataset, args.subject, CAMERA_NAMES, sizes, source=str(args.input))
     else:
-        detections = read_detections_npz(args.input)
+        detections = read_detections_npz(args.input, people=args.calibration)  # several people: matched across views
     return detections.without_intrinsics() if args.unknown_intrinsics else detections
 
 

@@ -5,7 +5,8 @@
     calibration.cameras          # Cameras [C]: K, R, t (mm), dist as given
 
 The steps, each its own module:
-1. `inputs`: the detections (an npz, or a subject of a loaded data set) and their checks;
+1. `inputs`: the detections (an npz, or a subject of a loaded data set) and their checks; with several
+   people per view, `matching` first pairs them across views by their epipolar geometry (one row per person);
 2. here: frame selection, undistortion with the known intrinsics (or an image-size guess of them, no
    distortion) for the first rig, a check that the person moves enough to calibrate on;
 3. `initial`: a first rig from one view pair's essential matrix and PnP for the other views (OpenCV);

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -16,6 +17,9 @@ from jaxpose.data.dataset import MultiViewDataset
 from jaxpose.formats import detections_npz
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.skeleton import SKELETONS, Skeleton, get_skeleton
+
+if TYPE_CHECKING:
+    from jaxpose.calibration import CalibrationConfig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,15 +57,31 @@ class RigDetections:
         return dataclasses.replace(self, K=None, dist=None)
 
 
-def read_detections_npz(path: str | Path) -> RigDetections:
+def read_detections_npz(path: str | Path, people: CalibrationConfig | None = None) -> RigDetections:
     """Read a ``detections.npz`` (`jaxpose.formats.detections_npz`) with the image sizes and the jaxpose
-    skeleton calibration needs; errors name the file and the array."""
-    detections = detections_npz.read(path, required=("image_size", "skeleton"))
+    skeleton calibration needs; errors name the file and the array.  With `people` (the calibration's
+    config) a person axis [N, C, P, J, 2] is read too, its people matched across views by their epipolar
+    geometry (`jaxpose.calibration.matching`, with the config's thresholds), one row per person and instant."""
+    detections = detections_npz.read(path, required=("image_size", "skeleton"), people=people is not None)
     if detections.skeleton not in SKELETONS:
         raise DataFormatError(f"{path}, array 'skeleton'", f"one of {sorted(SKELETONS)}", repr(detections.skeleton))
+    keypoints, confidence = detections.keypoints, detections.confidence
+    if keypoints.ndim == 5:
+        from jaxpose.calibration.matching import match_people
+        from jaxpose.camera import undistort_compiled
+
+        pixels = None
+        if detections.dist is not None:  # the epipolar geometry holds for undistorted pixels
+            N, C, P, J, _ = keypoints.shape
+            rows = np.nan_to_num(keypoints).transpose(0, 2, 1, 3, 4).reshape(N * P, C, J, 2)
+            undistorted = np.asarray(undistort_compiled(detections.K, detections.dist, rows, model=detections.distortion_model))
+            pixels = undistorted.reshape(N, P, C, J, 2).transpose(0, 2, 1, 3, 4)
+        matched = match_people(keypoints, confidence, threshold_px=people.ransac_threshold_px, min_joints=people.min_joints,
+                               min_confidence=people.min_confidence, seed=people.seed, pixels=pixels)  # fmt: skip
+        keypoints, confidence = matched.keypoints, matched.confidence
     return RigDetections(
-        keypoints=detections.keypoints,
-        confidence=detections.confidence,
+        keypoints=keypoints,
+        confidence=confidence,
         camera_names=detections.camera_names,
         image_size=detections.image_size,
         skeleton=get_skeleton(detections.skeleton),

@@ -3,6 +3,10 @@ ground truth brought into a recovered rig's world.
 
 `jaxpose.calibrate` recovers a rig from the person seen by every camera (the instants where each view
 sees exactly one person), with the image sizes and any intrinsics the recordings' detections.npz give.
+With several people in view (`several_people`) the people are first matched across views by their
+epipolar geometry (`jaxpose.calibration.matching`), one row per person and instant; the rig recovered
+from those then associates everyone (`jaxpose.rig.association`), and the rig is recovered again from
+those rows (`people_rows`).
 A recovered rig has its own world frame, so a ground truth in the motion capture's world is moved into
 it for evaluation (`ground_truth_into_recovered_world`).
 
@@ -34,10 +38,11 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from jaxpose.camera import projection_matrices
+from jaxpose.camera import Cameras, projection_matrices
 from jaxpose.formats.errors import DataFormatError
 from jaxpose.formats.rig_cameras import RigCalibration
 from jaxpose.formats.rig_folder import GROUND_TRUTH_NPZ
+from jaxpose.rig import association
 from jaxpose.rig.geometry import triangulate_rows, undistort_views
 from jaxpose.rig.recordings import one_person, recording_folders
 from jaxpose.rotations import similarity
@@ -57,19 +62,16 @@ def rig_detections(
     *,
     image_size: tuple[int, int] | None,
     root: pathlib.Path,
+    rig: RigCalibration | None = None,
 ):
     """The detections `jaxpose.calibrate` recovers a rig from: the instants of some recordings (`aligned`:
     each recording's keypoints and confidence on one time axis, `jaxpose.rig.timeline.align`), each
     view's detection where it saw one person, one recording after the other; `known`: what each
     recording's detections.npz gives of its cameras (image size, intrinsics); `image_size`
-    (--data.image-size) serves the cameras none gives one.  A `RigDetections`."""
-    from jaxpose.calibration import RigDetections  # the calibrate extra
+    (--data.image-size) serves the cameras none gives one; with several people in view, each person a row
+    (`people_rows`, through `rig` where one was recovered from them already).  A `RigDetections`."""
+    from jaxpose.calibration import CalibrationError, RigDetections  # the calibrate extra
 
-    keypoints, confidence = [], []
-    for candidates, candidate_confidence in aligned:
-        single_keypoints, single_confidence = one_person(candidates, candidate_confidence)
-        keypoints.append(single_keypoints)
-        confidence.append(single_confidence)
     # Per camera, by name from every recording's detections.npz: image size and, where given, intrinsics.
     given: dict[str, dict[str, np.ndarray]] = {}
     for cameras in known:
@@ -91,17 +93,108 @@ def rig_detections(
     intrinsics = [given.get(camera, {}) for camera in camera_order]
     given_K = all("K" in fields for fields in intrinsics)
     given_dist = given_K and all("dist" in fields for fields in intrinsics)
+    K = np.stack([fields["K"] for fields in intrinsics]).astype(np.float64) if given_K else None
+    dist = np.stack([fields["dist"] for fields in intrinsics]).astype(np.float64) if given_dist else None
+    model = intrinsics[0].get("model", "opencv")
+    lenses = None
+    if dist is not None:  # the epipolar geometry that matches people holds for undistorted pixels
+        C = len(camera_order)
+        cameras = Cameras(K=K, R=np.broadcast_to(np.eye(3), (C, 3, 3)), t=np.zeros((C, 3)), dist=dist, distortion_model=model)
+        lenses = RigCalibration(camera_names=tuple(camera_order), cameras=cameras, image_size=np.stack(sizes), source="given lenses", unit="mm")
+    keypoints, confidence = [], []
+    for name, (candidates, candidate_confidence) in zip(names, aligned):
+        try:
+            rows = people_rows(candidates, candidate_confidence, lenses, rig)
+        except CalibrationError as error:  # the recording alone cannot relate its views: one line naming it
+            raise ValueError(f"{root / name}: its rig cannot be recovered from the people in view: {error}") from None
+        keypoints.append(rows[0])
+        confidence.append(rows[1])
     return RigDetections(
         keypoints=np.concatenate(keypoints),
         confidence=np.concatenate(confidence),
         camera_names=tuple(camera_order),
         image_size=np.stack(sizes),
         skeleton=skeleton,
-        K=np.stack([fields["K"] for fields in intrinsics]).astype(np.float64) if given_K else None,
-        dist=np.stack([fields["dist"] for fields in intrinsics]).astype(np.float64) if given_dist else None,
-        distortion_model=intrinsics[0].get("model", "opencv"),
+        K=K,
+        dist=dist,
+        distortion_model=model,
         source=f"{root} (recording {names[0]}" + (f" and {len(names) - 1} more)" if len(names) > 1 else ")"),
     )
+
+
+def several_people(confidence: np.ndarray) -> bool:
+    """Whether a recording (confidence [N, C, P, J]) shows several people: some view holds more than one
+    detection in most instants with detections (an occasional passer-by or false detection is not several people)."""
+    detected = (confidence > 0).any(-1).sum(-1)  # [N, C] detections per view
+    return bool((detected > 1).any(-1).sum() > 0.5 * (detected > 0).any(-1).sum())
+
+
+def people_rows(
+    keypoints: np.ndarray,
+    confidence: np.ndarray,
+    lenses: RigCalibration | None,
+    rig: RigCalibration | None = None,
+    *,
+    match_px: float | None = None,
+):
+    """One recording's instants (keypoints [N, C, P, J, 2], confidence [N, C, P, J]) as the single-person
+    rows a rig is recovered from, (keypoints f32[R, C, J, 2], confidence f32[R, C, J]):
+
+    - with several people in view (`several_people`) and no rig yet: every person the views' epipolar geometry
+      matches (`jaxpose.calibration.matching.match_people`, median epipolar distance <= `match_px`, default the
+      calibration's RANSAC threshold; on pixels undistorted through `lenses` where the recordings give them with
+      distortion), one row each;
+    - with several people and a `rig` recovered from those: every person associated through it
+      (`jaxpose.rig.association`, within twice the matching threshold: rows for a rig need to be clean, not
+      complete), one row each: cleaner rows, seen by more views, for the rig recovered again;
+    - else each instant's views that hold one detection (`one_person`).
+    """
+    from jaxpose.calibration import CalibrationConfig  # the calibrate extra
+    from jaxpose.calibration.matching import match_people
+
+    if not several_people(confidence):
+        return one_person(keypoints, confidence)
+    config = CalibrationConfig()
+    match_px = config.ransac_threshold_px if match_px is None else match_px
+    C = keypoints.shape[1]
+    if rig is not None:
+        pixels = np.stack([undistort_views(rig, name, keypoints[:, c]) for c, name in enumerate(rig.camera_names)], 1)
+        P = np.asarray(projection_matrices(rig.cameras.without_distortion()), np.float32)
+        found = association.associate(P, pixels, confidence, 2 * match_px)
+        instant, slot = np.nonzero(found.present)
+        index = found.detection[instant, slot]  # [R, C], -1 where the person has no detection in the view
+        chosen = (instant[:, None], np.arange(C), np.maximum(index, 0))
+        log.info("several people in view: %d people-instants associated through the first rig, %d detections fit no one",
+                 len(instant), found.unmatched)  # fmt: skip
+        return keypoints[chosen], np.where(index[..., None] >= 0, confidence[chosen], 0.0).astype(np.float32)
+    pixels = None
+    if lenses is not None:
+        pixels = np.stack([undistort_views(lenses, name, keypoints[:, c]) for c, name in enumerate(lenses.camera_names)], 1)
+    matched = match_people(
+        keypoints, confidence, threshold_px=match_px, min_joints=config.min_joints, min_confidence=config.min_confidence,
+        seed=config.seed, pixels=pixels,
+    )  # fmt: skip
+    log.info(
+        "several people in view: %d people-instants matched across views without a rig (%d of %d instants), %d detections"
+        " fit no one", len(matched.instant), len(np.unique(matched.instant)), len(keypoints), matched.unmatched,
+    )  # fmt: skip
+    return matched.keypoints, matched.confidence
+
+
+def explains_better(again, first, detections) -> bool:
+    """Whether the rig recovered again from everyone associated through the first (`again`, a
+    `jaxpose.calibration.Calibration`) explains those rows (`detections`) at least as well as the `first` does:
+    the worst camera's median re-projection error (`jaxpose.calibration.sessions.rig_fit_px`).  A recovery
+    started afresh can fall into a wrong valley (on Campus with the rows associated at 15 px, 1 seed of 3: 11 px
+    where the first rig gave 2); the first rig is kept then, and the log says so."""
+    from jaxpose.calibration.sessions import rig_fit_px
+
+    fit_again, fit_first = (float(np.nanmax(rig_fit_px(c.cameras, detections))) for c in (again, first))
+    if fit_again <= fit_first:
+        return True
+    log.warning("the rig recovered again from everyone re-projects them at %.2f px (worst camera's median), the first"
+                " rig at %.2f px: the first is kept", fit_again, fit_first)  # fmt: skip
+    return False
 
 
 def recover_rig(detections, *, max_frames: int, height_mm: float | None = None):
@@ -296,6 +389,14 @@ def recover_sessions(
         )
         try:
             rig, calibration = recover_rig(pooled, max_frames=max_frames, height_mm=height_mm)
+            if any(several_people(aligned[i][1]) for i in members):
+                # Several people: recovered again from everyone associated through that rig (the matching without a
+                # rig lets some wrong pairings in; the association checks each person's triangulation in every view).
+                pooled = rig_detections([names[i] for i in members], [known[i] for i in members], [aligned[i] for i in members],
+                                        camera_order, skeleton, image_size=image_size, root=root, rig=rig)  # fmt: skip
+                again = recover_rig(pooled, max_frames=max_frames, height_mm=height_mm)
+                if explains_better(again[1], calibration, pooled):
+                    rig, calibration = again
         except CalibrationError as error:
             raise ValueError(_unrecoverable(session.name, session.recordings, detections, grouping.method, error)) from None
         reprojection = float(np.max(calibration.reprojection_median_px))
