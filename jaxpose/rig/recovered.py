@@ -177,9 +177,10 @@ SESSION_FRAMES = 150
 of docs/calibration.md, "Sessions", found every session with 150): a rig that tells one session from
 another need not be the session's best, which is recovered from all its recordings afterwards."""
 SESSION_ROUNDS = 2
-"""Robust rounds of those rigs (`CalibrationConfig.robust_rounds`; a session's own rig gets the default 4):
-the second round already drops the detector's outliers and swaps, and the rounds after it move a rig by a
-fraction of a pixel, far inside the 3 px a rig must explain a recording within (`FIT_MARGIN_PX`)."""
+"""Robust rounds of those rigs (`CalibrationConfig.robust_rounds`; a session's own rig gets the default 4),
+for the same reason: the first round re-weights the detector's outliers and swaps away, the second
+settles the weights, and a moved camera misses by tens of pixels, not the 3 px margin (`FIT_MARGIN_PX`);
+the Human3.6M development split as two sessions finds the same sessions (docs/performance.md)."""
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")  # a session name is part of a file name
 
 
