@@ -29,6 +29,7 @@ from jaxpose.calibration import (
 )  # fmt: skip
 from jaxpose.calibration.rig_file import world_and_scale
 from jaxpose.camera import Cameras, camera_centres
+from jaxpose.compilation_cache import enable_compilation_cache
 from jaxpose.formats.camera_file import read_calibration, save_cameras, select_views
 from jaxpose.formats.outputs import atomic_output, check_output
 from jaxpose.formats.h36m_cameras import H36M_IMAGE_SIZES
@@ -169,6 +170,7 @@ def run(args: CalibrateArgs) -> tuple[Calibration, RigComparison | None]:
 
 def main(argv: Sequence[str] | None = None) -> tuple[Calibration, RigComparison | None]:
     args = tyro.cli(CalibrateArgs, args=argv, prog="python -m jaxpose.calibrate", description=__doc__.split("\n\n")[0])
+    enable_compilation_cache()  # the bundle adjustment's programs from disk on the next run
     try:
         return run(args)
     except ValueError as error:  # CalibrationError and DataFormatError included

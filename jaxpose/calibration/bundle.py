@@ -40,7 +40,7 @@ from jaxpose.calibration.initial import CalibrationError
 from jaxpose.calibration.lens import (
     AT_PRIOR, ESTIMATED, HELD, PRIOR_DOMINATED, LensEstimate, LensSetup, lens_from_theta, sigma_in_units, theta_in_units,
 )  # fmt: skip
-from jaxpose.camera import Cameras, project_from_camera, project_with_matrices, undistort_lens
+from jaxpose.camera import Cameras, project_from_camera, project_with_matrices, undistort_compiled, undistort_lens
 from jaxpose.triangulation import triangulate
 
 # Depth re-weightings of the triangulation: one already brings the point within a fraction of a
@@ -95,9 +95,35 @@ class _Problem:
     prior_sigma: jax.Array
     pixels: jax.Array  # f64[F, C, J, 2] detections (distorted), the principal point where not observed
     observed: jax.Array  # bool[F, C, J]
+    lens_undistorts: bool = True  # static: whether the free parameters move the undistorted detections
+    undistorted: jax.Array | None = None  # f64[F, C, J, 2] where they do not: the detections undistorted once
 
 
-jax.tree_util.register_dataclass(_Problem, data_fields=[f.name for f in dataclasses.fields(_Problem)], meta_fields=[])
+jax.tree_util.register_dataclass(
+    _Problem, data_fields=[f.name for f in dataclasses.fields(_Problem) if f.name != "lens_undistorts"], meta_fields=["lens_undistorts"]
+)
+
+
+def _problem(R: np.ndarray, t: np.ndarray, lens: LensSetup, pixels: np.ndarray, observed: np.ndarray) -> _Problem:
+    """The adjustment's fixed data (float64: call under `jax.enable_x64`)."""
+    centre = np.broadcast_to(lens.K[None, :, None, :2, 2], pixels.shape)
+    # An unobserved detection (weight 0) sits at the principal point, where undistortion is trivial.
+    pixels = np.where(observed[..., None], pixels, centre).astype(np.float64)
+    # The undistortion's fixed-point loop is most of the model's cost.  Without distortion a focal length
+    # or principal point moves a pixel and its undistorted position alike (the identity), and with nothing
+    # free the lens is fixed: either way the detections are undistorted once, here.
+    distorted = bool(np.any(lens.dist != 0.0))
+    lens_undistorts = lens.any_free and (distorted or bool(lens.free[:, 3:].any()))
+    undistorted = None
+    if not lens_undistorts:
+        undistorted = np.asarray(undistort_compiled(lens.K, lens.dist, pixels, model=lens.model), np.float64) if distorted else pixels
+    C = len(R)
+    return _Problem(
+        R0=np.asarray(R, np.float64), t0=np.asarray(t, np.float64), K0=lens.K, dist0=lens.dist,
+        free_index=np.flatnonzero(lens.free), active=np.ones(int(lens.free.sum()), bool), held=np.zeros((C, 7)),
+        prior_mean=lens.prior_mean, prior_sigma=lens.prior_sigma, pixels=pixels, observed=observed,
+        lens_undistorts=lens_undistorts, undistorted=undistorted,
+    )  # fmt: skip
 
 
 def _extrinsics(params: dict, problem: _Problem) -> tuple[jax.Array, jax.Array]:
@@ -120,7 +146,7 @@ def _model(params: dict, problem: _Problem, weights: jax.Array, model: str) -> t
     through the lenses (distorted pixels)."""
     R, t = _extrinsics(params, problem)
     K, dist = lens_from_theta(_theta(params, problem), problem.K0, problem.dist0)
-    undistorted = undistort_lens(K, dist, problem.pixels, model)
+    undistorted = undistort_lens(K, dist, problem.pixels, model) if problem.lens_undistorts else problem.undistorted
     P = K @ jnp.concatenate([R, t[..., None]], axis=-1)
     # Triangulation weights multiply distances, the robust weights squared residuals: hence the root.
     row_weights = jnp.sqrt(weights)
@@ -249,14 +275,7 @@ def bundle_adjust(
         params = {"rotation": np.zeros((C - 1, 3)), "translation": np.asarray(t[1:], np.float64)}
         if lens.any_free:
             params["lens"] = np.zeros(int(lens.free.sum()))  # the start
-        centre = np.broadcast_to(lens.K[None, :, None, :2, 2], pixels.shape)
-        problem = _Problem(
-            R0=np.asarray(R, np.float64), t0=np.asarray(t, np.float64), K0=lens.K, dist0=lens.dist,
-            free_index=np.flatnonzero(lens.free), active=np.ones(int(lens.free.sum()), bool), held=np.zeros((C, 7)),
-            prior_mean=lens.prior_mean, prior_sigma=lens.prior_sigma,
-            # An unobserved detection (weight 0) sits at the principal point, where undistortion is trivial.
-            pixels=np.where(observed[..., None], pixels, centre).astype(np.float64), observed=observed,
-        )  # fmt: skip
+        problem = _problem(R, t, lens, pixels, observed)
         for _ in range(rounds):
             params, weights, joint_sigma = _reweight_and_solve(params, problem, max_steps, lens.model)
         covariance, variance, points, error = _posterior(params, problem, weights, joint_sigma, lens.model)

@@ -269,6 +269,11 @@ SESSION_FRAMES = 150
 """Instants of each recording its own rig is recovered from to find the sessions (the synthetic study
 of docs/calibration.md, "Sessions", found every session with 150): a rig that tells one session from
 another need not be the session's best, which is recovered from all its recordings afterwards."""
+SESSION_ROUNDS = 2
+"""Robust rounds of those rigs (`CalibrationConfig.robust_rounds`; a session's own rig gets the default 4),
+for the same reason: the first round re-weights the detector's outliers and swaps away, the second
+settles the weights, and a moved camera misses by tens of pixels, not the 3 px margin (`FIT_MARGIN_PX`);
+the Human3.6M development split as two sessions finds the same sessions (docs/performance.md)."""
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")  # a session name is part of a file name
 
 
@@ -337,7 +342,7 @@ def group_recordings(detections: Mapping[str, object], labels: Mapping[str, str]
     if not find or len(names) < 2:
         return SessionGrouping((Session("session1", names, None),), (), "one", names)
     spread = {name: _spread(rows, 2 * SESSION_FRAMES) for name, rows in detections.items()}
-    grouping = find_sessions(spread, CalibrationConfig(max_frames=SESSION_FRAMES), until_explained=True)
+    grouping = find_sessions(spread, CalibrationConfig(max_frames=SESSION_FRAMES, robust_rounds=SESSION_ROUNDS), until_explained=True)
     log.info("sessions searched with %d of %d recordings calibrated alone", len(grouping.calibrations) + len(grouping.failures), len(names))
     for name, why in grouping.failures.items():
         session = grouping.session_of(name)

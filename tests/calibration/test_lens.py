@@ -81,6 +81,34 @@ def test_bundle_camera_model_matches_opencv(seed):
     np.testing.assert_allclose(np.asarray(triangulated), points, atol=1e-3)
 
 
+def test_a_lens_without_distortion_is_undistorted_once():
+    """Where the free intrinsics cannot move the undistorted detections (no distortion: a focal length and a
+    principal point move a pixel and its undistorted position alike), the adjustment undistorts them once:
+    its model gives what undistorting inside it gives, and its compiled round holds the solver's loop
+    alone, not the undistortion's fixed-point loop too (most of the model's cost)."""
+    R, t, points = small_rig(1, views=4)
+    C, size = len(R), np.tile([1920, 1080], (4, 1))
+    lens = lens_setup(None, None, "opencv", size, True, LensConfig(estimate_principal_point=True), 1.2)
+    theta = np.zeros((C, 7))
+    theta[:, :3] = np.random.default_rng(1).uniform(-0.05, 0.05, (C, 3))
+    with jax.enable_x64(True):
+        K, _ = (np.asarray(a) for a in lens_from_theta(jnp.asarray(theta), jnp.asarray(lens.K), jnp.asarray(lens.dist)))
+        pixels = np.einsum("cij,fcnj->fcni", K, np.einsum("cij,fnj->fcni", R, points) + t[:, None, :])
+        pixels = pixels[..., :2] / pixels[..., 2:]
+        problem = bundle._problem(R, t, lens, pixels, np.ones(pixels.shape[:3], bool))
+        assert not problem.lens_undistorts
+        params = {"rotation": jnp.zeros((C - 1, 3)), "translation": jnp.asarray(t[1:]), "lens": jnp.asarray(theta[:, :3]).reshape(-1)}
+        model = jax.jit(bundle._model, static_argnames="model")
+        weights = jnp.ones(pixels.shape[:3])
+        once = model(params, problem, weights, model="opencv")
+        inside = model(params, dataclasses.replace(problem, lens_undistorts=True), weights, model="opencv")
+        for a, b in zip(once, inside):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(np.asarray(once[0]), points, atol=1e-6)  # and both are right
+        round_program = bundle._reweight_and_solve.lower(params, problem, 5, "opencv").as_text()
+    assert round_program.count("stablehlo.while") == 1
+
+
 def test_lens_setup_frees_what_is_unknown_and_asked_for():
     size = np.tile([1920, 1080], (2, 1))
     focal_only = lens_setup(None, None, "opencv", size, True, LensConfig(), 1.2)
