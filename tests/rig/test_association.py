@@ -177,6 +177,7 @@ def stack(instants):
     return keypoints, confidence, [truth for _, _, truth, _ in instants]
 
 
+@pytest.mark.slow  # ~40-80 s on 2 cores: 80 instants padded to the crowd's 54 detections per view
 def test_hostile_sequence_count_changing_every_instant():
     """Four people, 1 to 4 of them in view at each instant (the count changes every instant), an instant with
     50 false detections in one view, a person with every joint missing in a view, a fifth person seen by one
