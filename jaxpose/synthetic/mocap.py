@@ -3,7 +3,10 @@
 `mocap_keypoints(bvh, layout)` runs the BVH file's forward kinematics (`jaxpose.formats.bvh`, CMU units
 of 1/0.45 inch) and gives the layout's keypoints in jaxpose's world frame (mm, z up, the floor at the
 lowest toe of the take, the take's mean root position over the floor's origin: inside a rig's capture
-area).  The CMU skeleton (31 joints) names its bones: a joint's BVH position is its bone's start.
+area).  The motion only: CMU's BVH conversions begin with the skeleton's rest pose (frame 0: the root
+unrotated, the arms out; 160-500 mm from frame 1 in the mean joint, where the motion moves a joint 1-21 mm
+a frame, in every take of ../shared/data/cmu_mocap), which is no instant of the motion and is left out
+(`rest_frames`); scored as motion, it cost a smoother 6-19 mm of MPJPE on clips of 10-30 frames.  The CMU skeleton (31 joints) names its bones: a joint's BVH position is its bone's start.
 
 Keypoints that are a CMU joint (COCO name <- CMU joint):
 - shoulders <- LeftArm / RightArm (the upper arm's start, the glenohumeral joint),
@@ -64,16 +67,24 @@ def _coco17(joints: dict[str, np.ndarray], head_rotation: np.ndarray) -> dict[st
     return points
 
 
+def rest_frames(bvh: BvhFile) -> int:
+    """1 where the take's frame 0 is the rest pose CMU's conversions put first (the root's rotation channels
+    all exactly 0), else 0.  The root is the hierarchy's first joint, its channels the motion's first columns."""
+    root = [column for column, name in enumerate(bvh.channels[0]) if name.endswith("rotation")]
+    return int(bvh.frame_count > 1 and not np.any(bvh.motion[0, root]))
+
+
 def mocap_keypoints(bvh: BvhFile, layout: str, mm_per_unit: float = CMU_MM_PER_UNIT,
                     frames: slice | np.ndarray = slice(None)) -> np.ndarray:  # fmt: skip
     """float64[F, K, 3] the `layout`'s keypoints (COCO-17 or H36M_17, in its order) of a CMU-skeleton BVH
-    take, world mm, z up (module docstring); `frames` chooses the take's frames."""
+    take's motion, world mm, z up (module docstring); `frames` chooses among the motion's frames (the file's
+    from `rest_frames` on)."""
     if layout not in MOCAP_LAYOUTS:
         raise ValueError(f"layout must be one of {MOCAP_LAYOUTS}, got {layout!r}")
     missing = [name for name in ("Head", "Head_End", "Spine", "Neck", *_COCO_JOINTS.values()) if name not in bvh.joint_names]
     if missing:
         raise ValueError(f"not a CMU-skeleton BVH file: no joints {missing}")
-    positions, rotations = forward_kinematics(bvh, mm_per_unit)
+    positions, rotations = forward_kinematics(bvh, mm_per_unit, slice(rest_frames(bvh), None))
     positions = positions @ _Y_UP_TO_Z_UP.T
     rotations = _Y_UP_TO_Z_UP @ rotations
     feet = [bvh.index(name) for name in bvh.joint_names if "Toe" in name or name.endswith("Foot")]

@@ -4,6 +4,7 @@ truth's projections, and the benchmark's table on one short take."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -13,7 +14,7 @@ from benchmarks import motion
 from jaxpose.synthetic import project_points
 from jaxpose.formats.bvh import CMU_MM_PER_UNIT, read_bvh, world_joints
 from jaxpose.skeleton import COCO_17, H36M_17
-from jaxpose.synthetic.mocap import mocap_keypoints
+from jaxpose.synthetic.mocap import mocap_keypoints, rest_frames
 import paths
 
 CMU = paths.SHARED_DATA / "cmu_mocap"
@@ -25,7 +26,7 @@ Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 def test_coco_joints_are_the_cmu_joints_rotated_to_z_up():
     bvh = read_bvh(CMU / "02" / "02_01.bvh")
     coco = mocap_keypoints(bvh, "coco17")
-    joints = world_joints(bvh, CMU_MM_PER_UNIT) @ Y_UP_TO_Z_UP.T
+    joints = world_joints(bvh, CMU_MM_PER_UNIT)[rest_frames(bvh) :] @ Y_UP_TO_Z_UP.T
     pairs = {"left_knee": "LeftLeg", "right_wrist": "RightHand", "left_shoulder": "LeftArm", "right_ankle": "RightFoot"}
     for name, cmu in pairs.items():
         moved = coco[:, COCO_17.joint_names.index(name)] - joints[:, bvh.index(cmu)]
@@ -37,11 +38,27 @@ def test_coco_joints_are_the_cmu_joints_rotated_to_z_up():
 
 
 @needs_cmu
+@pytest.mark.parametrize("take", ["02/02_01", "02/02_03", "05/05_01", "06/06_01"])
+def test_the_rest_pose_frame_is_left_out_of_the_motion(take):
+    """CMU's conversions put the skeleton's rest pose first: 160-500 mm from the motion's first frame, which
+    moves its joints 1-21 mm a frame.  It is left out; a take that starts with motion keeps every frame."""
+    bvh = read_bvh(CMU / f"{take}.bvh")
+    assert rest_frames(bvh) == 1
+    points = mocap_keypoints(bvh, "coco17")
+    assert len(points) == bvh.frame_count - 1
+    steps = np.linalg.norm(np.diff(points[:10], axis=0), axis=-1).mean(-1)  # mm per frame at 120 fps
+    assert steps.max() < 40, steps
+    moving = dataclasses.replace(bvh, motion=bvh.motion[1:])  # frame 1 first: its root is rotated
+    assert rest_frames(moving) == 0
+    np.testing.assert_allclose(mocap_keypoints(moving, "coco17")[1:], points[1:], atol=1e-6)
+
+
+@needs_cmu
 @pytest.mark.parametrize("take", ["02/02_01", "02/02_03"])
 def test_face_points_are_rigid_on_the_head_face_forward_and_left_is_left(take):
     bvh = read_bvh(CMU / f"{take}.bvh")
     coco = mocap_keypoints(bvh, "coco17")
-    head = world_joints(bvh, CMU_MM_PER_UNIT)[:, bvh.index("Head")] @ Y_UP_TO_Z_UP.T
+    head = world_joints(bvh, CMU_MM_PER_UNIT)[rest_frames(bvh) :, bvh.index("Head")] @ Y_UP_TO_Z_UP.T
     face = coco[:, :5] - coco[:, None, 0]
     shift = coco[:, 0] - head  # take's shift included: compare distances among the face points and the head
     distances = np.linalg.norm(coco[:, :5, None] - coco[:, None, :5], axis=-1)
