@@ -77,16 +77,17 @@ def everyone(
     instants_people = association.of_proposals(found, P, keypoints, confidence, threshold_px)
     limbs = np.array(skeleton.bones, np.int64).reshape(-1, 2)
     followed = tracks.follow(instants_people.points, instants_people.present, limbs, settings)
-    kept = []
+    kept = {}  # a plausible track -> its [r, 2] (instant, slot), instants in order
     for t in range(followed.count):
-        instants, slots = np.nonzero(followed.identity == t)
-        detection = instants_people.detection[instants, slots]  # [r, C]
-        scores = confidence[instants[:, None], np.arange(C), np.maximum(detection, 0)][detection >= 0]
-        kept += [t] if plausible(scores[scores > 0]) else []
+        row = np.argwhere(followed.identity == t)
+        detection = instants_people.detection[row[:, 0], row[:, 1]]  # [r, C]
+        scores = confidence[row[:, :1], np.arange(C), np.maximum(detection, 0)][detection >= 0]
+        if plausible(scores[scores > 0]):
+            kept[t] = row
     dropped = followed.dropped + int(np.isin(followed.identity, [t for t in range(followed.count) if t not in kept]).sum())
     if len(kept) <= 1:
         return _one_person(found, keypoints, confidence, followed.count - len(kept), dropped)
-    rows = [np.argwhere(followed.identity == t) for t in kept]  # each [r, 2] (instant, slot), instants in order
+    rows = list(kept.values())
     instant = np.concatenate([row[:, 0] for row in rows])
     slot = np.concatenate([row[:, 1] for row in rows])
     person = np.concatenate([np.full(len(row), k + 1, np.int32) for k, row in enumerate(rows)])
